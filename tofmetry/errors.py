@@ -1,0 +1,27 @@
+"""Exception types shared by the whole package.
+
+Every error raised on bad input names the file or parameter, what was expected and what
+was found, so that a user can fix it without reading the source.
+"""
+
+from __future__ import annotations
+
+
+class TofmetryError(Exception):
+    """Base class of all tofmetry errors."""
+
+
+class InputError(TofmetryError, ValueError):
+    """Bad input data or parameter: names what was expected and what was found."""
+
+
+class FormatError(InputError):
+    """A file that does not follow the expected format (bit depth, resolution, schema...)."""
+
+
+class SensorMismatchError(InputError):
+    """A calibration or dataset made for another sensor or resolution."""
+
+
+class EstimationError(TofmetryError, RuntimeError):
+    """An estimator could not produce a trustworthy result; the message says why."""

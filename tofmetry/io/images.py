@@ -1,0 +1,137 @@
+"""Reading and writing single depth / IR / colour images (PNG, TIFF, NPY, JPG).
+
+Every reader returns arrays with the dtype named in its docstring and raises
+:class:`~tofmetry.errors.FormatError` naming the file on anything unexpected.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from tofmetry.errors import FormatError
+from tofmetry.io._atomic import atomic_write_bytes
+
+DEPTH_SUFFIXES = (".png", ".tif", ".tiff", ".npy")
+_PNG_SIG = b"\x89PNG\r\n\x1a\n"
+
+
+def png_header(path: str | os.PathLike) -> tuple[int, int, int, int]:
+    """Read a PNG's IHDR without decoding: ``(width, height, bit_depth, colour_type)``."""
+    path = Path(path)
+    with open(path, "rb") as fh:
+        head = fh.read(33)
+    if len(head) < 33 or head[:8] != _PNG_SIG or head[12:16] != b"IHDR":
+        raise FormatError(f"{path}: not a PNG file (bad signature or truncated header)")
+    w, h, bit, ctype = struct.unpack(">IIBB", head[16:26])
+    return w, h, bit, ctype
+
+
+def read_depth_image(path: str | os.PathLike) -> np.ndarray:
+    """Read one depth frame.
+
+    Parameters
+    ----------
+    path : PNG (16-bit grey), TIFF (16-bit) or ``.npy`` (uint16, or float in mm).
+
+    Returns
+    -------
+    depth : (H, W) uint16 [mm], 0 = no measurement.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FormatError(f"depth frame not found: {path}")
+    suffix = path.suffix.lower()
+    if suffix == ".npy":
+        try:
+            arr = np.load(path, allow_pickle=False)
+        except Exception as exc:  # noqa: BLE001 - any decoding failure is a format error
+            raise FormatError(f"{path}: unreadable .npy ({exc})") from None
+        if arr.ndim != 2:
+            raise FormatError(f"{path}: expected a 2-D depth array, found shape {arr.shape}")
+        if arr.dtype == np.uint16:
+            return arr
+        if np.issubdtype(arr.dtype, np.floating):
+            if not np.all(np.isfinite(arr)):
+                raise FormatError(f"{path}: float depth contains NaN/inf; use 0 for invalid pixels")
+            if arr.min() < 0 or arr.max() > 65535:
+                raise FormatError(f"{path}: float depth outside 0..65535 mm")
+            return np.rint(arr).astype(np.uint16)
+        raise FormatError(f"{path}: expected uint16 (mm) depth, found dtype {arr.dtype}")
+    if suffix == ".png":
+        w, h, bit, ctype = png_header(path)
+        if bit != 16 or ctype not in (0, 4):
+            raise FormatError(
+                f"{path}: expected a 16-bit greyscale PNG (uint16 mm), found bit depth {bit}, colour type {ctype}"
+            )
+    elif suffix not in (".tif", ".tiff"):
+        raise FormatError(f"{path}: unsupported depth format {suffix!r}; use .png, .tif or .npy")
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise FormatError(f"{path}: unreadable or truncated image")
+    if img.ndim != 2:
+        raise FormatError(f"{path}: expected a single-channel depth image, found shape {img.shape}")
+    if img.dtype != np.uint16:
+        raise FormatError(f"{path}: expected 16-bit depth (uint16 mm), found {img.dtype}")
+    return img
+
+
+def read_ir_image(path: str | os.PathLike) -> np.ndarray:
+    """Read one IR amplitude frame: (H, W) uint16 (PNG/TIFF/NPY); 8-bit is promoted."""
+    path = Path(path)
+    if path.suffix.lower() == ".npy":
+        arr = np.load(path, allow_pickle=False)
+        return arr.astype(np.uint16) if arr.dtype != np.uint16 else arr
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise FormatError(f"{path}: unreadable or truncated IR image")
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    if img.dtype == np.float32:
+        img = np.clip(img, 0, 65535).astype(np.uint16)
+    return img.astype(np.uint16, copy=False)
+
+
+def read_color_image(path: str | os.PathLike) -> np.ndarray:
+    """Read a colour image as (H, W, 3) uint8 **RGB**."""
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if img is None:
+        raise FormatError(f"{path}: unreadable or truncated colour image")
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def encode_png16(img: np.ndarray) -> bytes:
+    """Encode a (H, W) uint16 array as a 16-bit PNG."""
+    if img.dtype != np.uint16 or img.ndim != 2:
+        raise FormatError(f"encode_png16: expected (H, W) uint16, found {img.shape} {img.dtype}")
+    ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    if not ok:
+        raise FormatError("PNG encoding failed")
+    return buf.tobytes()
+
+
+def write_png16(path: str | os.PathLike, img: np.ndarray) -> Path:
+    """Atomically write a (H, W) uint16 array as 16-bit PNG."""
+    return atomic_write_bytes(path, encode_png16(img))
+
+
+def write_color_jpg(path: str | os.PathLike, rgb: np.ndarray, quality: int = 92) -> Path:
+    """Atomically write an (H, W, 3) uint8 RGB image as JPEG."""
+    ok, buf = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not ok:
+        raise FormatError(f"{path}: JPEG encoding failed")
+    return atomic_write_bytes(path, buf.tobytes())
+
+
+def write_png(path: str | os.PathLike, img: np.ndarray) -> Path:
+    """Atomically write an 8- or 16-bit image (grey or RGB) as PNG."""
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
+    ok, buf = cv2.imencode(".png", img)
+    if not ok:
+        raise FormatError(f"{path}: PNG encoding failed")
+    return atomic_write_bytes(path, buf.tobytes())

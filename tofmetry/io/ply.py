@@ -1,0 +1,167 @@
+"""Binary PLY (little-endian) for point clouds and triangle meshes, in metres.
+
+Written with numpy (no third-party writer), read back by Open3D, MeshLab and CloudCompare.
+Vertex properties: ``x y z`` float32, optional ``nx ny nz`` float32, ``red green blue``
+uchar, and any extra float32 scalar fields (e.g. ``deviation_mm``); faces as
+``vertex_indices`` uchar/int32 lists.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from tofmetry.errors import FormatError
+from tofmetry.io._atomic import atomic_write_bytes
+
+_PLY_TYPES = {
+    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
+    "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
+}
+
+
+def write_ply(path: str | os.PathLike, points: np.ndarray, colors: np.ndarray | None = None,
+              normals: np.ndarray | None = None, faces: np.ndarray | None = None,
+              scalars: dict[str, np.ndarray] | None = None) -> Path:
+    """Write a binary little-endian PLY atomically.
+
+    Parameters
+    ----------
+    points : (N, 3) float [m]
+    colors : (N, 3) uint8 RGB, or float in [0, 1]
+    normals : (N, 3) float, unit
+    faces : (M, 3) int triangle vertex indices
+    scalars : name -> (N,) float extra vertex properties
+    """
+    pts = np.asarray(points, dtype=np.float32).reshape(-1, 3)
+    n = len(pts)
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
+    if normals is not None:
+        fields += [("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")]
+    if colors is not None:
+        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    scalars = scalars or {}
+    fields += [(name, "<f4") for name in scalars]
+    v = np.empty(n, dtype=fields)
+    v["x"], v["y"], v["z"] = pts.T
+    if normals is not None:
+        nrm = np.asarray(normals, dtype=np.float32).reshape(-1, 3)
+        if len(nrm) != n:
+            raise FormatError(f"write_ply: {len(nrm)} normals for {n} points")
+        v["nx"], v["ny"], v["nz"] = nrm.T
+    if colors is not None:
+        c = np.asarray(colors)
+        if c.dtype != np.uint8:
+            c = np.clip(np.rint(c * 255.0), 0, 255).astype(np.uint8)
+        if c.shape != (n, 3):
+            raise FormatError(f"write_ply: colours must be (N, 3), found {c.shape} for {n} points")
+        v["red"], v["green"], v["blue"] = c.T
+    for name, val in scalars.items():
+        val = np.asarray(val, dtype=np.float32).ravel()
+        if len(val) != n:
+            raise FormatError(f"write_ply: scalar {name!r} has {len(val)} values for {n} points")
+        v[name] = val
+    props = {"<f4": "float", "u1": "uchar"}
+    header = ["ply", "format binary_little_endian 1.0", "comment tofmetry, units: metres", f"element vertex {n}"]
+    header += [f"property {props[t]} {name}" for name, t in fields]
+    body = [v.tobytes()]
+    if faces is not None:
+        f = np.asarray(faces, dtype=np.int32).reshape(-1, 3)
+        header += [f"element face {len(f)}", "property list uchar int vertex_indices"]
+        fa = np.empty(len(f), dtype=[("n", "u1"), ("i", "<i4", (3,))])
+        fa["n"] = 3
+        fa["i"] = f
+        body.append(fa.tobytes())
+    header.append("end_header")
+    data = ("\n".join(header) + "\n").encode("ascii") + b"".join(body)
+    return atomic_write_bytes(path, data)
+
+
+def read_ply(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Read a PLY (binary little/big endian or ASCII) into arrays.
+
+    Returns
+    -------
+    dict with ``points`` (N, 3) float64 and, when present, ``normals`` (N, 3) float64,
+    ``colors`` (N, 3) uint8, ``faces`` (M, 3) int64, plus every other vertex property by name.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FormatError(f"PLY file not found: {path}")
+    raw = path.read_bytes()
+    end = raw.find(b"end_header")
+    if not raw.startswith(b"ply") or end < 0:
+        raise FormatError(f"{path}: not a PLY file (missing 'ply' magic or end_header)")
+    nl = raw.find(b"\n", end)
+    header = raw[:nl].decode("ascii", "replace").splitlines()
+    body = raw[nl + 1:]
+    fmt = None
+    elements: list[list] = []
+    for line in header:
+        tok = line.split()
+        if not tok:
+            continue
+        if tok[0] == "format":
+            fmt = tok[1]
+        elif tok[0] == "element":
+            elements.append([tok[1], int(tok[2]), []])
+        elif tok[0] == "property" and elements:
+            if tok[1] == "list":
+                elements[-1][2].append((tok[4], ("list", _PLY_TYPES[tok[2]], _PLY_TYPES[tok[3]])))
+            else:
+                if tok[1] not in _PLY_TYPES:
+                    raise FormatError(f"{path}: unknown PLY property type {tok[1]!r}")
+                elements[-1][2].append((tok[2], _PLY_TYPES[tok[1]]))
+    if fmt not in ("binary_little_endian", "binary_big_endian", "ascii"):
+        raise FormatError(f"{path}: unsupported PLY format {fmt!r}")
+    out: dict[str, np.ndarray] = {}
+    if fmt == "ascii":
+        lines = body.decode("ascii").split("\n")
+        pos = 0
+        for name, count, props in elements:
+            rows = [lines[pos + i].split() for i in range(count)]
+            pos += count
+            if name == "vertex":
+                arr = np.array(rows, dtype=np.float64).reshape(count, -1)
+                for j, (pn, _) in enumerate(props):
+                    out[pn] = arr[:, j]
+            elif name == "face":
+                out["faces"] = np.array([[int(x) for x in r[1:4]] for r in rows], dtype=np.int64).reshape(-1, 3)
+    else:
+        bo = "<" if fmt == "binary_little_endian" else ">"
+        off = 0
+        for name, count, props in elements:
+            if any(isinstance(t, tuple) for _, t in props):
+                # only triangle/uniform lists are supported (vertex_indices)
+                (pn, (_, ct, it)), = [p for p in props if isinstance(p[1], tuple)] or [(None, (None, None, None))]
+                if len(props) != 1:
+                    raise FormatError(f"{path}: face element with extra properties is not supported")
+                cnt = np.frombuffer(body, dtype=bo + ct, count=1, offset=off)[0] if count else 3
+                dt = np.dtype([("n", bo + ct), ("i", bo + it, (int(cnt),))])
+                arr = np.frombuffer(body, dtype=dt, count=count, offset=off)
+                if count and np.any(arr["n"] != cnt):
+                    raise FormatError(f"{path}: mixed polygon sizes in faces are not supported")
+                off += dt.itemsize * count
+                if name == "face":
+                    out["faces"] = arr["i"].astype(np.int64)
+                continue
+            dt = np.dtype([(pn, bo + t) for pn, t in props])
+            if off + dt.itemsize * count > len(body):
+                raise FormatError(f"{path}: truncated PLY body")
+            arr = np.frombuffer(body, dtype=dt, count=count, offset=off)
+            off += dt.itemsize * count
+            if name == "vertex":
+                for pn, _ in props:
+                    out[pn] = arr[pn].astype(np.float64) if pn not in ("red", "green", "blue") else arr[pn]
+    if not all(k in out for k in ("x", "y", "z")):
+        raise FormatError(f"{path}: PLY has no x, y, z vertex properties")
+    res = {"points": np.column_stack([out.pop("x"), out.pop("y"), out.pop("z")]).astype(np.float64)}
+    if all(k in out for k in ("nx", "ny", "nz")):
+        res["normals"] = np.column_stack([out.pop("nx"), out.pop("ny"), out.pop("nz")]).astype(np.float64)
+    if all(k in out for k in ("red", "green", "blue")):
+        res["colors"] = np.column_stack([out.pop("red"), out.pop("green"), out.pop("blue")]).astype(np.uint8)
+    res.update(out)
+    return res

@@ -1,0 +1,14 @@
+"""Point clouds from depth maps: back-projection, colouring, temporal statistics."""
+
+from tofmetry.pointcloud._project import (
+    amplitude_colors,
+    depth_to_points,
+    depth_to_xyz_image,
+    sample_colors,
+)
+from tofmetry.pointcloud._temporal import RunningDepthStats, TemporalStats, robust_mean_depth, temporal_stats
+
+__all__ = [
+    "amplitude_colors", "depth_to_points", "depth_to_xyz_image", "sample_colors",
+    "RunningDepthStats", "TemporalStats", "robust_mean_depth", "temporal_stats",
+]
