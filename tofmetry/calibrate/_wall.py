@@ -1,0 +1,189 @@
+"""Wall mode: station statistics (streamed), robust plane fit, wall samples for the generic fit.
+
+A station is a flat wall seen at a reference distance ``D`` [mm] measured along the optical
+axis. The wall may be slightly tilted: its orientation is fitted on the averaged cloud
+(robust least squares), and the plane is anchored at ``(0, 0, D)`` on the optical axis, so
+the reference depth of pixel ray ``(x, y)`` is ``D n_z / (n . (x, y, 1))``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterable
+
+import numpy as np
+
+from tofmetry.calibrate._fit import DepthSample
+from tofmetry.errors import EstimationError, InputError
+from tofmetry.pointcloud import RunningDepthStats
+from tofmetry.sensor import CameraIntrinsics
+
+
+@dataclass(eq=False)
+class StationStats:
+    """Temporal statistics of one station.
+
+    Attributes
+    ----------
+    mean_mm : (H, W) float64 [mm], NaN where fewer than ``min_valid_fraction`` of frames valid
+    std_mm : (H, W) float64 [mm] temporal std per pixel
+    n_frames : int
+    frame_center_mm : (T,) float64 [mm] per-frame mean of the central patch
+    """
+
+    mean_mm: np.ndarray
+    std_mm: np.ndarray
+    n_frames: int
+    frame_center_mm: np.ndarray
+
+    @property
+    def center_std_mm(self) -> float:
+        """Std [mm] of the per-frame central-patch means (study Fig. 7b)."""
+        f = self.frame_center_mm[np.isfinite(self.frame_center_mm)]
+        return float(np.std(f, ddof=1)) if len(f) > 1 else float("nan")
+
+
+def central_patch(shape: tuple[int, int], cx: float, cy: float, half: int = 5) -> tuple[slice, slice]:
+    """Slices of the ``2 half x 2 half`` pixel patch around the principal point (10x10 default)."""
+    h, w = shape
+    u0 = int(np.clip(round(cx) - half, 0, w - 2 * half))
+    v0 = int(np.clip(round(cy) - half, 0, h - 2 * half))
+    return slice(v0, v0 + 2 * half), slice(u0, u0 + 2 * half)
+
+
+def station_statistics(frames: Iterable[np.ndarray], shape: tuple[int, int], cx: float, cy: float,
+                       half: int = 5, min_valid_fraction: float = 0.5, advance=None) -> StationStats:
+    """Stream depth frames of one station into running statistics (bounded memory).
+
+    Parameters
+    ----------
+    frames : iterable of (H, W) uint16 [mm], 0 = invalid
+    shape : (H, W)
+    cx, cy : principal point [px] (centre of the patch)
+    half : half size of the central patch [px]
+    min_valid_fraction : pixels valid in fewer frames are NaN in the mean
+    advance : optional callable run after each frame (progress)
+    """
+    rs = RunningDepthStats(tuple(shape))
+    sl = central_patch(shape, cx, cy, half)
+    cen = []
+    for f in frames:
+        f = np.asarray(f)
+        rs.update(f)
+        p = f[sl].astype(np.float64)
+        p = p[p > 0]
+        cen.append(p.mean() if len(p) else np.nan)
+        if advance is not None:
+            advance()
+    if rs.n == 0:
+        raise InputError("station has no frames")
+    st = rs.result()
+    mean = np.where(st.count >= max(1, min_valid_fraction * rs.n), st.mean, np.nan)
+    return StationStats(mean_mm=mean, std_mm=st.std, n_frames=rs.n, frame_center_mm=np.array(cen))
+
+
+@dataclass(eq=False)
+class PlaneFit:
+    """Robust plane ``n . X = c`` fitted to a depth map's cloud.
+
+    Attributes
+    ----------
+    normal : (3,) unit, n_z > 0
+    c_mm : float, plane offset [mm]
+    inliers : (H, W) bool
+    residual_mm : (H, W) float64, measured - plane depth along Z [mm] (NaN invalid)
+    std_mm : float, std of ``residual_mm`` over inliers
+    """
+
+    normal: np.ndarray
+    c_mm: float
+    inliers: np.ndarray
+    residual_mm: np.ndarray
+    std_mm: float
+
+    def depth_at(self, rays: np.ndarray) -> np.ndarray:
+        """Plane depth Z [mm] along rays (H, W, 2)."""
+        n = self.normal
+        return self.c_mm / (n[0] * rays[..., 0] + n[1] * rays[..., 1] + n[2])
+
+
+def fit_plane(depth_mm: np.ndarray, intrinsics: CameraIntrinsics, k: float = 3.0, iterations: int = 6,
+              mask: np.ndarray | None = None, min_points: int = 50) -> PlaneFit:
+    """Least-squares plane of the cloud of a depth map, with iterative k-MAD outlier removal.
+
+    Parameters
+    ----------
+    depth_mm : (H, W) float [mm], 0/NaN invalid
+    intrinsics : CameraIntrinsics (rays with distortion removed)
+    k : rejection threshold in robust sigmas of the orthogonal residuals
+    mask : optional (H, W) bool of pixels allowed in the fit
+    """
+    d = np.asarray(depth_mm, np.float64)
+    rays = intrinsics.ray_table()
+    valid = np.isfinite(d) & (d > 0)
+    if mask is not None:
+        valid &= mask
+    if valid.sum() < min_points:
+        raise EstimationError(f"plane fit: {int(valid.sum())} valid pixels, at least {min_points} needed")
+    P = np.stack([rays[..., 0] * d, rays[..., 1] * d, d], axis=-1)
+    inl = valid.copy()
+    for _ in range(iterations):
+        X = P[inl]
+        c0 = X.mean(axis=0)
+        _, _, vt = np.linalg.svd(X - c0, full_matrices=False)
+        n = vt[2] if vt[2][2] > 0 else -vt[2]
+        res = (P - c0) @ n
+        r = res[valid]
+        med = np.median(r)
+        sig = 1.4826 * np.median(np.abs(r - med)) + 1e-9
+        new = valid & (np.abs(res - med) <= k * sig)
+        if new.sum() < min_points or np.array_equal(new, inl):
+            inl = new if new.sum() >= min_points else inl
+            break
+        inl = new
+    X = P[inl]
+    c0 = X.mean(axis=0)
+    _, _, vt = np.linalg.svd(X - c0, full_matrices=False)
+    n = vt[2] if vt[2][2] > 0 else -vt[2]
+    c = float(n @ c0)
+    zp = c / (n[0] * rays[..., 0] + n[1] * rays[..., 1] + n[2])
+    resid = np.where(valid, d - zp, np.nan)
+    return PlaneFit(normal=n, c_mm=c, inliers=inl, residual_mm=resid, std_mm=float(np.std(resid[inl])))
+
+
+def wall_reference(intrinsics: CameraIntrinsics, distance_mm: float, normal: np.ndarray | None = None) -> np.ndarray:
+    """Reference depth [mm] (H, W) of a wall through ``(0, 0, distance_mm)`` with unit ``normal``.
+
+    ``normal=None`` means a wall perpendicular to the optical axis (constant depth).
+    """
+    if normal is None:
+        return np.full(intrinsics.shape, float(distance_mm))
+    n = np.asarray(normal, np.float64)
+    rays = intrinsics.ray_table()
+    return distance_mm * n[2] / (n[0] * rays[..., 0] + n[1] * rays[..., 1] + n[2])
+
+
+def wall_sample(mean_mm: np.ndarray, distance_mm: float, intrinsics: CameraIntrinsics, name: str = "",
+                frontal: bool = False) -> tuple[DepthSample, PlaneFit]:
+    """Build a :class:`DepthSample` from a station's averaged depth.
+
+    Pixels rejected by the robust plane fit (edges, flying pixels) keep their reference but
+    get weight 0 when grossly off (> max(10 robust sigma, 50 mm + 2 % of D) from the plane), so real deformation
+    in the corners stays in the data.
+
+    Parameters
+    ----------
+    mean_mm : (H, W) float [mm], NaN/0 invalid
+    distance_mm : reference distance along the optical axis [mm]
+    frontal : if True the wall is taken perpendicular to the optical axis (no tilt fitted)
+    """
+    pf = fit_plane(mean_mm, intrinsics)
+    ref = wall_reference(intrinsics, distance_mm, None if frontal else pf.normal)
+    m = np.asarray(mean_mm, np.float64)
+    r = pf.residual_mm
+    fin = np.isfinite(r)
+    med = np.median(r[pf.inliers])
+    sig = 1.4826 * np.median(np.abs(r[pf.inliers] - med)) + 1e-6
+    gross = fin & (np.abs(r - med) > max(10 * sig, 50.0 + 0.02 * distance_mm))
+    w = np.where(fin & ~gross, 1.0, 0.0)
+    return DepthSample(measured_mm=np.where(fin, m, np.nan), reference_mm=ref, weight=w, name=name), pf

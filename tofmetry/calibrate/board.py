@@ -1,0 +1,569 @@
+"""Board-based depth calibration: a printed chessboard as the depth reference.
+
+Method
+------
+1. Per pose, the chessboard corners (given, or found in the IR image) and the IR/depth
+   intrinsics give the board pose (``cv2.solvePnP``). Depth and IR share one lens and one
+   pixel grid, so the board plane yields a *reference Z* for every board pixel:
+   ``Z_ref = d / (n . r)`` with ``r = (x, y, 1)`` the undistorted ray, ``n . X = d`` the plane.
+2. Deviation ``measured - reference`` over the board area only (inner corners' grid extended
+   to the outer row of squares, minus a margin from the board edge).
+3. The board pattern biases ToF depth: dark squares return less light and read longer. We use
+   **white squares only** (pixels at least ``edge_margin`` squares away from any square
+   boundary); the dark-minus-white difference is reported as a diagnostic.
+4. Correction model (same shape as the wall mode): ``c(u, v, Z) = a(Z) + s(u, v)`` added to
+   the measured depth; ``a`` piecewise-linear in Z (knots over the data's range, constant
+   beyond), ``s`` a bilinear grid over the image with a membrane (first-difference)
+   smoothness penalty and zero mean. Where the board never was, the penalty makes ``s``
+   the smooth (harmonic) continuation of the observed border: no extrapolated polynomials.
+5. Leave-poses-out cross-validation (k folds over poses).
+
+All functions are pure (arrays in, results out); file access is in :mod:`tofmetry.io`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from tofmetry.errors import EstimationError, InputError
+from tofmetry.sensor.intrinsics import CameraIntrinsics
+
+
+# ----------------------------------------------------------------------------- geometry
+def board_object_points(board: tuple[int, int], square_mm: float) -> np.ndarray:
+    """Inner-corner coordinates on the board: (cols*rows, 3) float64 [mm], row-major, Z = 0."""
+    cols, rows = board
+    gx, gy = np.meshgrid(np.arange(cols), np.arange(rows))
+    return np.column_stack([gx.ravel() * square_mm, gy.ravel() * square_mm, np.zeros(cols * rows)]).astype(np.float64)
+
+
+def _check_corners(corners: np.ndarray, board: tuple[int, int], what: str) -> np.ndarray:
+    c = np.asarray(corners, dtype=np.float64)
+    if c.ndim != 2 or c.shape[1] != 2 or len(c) != board[0] * board[1]:
+        raise InputError(
+            f"{what}: {c.shape} corners do not match the board {board[0]}x{board[1]} "
+            f"(expected ({board[0] * board[1]}, 2) pixel coordinates)"
+        )
+    return c
+
+
+def stretch_ir(ir: np.ndarray, lo: float = 1.0, hi: float = 99.0) -> np.ndarray:
+    """Percentile-stretch a dark 16-bit IR image to uint8 (for corner detection)."""
+    a = np.asarray(ir, dtype=np.float64)
+    p0, p1 = np.percentile(a, [lo, hi])
+    return np.clip((a - p0) * 255.0 / max(p1 - p0, 1e-9), 0, 255).astype(np.uint8)
+
+
+def detect_board_corners(ir: np.ndarray, board: tuple[int, int]) -> np.ndarray | None:
+    """Find chessboard inner corners in an IR image.
+
+    Parameters
+    ----------
+    ir : (H, W) uint16 or uint8 IR amplitude.
+    board : (cols, rows) inner corners.
+
+    Returns
+    -------
+    (cols*rows, 2) float64 pixels (sub-pixel), or None when the board is not found.
+    """
+    import cv2
+
+    img = stretch_ir(ir) if ir.dtype != np.uint8 else ir
+    ok, c = cv2.findChessboardCornersSB(img, tuple(board), flags=cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE)
+    if not ok:
+        ok, c = cv2.findChessboardCorners(img, tuple(board), flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
+        if not ok:
+            return None
+        c = cv2.cornerSubPix(img, c, (5, 5), (-1, -1), (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-3))
+    return c.reshape(-1, 2).astype(np.float64)
+
+
+def solve_board_pose(corners: np.ndarray, board: tuple[int, int], square_mm: float,
+                     intr: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray, float]:
+    """Board pose from its corners.
+
+    Returns
+    -------
+    R : (3, 3) board -> camera rotation; t : (3,) [mm]; rms : reprojection RMS [px].
+    """
+    import cv2
+
+    c = _check_corners(corners, board, "solve_board_pose")
+    obj = board_object_points(board, square_mm)
+    ok, rvec, tvec = cv2.solvePnP(obj, c, intr.K, intr.dist_array, flags=cv2.SOLVEPNP_IPPE)
+    if not ok:
+        raise EstimationError("solvePnP failed for this pose")
+    rvec, tvec = cv2.solvePnPRefineLM(obj, c, intr.K, intr.dist_array, rvec, tvec)
+    proj, _ = cv2.projectPoints(obj, rvec, tvec, intr.K, intr.dist_array)
+    rms = float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - c) ** 2, axis=1))))
+    R, _ = cv2.Rodrigues(rvec)
+    return R, tvec.ravel(), rms
+
+
+# ----------------------------------------------------------------------------- intrinsics
+@dataclass
+class IntrinsicsFit:
+    """Result of a chessboard intrinsic calibration.
+
+    Attributes
+    ----------
+    intrinsics : fitted camera.
+    rms_px : overall reprojection RMS [px] on the fitted views.
+    per_view_rms_px : (V,) RMS per view [px].
+    """
+
+    intrinsics: CameraIntrinsics
+    rms_px: float
+    per_view_rms_px: np.ndarray
+    rejected_views: list = field(default_factory=list)
+
+
+def calibrate_intrinsics(corners: list[np.ndarray], board: tuple[int, int], square_mm: float,
+                         image_size: tuple[int, int], flags: int = 0, reject_px: float | None = 1.0) -> IntrinsicsFit:
+    """``cv2.calibrateCamera`` on chessboard views (5-coefficient Brown model).
+
+    Parameters
+    ----------
+    corners : list of (cols*rows, 2) pixel arrays, one per view.
+    image_size : (width, height) [px].
+    reject_px : views whose RMS exceeds ``max(reject_px, 5 * median view RMS)`` are dropped
+        (mis-detected corners) and the fit repeated once; None keeps every view.
+        ``rms_px`` and ``per_view_rms_px`` then describe the kept views (rejected ones listed).
+    """
+    fit = _calibrate(corners, board, square_mm, image_size, flags)
+    if reject_px is None:
+        return fit
+    thr = max(reject_px, 5 * float(np.median(fit.per_view_rms_px)))
+    bad = [i for i, r in enumerate(fit.per_view_rms_px) if r > thr]
+    if not bad:
+        return fit
+    kept = [c for i, c in enumerate(corners) if i not in bad]
+    out = _calibrate(kept, board, square_mm, image_size, flags)
+    out.rejected_views = bad
+    return out
+
+
+def _calibrate(corners, board, square_mm, image_size, flags) -> IntrinsicsFit:
+    import cv2
+
+    if len(corners) < 3:
+        raise EstimationError(f"need at least 3 board views to calibrate intrinsics, found {len(corners)}")
+    obj = board_object_points(board, square_mm).astype(np.float32)
+    imgs = [_check_corners(c, board, f"view {i}").astype(np.float32) for i, c in enumerate(corners)]
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 200, 1e-12)
+    rms, K, dist, rvecs, tvecs = cv2.calibrateCamera([obj] * len(imgs), imgs, tuple(image_size), None, None,
+                                                     flags=flags, criteria=crit)
+    dist = np.asarray(dist).ravel()[:5]
+    intr = CameraIntrinsics(image_size[0], image_size[1], K[0, 0], K[1, 1], K[0, 2], K[1, 2], tuple(dist))
+    per_view = np.array([_view_rms(obj, c, r, t, intr) for c, r, t in zip(imgs, rvecs, tvecs)])
+    return IntrinsicsFit(intr, float(rms), per_view)
+
+
+def _view_rms(obj, c, rvec, tvec, intr) -> float:
+    import cv2
+
+    proj, _ = cv2.projectPoints(obj, rvec, tvec, intr.K, intr.dist_array)
+    return float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - c.reshape(-1, 2)) ** 2, axis=1))))
+
+
+def reprojection_rms_with(intr: CameraIntrinsics, corners: list[np.ndarray], board: tuple[int, int],
+                          square_mm: float) -> np.ndarray:
+    """Per-view reprojection RMS [px] with *fixed* intrinsics (pose solved per view)."""
+    return np.array([solve_board_pose(c, board, square_mm, intr)[2] for c in corners])
+
+
+def _folds(n: int, k: int, seed: int) -> list[np.ndarray]:
+    if n < 2:
+        raise EstimationError(f"cross-validation needs at least 2 poses, found {n}")
+    k = max(2, min(k, n))
+    perm = np.random.default_rng(seed).permutation(n)
+    return [np.sort(perm[i::k]) for i in range(k)]
+
+
+def cross_validate_intrinsics(corners: list[np.ndarray], board: tuple[int, int], square_mm: float,
+                              image_size: tuple[int, int], k: int = 5, seed: int = 0, flags: int = 0,
+                              exclude: list[int] | None = None) -> dict:
+    """k-fold over views: calibrate on k-1 folds, reprojection RMS [px] on the held-out views
+    (their pose solved with the fitted intrinsics; pose has 6 dof for 2*cols*rows values).
+
+    ``exclude``: view indices left out entirely (e.g. the views :func:`calibrate_intrinsics`
+    rejected for mis-detected corners)."""
+    keep = [i for i in range(len(corners)) if i not in set(exclude or [])]
+    cs = [corners[i] for i in keep]
+    held = np.full(len(cs), np.nan)
+    for test in _folds(len(cs), k, seed):
+        tset = set(test.tolist())
+        train = [c for i, c in enumerate(cs) if i not in tset]
+        fit = calibrate_intrinsics(train, board, square_mm, image_size, flags=flags, reject_px=None)
+        held[test] = reprojection_rms_with(fit.intrinsics, [cs[i] for i in test], board, square_mm)
+    return {"per_view_rms_px": held, "rms_px": float(np.sqrt(np.mean(held ** 2))),
+            "median_px": float(np.median(held)), "max_px": float(np.max(held)), "k": k, "views": keep}
+
+
+# ----------------------------------------------------------------------------- samples
+@dataclass
+class BoardSamples:
+    """Board-pixel depth samples of one pose.
+
+    Attributes
+    ----------
+    u, v : (N,) int pixel coordinates.
+    measured_mm, reference_mm : (N,) float64 [mm] (Z).
+    white : (N,) bool, pixel on a white square (away from square edges).
+    dark : (N,) bool, pixel on a dark square (away from square edges).
+    pose_rms_px : reprojection RMS of the board pose [px].
+    dark_minus_white_mm : median(measured - ref) on dark minus on white [mm] (pattern bias).
+    """
+
+    u: np.ndarray
+    v: np.ndarray
+    measured_mm: np.ndarray
+    reference_mm: np.ndarray
+    white: np.ndarray
+    dark: np.ndarray
+    pose_rms_px: float
+    dark_minus_white_mm: float
+    n_rejected: int = 0
+
+    def select(self, squares: str = "white") -> "BoardSamples":
+        m = self.white if squares == "white" else (self.dark if squares == "dark" else self.white | self.dark)
+        return BoardSamples(self.u[m], self.v[m], self.measured_mm[m], self.reference_mm[m], self.white[m],
+                            self.dark[m], self.pose_rms_px, self.dark_minus_white_mm, self.n_rejected)
+
+
+def board_samples(depth: np.ndarray, ir: np.ndarray, corners: np.ndarray, board: tuple[int, int], square_mm: float,
+                  intr: CameraIntrinsics, edge_margin: float = 0.2, board_margin: float = 0.25,
+                  max_abs_dev_mm: float = 150.0) -> BoardSamples:
+    """Reference depth from the board plane for every board pixel of one pose.
+
+    Parameters
+    ----------
+    depth : (H, W) uint16 [mm], Z; 0 = invalid.
+    ir : (H, W) IR amplitude (decides which square parity is white).
+    corners : (cols*rows, 2) inner corners [px].
+    edge_margin : fraction of a square kept away from square boundaries (mixed pixels).
+    board_margin : fraction of a square kept away from the outer edge of the outer squares.
+    max_abs_dev_mm : gross-outlier gate on ``measured - reference`` (holes, flying pixels).
+    """
+    depth = np.asarray(depth)
+    if depth.shape != intr.shape or np.asarray(ir).shape != intr.shape:
+        raise InputError(f"board_samples: depth {depth.shape} / IR {np.asarray(ir).shape} do not match intrinsics {intr.shape}")
+    R, t, rms = solve_board_pose(corners, board, square_mm, intr)
+    n = R[:, 2]
+    d = float(n @ t)
+    rays = intr.ray_table()
+    cols, rows = board
+    s = square_mm
+    # pixel bounding box of the outer squares (project the extended board outline)
+    outline = np.array([[-s, -s, 0], [cols * s, -s, 0], [cols * s, rows * s, 0], [-s, rows * s, 0]], float)
+    uv = intr.project(outline @ R.T + t)
+    H, W = intr.shape
+    u0, v0 = np.clip(np.floor(np.nanmin(uv, 0)).astype(int) - 2, 0, [W - 1, H - 1])
+    u1, v1 = np.clip(np.ceil(np.nanmax(uv, 0)).astype(int) + 2, 0, [W - 1, H - 1])
+    vv, uu = np.mgrid[v0:v1 + 1, u0:u1 + 1]
+    r = rays[v0:v1 + 1, u0:u1 + 1]
+    denom = n[0] * r[..., 0] + n[1] * r[..., 1] + n[2]
+    zref = d / denom
+    X = np.stack([r[..., 0] * zref, r[..., 1] * zref, zref], -1)
+    pb = (X - t) @ R            # board coordinates [mm]
+    bx, by = pb[..., 0] / s, pb[..., 1] / s   # in squares; inner corners at integers 0..cols-1
+    inside = (bx > -1 + board_margin) & (bx < cols - board_margin) & (by > -1 + board_margin) & (by < rows - board_margin)
+    fx, fy = bx - np.floor(bx), by - np.floor(by)
+    away = (fx > edge_margin) & (fx < 1 - edge_margin) & (fy > edge_margin) & (fy < 1 - edge_margin)
+    parity = (np.floor(bx).astype(int) + np.floor(by).astype(int)) & 1
+    meas = depth[v0:v1 + 1, u0:u1 + 1].astype(np.float64)
+    keep = inside & away & (meas > 0) & (zref > 0)
+    dev = meas - zref
+    gross = keep & (np.abs(dev) > max_abs_dev_mm)
+    keep &= ~gross
+    if keep.sum() < 20:
+        raise EstimationError(f"fewer than 20 valid board pixels in this pose ({int(keep.sum())})")
+    irs = np.asarray(ir, dtype=np.float64)[v0:v1 + 1, u0:u1 + 1]
+    m0, m1 = keep & (parity == 0), keep & (parity == 1)
+    white_par = 0 if (np.median(irs[m0]) if m0.any() else 0) >= (np.median(irs[m1]) if m1.any() else 0) else 1
+    white = keep & (parity == white_par)
+    dark = keep & (parity != white_par)
+    dmw = float(np.median(dev[dark]) - np.median(dev[white])) if dark.any() and white.any() else float("nan")
+    k = keep.ravel()
+    return BoardSamples(uu.ravel()[k], vv.ravel()[k], meas.ravel()[k], zref.ravel()[k], white.ravel()[k],
+                        dark.ravel()[k], rms, dmw, int(gross.sum()))
+
+
+# ----------------------------------------------------------------------------- model
+@dataclass
+class BoardDepthModel:
+    """Depth correction ``c(u, v, Z) = a(Z) + s(u, v)`` [mm], added to measured depth.
+
+    Attributes
+    ----------
+    z_knots_mm : (K,) range knots [mm]; ``a`` is piecewise linear, constant beyond the ends.
+    range_mm : (K,) values of ``a`` at the knots [mm].
+    grid_u, grid_v : (Gu,), (Gv,) pixel positions of the surface nodes.
+    surface_mm : (Gv, Gu) surface node values [mm] (zero mean), bilinear in between.
+    shape : (H, W) image size the model applies to.
+    support : (Gv, Gu) number of samples influencing each node (0 = never seen by the board).
+    """
+
+    z_knots_mm: np.ndarray
+    range_mm: np.ndarray
+    grid_u: np.ndarray
+    grid_v: np.ndarray
+    surface_mm: np.ndarray
+    shape: tuple[int, int]
+    support: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+
+    def correction(self, u: np.ndarray, v: np.ndarray, z_mm: np.ndarray) -> np.ndarray:
+        """Correction [mm] at pixels (u, v) (float or int) for measured Z [mm]."""
+        a = np.interp(np.asarray(z_mm, float), self.z_knots_mm, self.range_mm)
+        return a + _bilinear_eval(self.grid_u, self.grid_v, self.surface_mm, np.asarray(u, float), np.asarray(v, float))
+
+    def surface_image(self) -> np.ndarray:
+        """(H, W) float64 surface term s(u, v) [mm]."""
+        H, W = self.shape
+        vv, uu = np.mgrid[0:H, 0:W]
+        return _bilinear_eval(self.grid_u, self.grid_v, self.surface_mm, uu.ravel().astype(float),
+                              vv.ravel().astype(float)).reshape(H, W)
+
+    def apply(self, depth: np.ndarray) -> np.ndarray:
+        """Corrected depth: (H, W) uint16 [mm] -> (H, W) uint16 [mm] (0 stays 0)."""
+        d = np.asarray(depth)
+        if d.shape != tuple(self.shape):
+            raise InputError(f"BoardDepthModel.apply: depth {d.shape} does not match the model's {tuple(self.shape)}")
+        z = d.astype(np.float64)
+        out = z + np.interp(z, self.z_knots_mm, self.range_mm) + self.surface_image()
+        out = np.clip(np.rint(out), 0, 65535).astype(np.uint16)
+        out[d == 0] = 0
+        return out
+
+    def to_dict(self) -> dict:
+        return {"model": "board_range_surface", "z_knots_mm": self.z_knots_mm, "range_mm": self.range_mm,
+                "grid_u": self.grid_u, "grid_v": self.grid_v, "surface_mm": self.surface_mm,
+                "shape": list(self.shape), "support": self.support}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "BoardDepthModel":
+        try:
+            return cls(np.asarray(d["z_knots_mm"], float), np.asarray(d["range_mm"], float), np.asarray(d["grid_u"], float),
+                       np.asarray(d["grid_v"], float), np.asarray(d["surface_mm"], float), tuple(d["shape"]),
+                       np.asarray(d.get("support", np.zeros((0, 0))), float))
+        except KeyError as exc:
+            raise InputError(f"board depth model: missing key {exc}") from None
+
+
+def _bilinear_weights(gx: np.ndarray, gy: np.ndarray, u: np.ndarray, v: np.ndarray):
+    """Indices (N, 4) into the flattened (Gv, Gu) grid and weights (N, 4)."""
+    fu = np.clip(np.interp(u, gx, np.arange(len(gx))), 0, len(gx) - 1 - 1e-9)
+    fv = np.clip(np.interp(v, gy, np.arange(len(gy))), 0, len(gy) - 1 - 1e-9)
+    i0, j0 = np.floor(fu).astype(int), np.floor(fv).astype(int)
+    a, b = fu - i0, fv - j0
+    G = len(gx)
+    idx = np.stack([j0 * G + i0, j0 * G + i0 + 1, (j0 + 1) * G + i0, (j0 + 1) * G + i0 + 1], 1)
+    w = np.stack([(1 - a) * (1 - b), a * (1 - b), (1 - a) * b, a * b], 1)
+    return idx, w
+
+
+def _bilinear_eval(gx, gy, grid, u, v) -> np.ndarray:
+    idx, w = _bilinear_weights(gx, gy, u.ravel(), v.ravel())
+    return np.sum(grid.ravel()[idx] * w, axis=1).reshape(np.shape(u))
+
+
+def fit_board_model(u: np.ndarray, v: np.ndarray, measured_mm: np.ndarray, reference_mm: np.ndarray,
+                    shape: tuple[int, int], n_knots: int = 6, grid: tuple[int, int] = (17, 15),
+                    smooth_surface: float = 3.0, smooth_range: float = 1.0) -> BoardDepthModel:
+    """Least-squares fit of ``reference - measured = a(Z_measured) + s(u, v)``.
+
+    Parameters
+    ----------
+    u, v : (N,) pixel coordinates; measured_mm, reference_mm : (N,) [mm].
+    shape : (H, W) image size.
+    n_knots : range knots spread over the 1st-99th percentile of measured Z.
+    grid : (Gu, Gv) surface nodes.
+    smooth_surface, smooth_range : penalty weights [per sample-equivalent], scaled by sqrt(N / nodes)
+        so the balance does not depend on the number of samples.
+
+    Notes
+    -----
+    ``s`` has zero mean (hard penalty) so the constant lives in ``a``. Nodes the board never
+    reached are fixed only by the membrane penalty: they take the smooth continuation of their
+    neighbours (flat far from data), with ``support`` = 0 flagging them.
+    """
+    from scipy import sparse
+    from scipy.sparse.linalg import lsqr
+
+    u = np.asarray(u, float)
+    v = np.asarray(v, float)
+    z = np.asarray(measured_mm, float)
+    r = np.asarray(reference_mm, float) - z
+    N = len(r)
+    if N < 100:
+        raise EstimationError(f"too few board samples to fit a depth model ({N})")
+    H, W = shape
+    Gu, Gv = grid
+    gx = np.linspace(0, W - 1, Gu)
+    gy = np.linspace(0, H - 1, Gv)
+    zlo, zhi = np.percentile(z, [1, 99])
+    knots = np.linspace(zlo, zhi, max(2, n_knots)) if zhi > zlo + 1 else np.array([zlo - 1, zlo + 1])
+    K = len(knots)
+    # range: hat functions
+    fz = np.clip(np.interp(z, knots, np.arange(K)), 0, K - 1 - 1e-9)
+    k0 = np.floor(fz).astype(int)
+    a = fz - k0
+    rows = np.arange(N)
+    A_range = sparse.csr_matrix((np.concatenate([1 - a, a]), (np.concatenate([rows, rows]), np.concatenate([k0, k0 + 1]))),
+                                shape=(N, K))
+    idx, w = _bilinear_weights(gx, gy, u, v)
+    A_surf = sparse.csr_matrix((w.ravel(), (np.repeat(rows, 4), idx.ravel())), shape=(N, Gu * Gv))
+    A = sparse.hstack([A_range, A_surf]).tocsr()
+    # penalties
+    scale = np.sqrt(N / (Gu * Gv))
+    pen = []
+    node = np.arange(Gu * Gv).reshape(Gv, Gu)
+    dx = [(node[:, i], node[:, i + 1]) for i in range(Gu - 1)]
+    dy = [(node[j], node[j + 1]) for j in range(Gv - 1)]
+    pairs = np.concatenate([np.stack([p, q], 1) for p, q in dx + dy])
+    m = len(pairs)
+    D = sparse.csr_matrix((np.concatenate([np.ones(m), -np.ones(m)]),
+                           (np.concatenate([np.arange(m)] * 2), K + np.concatenate([pairs[:, 0], pairs[:, 1]]))),
+                          shape=(m, K + Gu * Gv))
+    pen.append(D * (smooth_surface * scale))
+    if K > 2:
+        mk = K - 2
+        D2 = sparse.csr_matrix((np.concatenate([np.ones(mk), -2 * np.ones(mk), np.ones(mk)]),
+                                (np.concatenate([np.arange(mk)] * 3), np.concatenate([np.arange(mk), np.arange(mk) + 1, np.arange(mk) + 2]))),
+                               shape=(mk, K + Gu * Gv))
+        pen.append(D2 * (smooth_range * np.sqrt(N / K)))
+    zero_mean = sparse.csr_matrix((np.ones(Gu * Gv), (np.zeros(Gu * Gv, int), K + np.arange(Gu * Gv))), shape=(1, K + Gu * Gv))
+    pen.append(zero_mean * (10.0 * np.sqrt(N)))
+    M = sparse.vstack([A] + pen).tocsr()
+    rhs = np.concatenate([r, np.zeros(M.shape[0] - N)])
+    sol = lsqr(M, rhs, atol=1e-10, btol=1e-10, iter_lim=20000)[0]
+    support = np.bincount(idx.ravel(), weights=(w.ravel() > 0.05).astype(float), minlength=Gu * Gv).reshape(Gv, Gu)
+    return BoardDepthModel(knots, sol[:K], gx, gy, sol[K:].reshape(Gv, Gu), (H, W), support)
+
+
+# ----------------------------------------------------------------------------- evaluation
+def error_stats(err_mm: np.ndarray) -> dict:
+    """mean, std, RMS and 95th percentile of |e| [mm] of an error sample."""
+    e = np.asarray(err_mm, float)
+    if e.size == 0:
+        return {"n": 0, "mean_mm": float("nan"), "std_mm": float("nan"), "rms_mm": float("nan"), "p95_abs_mm": float("nan")}
+    return {"n": int(e.size), "mean_mm": float(e.mean()), "std_mm": float(e.std()),
+            "rms_mm": float(np.sqrt(np.mean(e ** 2))), "p95_abs_mm": float(np.percentile(np.abs(e), 95))}
+
+
+@dataclass
+class BoardCalibrationResult:
+    """Board-based depth calibration.
+
+    Attributes
+    ----------
+    model : BoardDepthModel fitted on all poses.
+    squares : which pixels were used ("white": white squares only).
+    cv : {"none", "constant_refit", "iai_shift" (if given), "model"} -> error stats [mm] of
+        ``corrected - reference`` on held-out poses (k-fold over poses).
+    cv_per_pose : per held-out pose RMS [mm] per case.
+    fit_residual : error stats of the final model on its own samples.
+    dark_minus_white_mm : median pattern bias per pose [mm].
+    pose_rms_px : board-pose reprojection RMS per pose [px].
+    n_samples : samples used per pose.
+    """
+
+    model: BoardDepthModel
+    squares: str
+    cv: dict
+    cv_per_pose: dict
+    fit_residual: dict
+    before: dict
+    dark_minus_white_mm: np.ndarray
+    pose_rms_px: np.ndarray
+    n_samples: np.ndarray
+    k_folds: int
+    skipped: list = field(default_factory=list)
+
+    def summary(self) -> dict:
+        return {"squares": self.squares, "k_folds": self.k_folds, "cv_held_out": self.cv,
+                "fit_residual": self.fit_residual, "before": self.before,
+                "dark_minus_white_mm_median": float(np.nanmedian(self.dark_minus_white_mm)),
+                "pose_rms_px_median": float(np.median(self.pose_rms_px)),
+                "n_poses": int(len(self.n_samples)), "n_samples": int(np.sum(self.n_samples)),
+                "skipped_poses": self.skipped,
+                "unsupported_surface_nodes": int(np.sum(self.model.support == 0))}
+
+
+def calibrate_depth_from_board(poses: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]], board: tuple[int, int],
+                               square_mm: float, intrinsics: CameraIntrinsics, *, squares: str = "white",
+                               k_folds: int = 5, iai_shift_mm: float | None = None, seed: int = 0,
+                               fit_kwargs: dict | None = None, sample_kwargs: dict | None = None) -> BoardCalibrationResult:
+    """Board-based depth calibration with leave-poses-out validation.
+
+    Parameters
+    ----------
+    poses : list of ``(depth (H,W) uint16 mm, ir (H,W), corners (cols*rows,2) px or None)``;
+        corners None -> detected in the IR image (poses where detection fails are skipped).
+    board : (cols, rows) inner corners; square_mm : square size [mm].
+    intrinsics : IR/depth intrinsics (the board plane's accuracy depends on them).
+    squares : "white" (default, dark squares read longer) or "all".
+    iai_shift_mm : an iai_kinect2 ``depthShift`` to evaluate alongside (corrected = measured + shift).
+
+    Returns
+    -------
+    BoardCalibrationResult
+    """
+    if squares not in ("white", "all"):
+        raise InputError(f"squares must be 'white' or 'all', found {squares!r}")
+    fit_kwargs = fit_kwargs or {}
+    sample_kwargs = sample_kwargs or {}
+    samples: list[BoardSamples] = []
+    skipped = []
+    for i, (depth, ir, corners) in enumerate(poses):
+        if corners is None:
+            corners = detect_board_corners(ir, board)
+            if corners is None:
+                skipped.append((i, "board not found in IR"))
+                continue
+        try:
+            s = board_samples(depth, ir, corners, board, square_mm, intrinsics, **sample_kwargs)
+        except EstimationError as exc:
+            skipped.append((i, str(exc)))
+            continue
+        samples.append(s.select(squares))
+    if len(samples) < 3:
+        raise EstimationError(f"only {len(samples)} usable board poses (need >= 3); skipped: {skipped}")
+
+    def cat(ids, attr):
+        return np.concatenate([getattr(samples[i], attr) for i in ids])
+
+    def fit(ids):
+        return fit_board_model(cat(ids, "u"), cat(ids, "v"), cat(ids, "measured_mm"), cat(ids, "reference_mm"),
+                               intrinsics.shape, **fit_kwargs)
+
+    cases = ["none", "constant_refit", "model"] + (["iai_shift"] if iai_shift_mm is not None else [])
+    errs = {c: [] for c in cases}
+    per_pose = {c: np.full(len(samples), np.nan) for c in cases}
+    folds = _folds(len(samples), k_folds, seed)
+    for test in folds:
+        train = np.setdiff1d(np.arange(len(samples)), test)
+        model = fit(train)
+        const = float(np.mean(cat(train, "reference_mm") - cat(train, "measured_mm")))
+        for i in test:
+            s = samples[i]
+            e0 = s.measured_mm - s.reference_mm
+            es = {"none": e0, "constant_refit": e0 + const, "model": e0 + model.correction(s.u, s.v, s.measured_mm)}
+            if iai_shift_mm is not None:
+                es["iai_shift"] = e0 + iai_shift_mm
+            for c, e in es.items():
+                errs[c].append(e)
+                per_pose[c][i] = np.sqrt(np.mean(e ** 2))
+    cv = {c: error_stats(np.concatenate(errs[c])) for c in cases}
+    all_ids = np.arange(len(samples))
+    model = fit(all_ids)
+    u, v, zm, zr = cat(all_ids, "u"), cat(all_ids, "v"), cat(all_ids, "measured_mm"), cat(all_ids, "reference_mm")
+    return BoardCalibrationResult(
+        model=model, squares=squares, cv=cv, cv_per_pose=per_pose,
+        fit_residual=error_stats(zm + model.correction(u, v, zm) - zr), before=error_stats(zm - zr),
+        dark_minus_white_mm=np.array([s.dark_minus_white_mm for s in samples]),
+        pose_rms_px=np.array([s.pose_rms_px for s in samples]), n_samples=np.array([len(s.u) for s in samples]),
+        k_folds=len(folds), skipped=skipped,
+    )

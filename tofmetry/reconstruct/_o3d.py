@@ -1,0 +1,116 @@
+"""Thin Open3D helpers shared by registration and evaluation (arrays in, arrays out).
+
+Open3D objects never leave this package's private modules: public functions take and
+return numpy arrays in metres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def quiet() -> None:
+    """Silence Open3D's console warnings (we report quality ourselves)."""
+    import open3d as o3d
+
+    o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
+
+
+def to_pcd(points: np.ndarray, normals: np.ndarray | None = None):
+    """(N, 3) [m] (+ normals) -> ``o3d.geometry.PointCloud``."""
+    import open3d as o3d
+
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(points, np.float64)))
+    if normals is not None:
+        pcd.normals = o3d.utility.Vector3dVector(np.ascontiguousarray(normals, np.float64))
+    return pcd
+
+
+def estimate_normals(points: np.ndarray, radius_m: float, max_nn: int = 30,
+                     toward: np.ndarray | None = None) -> np.ndarray:
+    """PCA normals (N, 3), oriented toward ``toward`` (a point, e.g. the camera centre) if given."""
+    import open3d as o3d
+
+    pcd = to_pcd(points)
+    pcd.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=radius_m, max_nn=max_nn))
+    n = np.asarray(pcd.normals).copy()
+    if toward is not None:
+        flip = np.einsum("ij,ij->i", n, np.asarray(toward)[None, :] - points) < 0
+        n[flip] *= -1
+    return n
+
+
+def voxel_down(points: np.ndarray, normals: np.ndarray | None, voxel_m: float):
+    """Voxel-grid downsampling (centroids); returns (points, normals or None)."""
+    pcd = to_pcd(points, normals).voxel_down_sample(voxel_m)
+    p = np.asarray(pcd.points).copy()
+    n = np.asarray(pcd.normals).copy() if normals is not None else None
+    if n is not None:
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    return p, n
+
+
+@dataclass
+class Match:
+    """Outcome of a registration step: 4x4 transform source->target and quality."""
+
+    transform: np.ndarray
+    fitness: float
+    inlier_rmse_m: float
+    n_correspondences: int
+
+
+def global_register(src_pts, src_nrm, tgt_pts, tgt_nrm, voxel_m: float, seed: int = 0,
+                    max_iter: int = 100_000, confidence: float = 0.999) -> Match:
+    """FPFH features + RANSAC (mutual filter, edge-length and distance checkers).
+
+    Parameters
+    ----------
+    src_pts, tgt_pts : (N, 3) [m] already downsampled at ``voxel_m``; *_nrm their normals
+    voxel_m : feature scale; FPFH radius = 5 voxels, RANSAC inlier distance = 1.5 voxels
+    """
+    import open3d as o3d
+
+    reg = o3d.pipelines.registration
+    quiet()
+    o3d.utility.random.seed(seed)
+    src, tgt = to_pcd(src_pts, src_nrm), to_pcd(tgt_pts, tgt_nrm)
+    feat = o3d.geometry.KDTreeSearchParamHybrid(radius=5 * voxel_m, max_nn=100)
+    fs = reg.compute_fpfh_feature(src, feat)
+    ft = reg.compute_fpfh_feature(tgt, feat)
+    dist = 1.5 * voxel_m
+    res = reg.registration_ransac_based_on_feature_matching(
+        src, tgt, fs, ft, True, dist, reg.TransformationEstimationPointToPoint(False), 3,
+        [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(dist)],
+        reg.RANSACConvergenceCriteria(max_iter, confidence))
+    return Match(np.asarray(res.transformation).copy(), float(res.fitness), float(res.inlier_rmse),
+                 len(res.correspondence_set))
+
+
+def icp(src_pts, tgt_pts, tgt_nrm, init: np.ndarray, max_dist_m: float, kernel: str = "tukey",
+        kernel_k_m: float | None = None, max_iter: int = 50, src_nrm=None) -> Match:
+    """Point-to-plane ICP with a robust kernel ("tukey", "huber" or "none").
+
+    ``kernel_k_m`` defaults to ``max_dist_m / 3``.
+    """
+    import open3d as o3d
+
+    reg = o3d.pipelines.registration
+    k = kernel_k_m if kernel_k_m is not None else max_dist_m / 3
+    loss = {"tukey": lambda: reg.TukeyLoss(k), "huber": lambda: reg.HuberLoss(k), "none": lambda: reg.L2Loss()}[kernel]()
+    res = reg.registration_icp(
+        to_pcd(src_pts, src_nrm), to_pcd(tgt_pts, tgt_nrm), max_dist_m, np.asarray(init, np.float64),
+        reg.TransformationEstimationPointToPlane(loss),
+        reg.ICPConvergenceCriteria(relative_fitness=1e-7, relative_rmse=1e-7, max_iteration=max_iter))
+    return Match(np.asarray(res.transformation).copy(), float(res.fitness), float(res.inlier_rmse),
+                 len(res.correspondence_set))
+
+
+def information_matrix(src_pts, tgt_pts, max_dist_m: float, transform: np.ndarray) -> np.ndarray:
+    """6x6 information matrix of a pairwise alignment (Open3D convention)."""
+    import open3d as o3d
+
+    return np.asarray(o3d.pipelines.registration.get_information_matrix_from_point_clouds(
+        to_pcd(src_pts), to_pcd(tgt_pts), max_dist_m, np.asarray(transform, np.float64))).copy()

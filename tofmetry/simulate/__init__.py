@@ -1,0 +1,15 @@
+"""The virtual Kinect v2: scenes, error model, renderer and dataset writers.
+
+>>> from tofmetry.simulate import VirtualKinect, ErrorModel, scenes, datasets
+>>> vk = VirtualKinect(errors=ErrorModel().without("noise"), seed=0)
+>>> frames = vk.capture(scenes.wall(distance_m=1.0), n_frames=5)       # doctest: +SKIP
+"""
+
+from tofmetry.simulate import scenes
+from tofmetry.simulate.camera import Frame, Frames, VirtualKinect
+from tofmetry.simulate.errors import TERMS, ErrorModel
+from tofmetry.simulate.render import Rendering, render
+
+from tofmetry.simulate import datasets  # noqa: E402  (imports the above)
+
+__all__ = ["VirtualKinect", "ErrorModel", "Frames", "Frame", "Rendering", "render", "TERMS", "scenes", "datasets"]
