@@ -74,7 +74,9 @@ def assess_outdoor(source, *, intr: CameraIntrinsics | None = None, params: Flyi
     params : FlyingPixelParams of the detector
     frame : index of the frame kept for the figures and the exported cloud
     max_frames : analyse at most this many frames
-    ir : (H, W) IR amplitude of ``frame`` for colouring (the capture's if omitted)
+    ir : (T, H, W) or (H, W) IR amplitude (the capture's IR frames if omitted); used by the
+        detector's noise term (per frame) and to colour the cloud. Without IR the noise is
+        scaled with depth only (noted in the result).
 
     Returns
     -------
@@ -85,23 +87,27 @@ def assess_outdoor(source, *, intr: CameraIntrinsics | None = None, params: Flyi
         intr, _ = source.intrinsics()
     valid, flying = [], []
     keep = None
+    notes = []
+    cap_ir = ir is None and getattr(source, "has_ir", False)
+    if ir is None and not cap_ir:
+        notes.append("no IR amplitude: flying-pixel noise threshold scaled with depth only")
     for i, f in enumerate(frame_iter(source, progress)):
         if max_frames is not None and i >= max_frames:
             break
         f = check_frame(f, None if intr is None else intr.shape, i, "outdoor")
-        m = detect_flying_pixels(f, intr, p)
+        a = source.ir(i) if cap_ir else (None if ir is None else (ir[i] if np.ndim(ir) == 3 else ir))
+        m = detect_flying_pixels(f, intr, p, ir=a)
         valid.append(int((f > 0).sum()))
         flying.append(int(m.sum()))
         if i == frame:
-            keep = (f.copy(), m)
+            keep = (f.copy(), m, a)
     if not valid:
         raise InputError("outdoor: no frames")
     if keep is None:
         raise InputError(f"outdoor: frame {frame} outside 0..{len(valid) - 1}")
-    if ir is None and hasattr(source, "has_ir") and source.has_ir:
-        ir = source.ir(frame)
     return OutdoorResult(n_max=int(keep[0].size), valid=np.array(valid), flying=np.array(flying), frame=frame,
-                         depth=keep[0], flying_mask=keep[1], ir=None if ir is None else np.asarray(ir), params=p)
+                         depth=keep[0], flying_mask=keep[1], ir=None if keep[2] is None else np.asarray(keep[2]),
+                         params=p, notes=notes)
 
 
 def flying_cloud(result: OutdoorResult, intr: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -126,37 +126,48 @@ def fit_surface(values: np.ndarray, weights: np.ndarray, spec: SurfaceSpec,
     good = ws > 0
     if not good.any():
         raise EstimationError("surface fit: the residual map has no valid pixel")
+    # Normal equations are built with einsum over the separable (row, column) structure:
+    # no (cells x basis) matrix, no multi-threaded BLAS call (which thrashes on a busy machine).
+    W = np.where(good, ws / ws[good].mean(), 0.0)
+    WY = W * mean
     if spec.model == "poly":
         sx, sy = w / 2.0, h / 2.0
-        V = np.meshgrid(vc, uc, indexing="ij")
-        A = _poly_basis((V[1][good] - cx) / sx, (V[0][good] - cy) / sy, spec.degree)
-        if A.shape[0] < A.shape[1]:
+        xs, ys = (uc - cx) / sx, (vc - cy) / sy
+        terms = [(a, b) for a in range(spec.degree + 1) for b in range(spec.degree + 1 - a)]
+        if int(good.sum()) < len(terms):
             raise EstimationError(
-                f"surface fit: {A.shape[0]} data cells for a degree-{spec.degree} polynomial "
-                f"({A.shape[1]} terms); coverage too small"
+                f"surface fit: {int(good.sum())} data cells for a degree-{spec.degree} polynomial "
+                f"({len(terms)} terms); coverage too small"
             )
-        sw = np.sqrt(ws[good])
-        coef, *_ = np.linalg.lstsq(A * sw[:, None], mean[good] * sw, rcond=None)
-        uu, vv = np.meshgrid((np.arange(w) - cx) / sx, (np.arange(h) - cy) / sy)
-        return _poly_basis(uu, vv, spec.degree) @ coef
+        P = 2 * spec.degree + 1
+        Xp = xs[:, None] ** np.arange(P)  # (Wb, P)
+        Yp = ys[:, None] ** np.arange(P)  # (Hb, P)
+        M = np.einsum("ip,iq->pq", np.einsum("ij,jp->ip", W, Xp), Yp)   # moments sum W x^p y^q
+        Mr = np.einsum("ip,iq->pq", np.einsum("ij,jp->ip", WY, Xp), Yp)
+        N = np.array([[M[a + c, b + d] for (c, d) in terms] for (a, b) in terms])
+        rhs = np.array([Mr[a, b] for (a, b) in terms])
+        N += 1e-10 * np.trace(N) / len(terms) * np.eye(len(terms))
+        coef = np.linalg.solve(N, rhs)
+        C = np.zeros((spec.degree + 1, spec.degree + 1))  # C[b, a] coefficient of x^a y^b
+        for (a, b), c in zip(terms, coef):
+            C[b, a] = c
+        Fx = ((np.arange(w) - cx) / sx)[:, None] ** np.arange(spec.degree + 1)
+        Fy = ((np.arange(h) - cy) / sy)[:, None] ** np.arange(spec.degree + 1)
+        return np.einsum("ia,ja->ij", np.einsum("ib,ba->ia", Fy, C), Fx)
     if spec.model == "spline":
         nu, nv = spec.knots
         Bu = _spline_basis(uc, -0.5, w - 0.5, nu)  # (Wb, mu)
         Bv = _spline_basis(vc, -0.5, h - 0.5, nv)  # (Hb, mv)
         mu, mv = Bu.shape[1], Bv.shape[1]
-        W = ws / ws[good].mean()
-        # normal equations of sum W (Bv C Bu^T - Y)^2 with C (mv, mu); vec(C) row-major
-        iy, ix = np.nonzero(good)
-        A = (Bv[iy][:, :, None] * Bu[ix][:, None, :]).reshape(len(iy), mv * mu)
-        wt = W[iy, ix]
-        N = A.T @ (A * wt[:, None])
-        rhs = A.T @ (wt * mean[iy, ix])
+        G = np.einsum("ijb,jd->ibd", np.einsum("ij,jb->ijb", W, Bu), Bu)            # (Hb, mu, mu)
+        N = np.einsum("ia,ic,ibd->abcd", Bv, Bv, G).reshape(mv * mu, mv * mu)
+        rhs = np.einsum("ia,ib->ab", Bv, np.einsum("ij,jb->ib", WY, Bu)).reshape(mv * mu)
         Dv, Du = _second_diff(mv), _second_diff(mu)
         P = np.kron(Dv.T @ Dv, np.eye(mu)) + np.kron(np.eye(mv), Du.T @ Du)
-        lam = spec.smooth * len(iy) / (mu * mv)
+        lam = spec.smooth * float(good.sum()) / (mu * mv)
         N += lam * P + 1e-9 * np.trace(N) / N.shape[0] * np.eye(N.shape[0])
         coef = np.linalg.solve(N, rhs).reshape(mv, mu)
         Fu = _spline_basis(np.arange(w, dtype=np.float64), -0.5, w - 0.5, nu)
         Fv = _spline_basis(np.arange(h, dtype=np.float64), -0.5, h - 0.5, nv)
-        return Fv @ coef @ Fu.T
+        return np.einsum("ib,jb->ij", np.einsum("ia,ab->ib", Fv, coef), Fu)
     raise EstimationError(f"surface model must be 'spline', 'poly' or 'none', found {spec.model!r}")

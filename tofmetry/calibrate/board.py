@@ -281,7 +281,10 @@ def board_samples(depth: np.ndarray, ir: np.ndarray, corners: np.ndarray, board:
     if keep.sum() < 20:
         raise EstimationError(f"fewer than 20 valid board pixels in this pose ({int(keep.sum())})")
     irs = np.asarray(ir, dtype=np.float64)[v0:v1 + 1, u0:u1 + 1]
-    m0, m1 = keep & (parity == 0), keep & (parity == 1)
+    # which parity is white: brighter IR over the whole board area (valid depth or not: white
+    # squares may saturate and lose their depth at close range)
+    area = inside & away
+    m0, m1 = area & (parity == 0), area & (parity == 1)
     white_par = 0 if (np.median(irs[m0]) if m0.any() else 0) >= (np.median(irs[m1]) if m1.any() else 0) else 1
     white = keep & (parity == white_par)
     dark = keep & (parity != white_par)
@@ -470,7 +473,7 @@ class BoardCalibrationResult:
     n_samples : samples used per pose.
     """
 
-    model: BoardDepthModel
+    model: object
     squares: str
     cv: dict
     cv_per_pose: dict
@@ -481,6 +484,7 @@ class BoardCalibrationResult:
     n_samples: np.ndarray
     k_folds: int
     skipped: list = field(default_factory=list)
+    pose_index: list = field(default_factory=list)
 
     def summary(self) -> dict:
         return {"squares": self.squares, "k_folds": self.k_folds, "cv_held_out": self.cv,
@@ -489,12 +493,63 @@ class BoardCalibrationResult:
                 "pose_rms_px_median": float(np.median(self.pose_rms_px)),
                 "n_poses": int(len(self.n_samples)), "n_samples": int(np.sum(self.n_samples)),
                 "skipped_poses": self.skipped,
-                "unsupported_surface_nodes": int(np.sum(self.model.support == 0))}
+                "model": type(self.model).__name__,
+                "unsupported_surface_nodes": int(np.sum(self.model.support == 0)) if hasattr(self.model, "support") else None}
+
+
+def samples_to_depth_samples(samples: list[BoardSamples], shape: tuple[int, int], names: list[str] | None = None) -> list:
+    """Board samples -> the calibration core's ``DepthSample`` (NaN off the selected pixels)."""
+    from tofmetry.calibrate._fit import DepthSample
+
+    out = []
+    for j, s in enumerate(samples):
+        m = np.full(shape, np.nan)
+        r = np.full(shape, np.nan)
+        m[s.v, s.u] = s.measured_mm
+        r[s.v, s.u] = s.reference_mm
+        out.append(DepthSample(m, r, None, names[j] if names else f"pose{j}"))
+    return out
+
+
+def core_correction(cal, u: np.ndarray, v: np.ndarray, z_mm: np.ndarray) -> np.ndarray:
+    """Correction [mm] (to add to measured Z) of a core ``DepthCalibration`` at pixels (u, v)."""
+    z = np.asarray(z_mm, float)
+    k0, k1, w = cal.surface_weights(z)
+    surf = cal.surfaces
+    S = (1 - w) * surf[k0, v, u] + w * surf[k1, v, u]
+    c = -(cal.range_error(z) + S)
+    lo, hi = cal.valid_range_mm
+    return np.where((z >= lo) & (z <= hi), c, 0.0)
+
+
+def default_core_config(z_mm: np.ndarray):
+    """Core fit configuration for board data: 4 surface nodes over the data's range, spline surfaces."""
+    from tofmetry.calibrate._fit import DepthFitConfig
+
+    lo, hi = np.percentile(z_mm, [5, 95])
+    return DepthFitConfig(nodes_mm=tuple(np.linspace(lo, hi, 4).round(1)), center_pixels=400)
+
+
+def constant_shift_calibration(shift_mm: float, intrinsics: CameraIntrinsics, sensor: str = "kinect_v2",
+                               provenance: dict | None = None):
+    """A core ``DepthCalibration`` equal to a constant shift (iai_kinect2 ``depthShift``):
+    zero surfaces and a constant range curve ``R = -shift`` (corrected = measured + shift)."""
+    from tofmetry.calibrate._model import DepthCalibration
+
+    s = float(shift_mm)
+    return DepthCalibration(
+        sensor=sensor, intrinsics=intrinsics, range_knots=np.array([1.0, 1.0, 65535.0, 65535.0]),
+        range_coeffs=np.array([-s, -s]), range_degree=1, range_data_mm=np.array([1.0, 65535.0]),
+        valid_range_mm=np.array([1.0, 65535.0]), node_mm=np.array([1000.0]),
+        surfaces=np.zeros((1, *intrinsics.shape), np.float32), offset_mm=-s, surface_model="none",
+        provenance={"method": "constant depth shift", **(provenance or {})},
+    )
 
 
 def calibrate_depth_from_board(poses: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]], board: tuple[int, int],
                                square_mm: float, intrinsics: CameraIntrinsics, *, squares: str = "white",
                                k_folds: int = 5, iai_shift_mm: float | None = None, seed: int = 0,
+                               model: str = "grid", core_config=None, sensor: str = "kinect_v2", min_samples: int = 200,
                                fit_kwargs: dict | None = None, sample_kwargs: dict | None = None) -> BoardCalibrationResult:
     """Board-based depth calibration with leave-poses-out validation.
 
@@ -505,6 +560,9 @@ def calibrate_depth_from_board(poses: list[tuple[np.ndarray, np.ndarray, np.ndar
     board : (cols, rows) inner corners; square_mm : square size [mm].
     intrinsics : IR/depth intrinsics (the board plane's accuracy depends on them).
     squares : "white" (default, dark squares read longer) or "all".
+    model : "grid" (this module's range + membrane-grid model, :class:`BoardDepthModel`) or
+        "core" (the calibration core's ``fit_depth_model`` -> ``DepthCalibration``).
+    min_samples : poses with fewer usable pixels are skipped (e.g. white squares saturated at close range).
     iai_shift_mm : an iai_kinect2 ``depthShift`` to evaluate alongside (corrected = measured + shift).
 
     Returns
@@ -517,6 +575,7 @@ def calibrate_depth_from_board(poses: list[tuple[np.ndarray, np.ndarray, np.ndar
     sample_kwargs = sample_kwargs or {}
     samples: list[BoardSamples] = []
     skipped = []
+    kept: list[int] = []
     for i, (depth, ir, corners) in enumerate(poses):
         if corners is None:
             corners = detect_board_corners(ir, board)
@@ -528,16 +587,33 @@ def calibrate_depth_from_board(poses: list[tuple[np.ndarray, np.ndarray, np.ndar
         except EstimationError as exc:
             skipped.append((i, str(exc)))
             continue
-        samples.append(s.select(squares))
+        sel = s.select(squares)
+        if len(sel.u) < min_samples:
+            skipped.append((i, f"only {len(sel.u)} usable {squares}-square pixels (< {min_samples})"))
+            continue
+        samples.append(sel)
+        kept.append(i)
     if len(samples) < 3:
         raise EstimationError(f"only {len(samples)} usable board poses (need >= 3); skipped: {skipped}")
 
     def cat(ids, attr):
         return np.concatenate([getattr(samples[i], attr) for i in ids])
 
+    if model not in ("grid", "core"):
+        raise InputError(f"model must be 'grid' or 'core', found {model!r}")
+
     def fit(ids):
-        return fit_board_model(cat(ids, "u"), cat(ids, "v"), cat(ids, "measured_mm"), cat(ids, "reference_mm"),
-                               intrinsics.shape, **fit_kwargs)
+        if model == "core":
+            from tofmetry.calibrate._fit import fit_depth_model
+
+            cfg = core_config or default_core_config(cat(ids, "measured_mm"))
+            res = fit_depth_model(samples_to_depth_samples([samples[i] for i in ids], intrinsics.shape),
+                                  intrinsics, cfg, sensor=sensor, provenance={"method": "board", "squares": squares})
+            cal = res.calibration
+            return cal, (lambda u, v, z, _c=cal: core_correction(_c, u, v, z))
+        m = fit_board_model(cat(ids, "u"), cat(ids, "v"), cat(ids, "measured_mm"), cat(ids, "reference_mm"),
+                            intrinsics.shape, **fit_kwargs)
+        return m, m.correction
 
     cases = ["none", "constant_refit", "model"] + (["iai_shift"] if iai_shift_mm is not None else [])
     errs = {c: [] for c in cases}
@@ -545,12 +621,12 @@ def calibrate_depth_from_board(poses: list[tuple[np.ndarray, np.ndarray, np.ndar
     folds = _folds(len(samples), k_folds, seed)
     for test in folds:
         train = np.setdiff1d(np.arange(len(samples)), test)
-        model = fit(train)
+        _, corr = fit(train)
         const = float(np.mean(cat(train, "reference_mm") - cat(train, "measured_mm")))
         for i in test:
             s = samples[i]
             e0 = s.measured_mm - s.reference_mm
-            es = {"none": e0, "constant_refit": e0 + const, "model": e0 + model.correction(s.u, s.v, s.measured_mm)}
+            es = {"none": e0, "constant_refit": e0 + const, "model": e0 + corr(s.u, s.v, s.measured_mm)}
             if iai_shift_mm is not None:
                 es["iai_shift"] = e0 + iai_shift_mm
             for c, e in es.items():
@@ -558,12 +634,12 @@ def calibrate_depth_from_board(poses: list[tuple[np.ndarray, np.ndarray, np.ndar
                 per_pose[c][i] = np.sqrt(np.mean(e ** 2))
     cv = {c: error_stats(np.concatenate(errs[c])) for c in cases}
     all_ids = np.arange(len(samples))
-    model = fit(all_ids)
+    model_obj, corr = fit(all_ids)
     u, v, zm, zr = cat(all_ids, "u"), cat(all_ids, "v"), cat(all_ids, "measured_mm"), cat(all_ids, "reference_mm")
     return BoardCalibrationResult(
-        model=model, squares=squares, cv=cv, cv_per_pose=per_pose,
-        fit_residual=error_stats(zm + model.correction(u, v, zm) - zr), before=error_stats(zm - zr),
+        model=model_obj, squares=squares, cv=cv, cv_per_pose=per_pose,
+        fit_residual=error_stats(zm + corr(u, v, zm) - zr), before=error_stats(zm - zr),
         dark_minus_white_mm=np.array([s.dark_minus_white_mm for s in samples]),
         pose_rms_px=np.array([s.pose_rms_px for s in samples]), n_samples=np.array([len(s.u) for s in samples]),
-        k_folds=len(folds), skipped=skipped,
+        k_folds=len(folds), skipped=skipped, pose_index=kept,
     )

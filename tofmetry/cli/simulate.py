@@ -1,9 +1,169 @@
-"""CLI commands: simulate (see register)."""
+"""CLI commands: ``tofmetry simulate {wall,wall-dataset,checkerboard,scan,warmup,noise,materials,outdoor}``.
+
+Every command writes a simulated dataset folder (contract captures + truth files at the
+root) and refuses to overwrite an existing folder without ``--force``.
+"""
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import List, Optional
+
 import typer
+
+from tofmetry.cli._common import console, progress
+
+sim_app = typer.Typer(name="simulate", help="Simulated Kinect v2 datasets (virtual sensor with the paper's errors).",
+                      no_args_is_help=True)
+
+_OUT = typer.Option(..., "-o", "--output", help="Output folder (refused if it exists, unless --force).")
+_SEED = typer.Option(0, "--seed", help="Random seed (same seed = same data).")
+_NOERR = typer.Option(False, "--no-errors", help="Ideal sensor: every error term off except mm quantisation.")
+_WITHOUT = typer.Option(None, "--without", help="Switch an error term off (repeatable): wiggling, deformation, "
+                        "amplitude_bias, noise, flying, invalid, warmup, mounting_offset.")
+_FORCE = typer.Option(False, "--force", help="Replace an existing output folder.")
+
+
+def _errors(no_errors: bool, without: Optional[List[str]]):
+    from tofmetry.simulate import ErrorModel
+
+    em = ErrorModel.none() if no_errors else ErrorModel()
+    if without:
+        if "quantize" in without:
+            from tofmetry.errors import InputError
+
+            raise InputError("--without quantize: dataset files hold whole millimetres (uint16); quantisation cannot be off")
+        em = em.without(*without)
+    return em
+
+
+def _done(path: Path, what: str) -> None:
+    console.print(f"[green]wrote[/] {what}: {path}  (truth files at the folder root; processing must not read them)")
+
+
+@sim_app.command("wall")
+def wall(output: Path = _OUT, distance_mm: float = typer.Option(1000.0, "--distance-mm", help="Optical centre to wall [mm]."),
+         frames: int = typer.Option(50, "--frames", help="Number of frames."),
+         tilt_x: float = typer.Option(0.0, "--tilt-x", help="Wall tilt about x [deg]."),
+         tilt_y: float = typer.Option(0.0, "--tilt-y", help="Wall tilt about y [deg]."),
+         seed: int = _SEED, no_errors: bool = _NOERR, without: Optional[List[str]] = _WITHOUT,
+         force: bool = _FORCE) -> None:
+    """A single wall capture at one distance: OUTPUT/capture + OUTPUT/truth.json."""
+    from tofmetry.simulate import datasets
+
+    with progress("simulating wall frames", frames) as adv:
+        p = datasets.wall_capture(output, distance_mm, frames, _errors(no_errors, without), seed, (tilt_x, tilt_y),
+                                  force=force, progress=adv)
+    _done(p, "wall capture (capture/ sub-folder)")
+
+
+@sim_app.command("wall-dataset")
+def wall_dataset(output: Path = _OUT,
+                 distance_mm: Optional[List[float]] = typer.Option(None, "--distance-mm",
+                                                                   help="Station distance [mm] (repeatable); default 800, 1000..4500 every 250."),
+                 frames: int = typer.Option(50, "--frames", help="Frames per station."),
+                 tilt_x: float = typer.Option(0.0, "--tilt-x", help="Wall tilt about x [deg]."),
+                 tilt_y: float = typer.Option(0.0, "--tilt-y", help="Wall tilt about y [deg]."),
+                 seed: int = _SEED, no_errors: bool = _NOERR, without: Optional[List[str]] = _WITHOUT,
+                 force: bool = _FORCE) -> None:
+    """Wall dataset for depth calibration: stations.csv + one capture per station (paper §4.2)."""
+    from tofmetry.simulate import datasets
+
+    dists = sorted(distance_mm) if distance_mm else list(datasets.DEFAULT_DISTANCES_MM)
+    with progress(f"simulating {len(dists)} stations", frames * len(dists)) as adv:
+        p = datasets.wall_dataset(output, dists, frames, _errors(no_errors, without), seed, (tilt_x, tilt_y),
+                                  force=force, progress=adv)
+    _done(p, f"wall dataset ({len(dists)} stations)")
+
+
+@sim_app.command("checkerboard")
+def checkerboard(output: Path = _OUT, images: int = typer.Option(20, "--images", help="Number of IR images."),
+                 cols: int = typer.Option(9, "--cols", help="Inner corners along a row."),
+                 rows: int = typer.Option(6, "--rows", help="Inner corners along a column."),
+                 square_mm: float = typer.Option(40.0, "--square-mm", help="Square size [mm]."),
+                 seed: int = _SEED, force: bool = _FORCE) -> None:
+    """IR images of a checkerboard for intrinsic calibration (+ board.json, truth.json)."""
+    from tofmetry.simulate import datasets
+
+    with progress("rendering checkerboard images", images) as adv:
+        p = datasets.checkerboard_images(output, images, (cols, rows), square_mm, seed, force=force, progress=adv)
+    _done(p, f"{images} checkerboard IR images")
+
+
+@sim_app.command("scan")
+def scan(output: Path = _OUT, views: int = typer.Option(8, "--views", help="Number of viewpoints on the circle."),
+         radius_m: float = typer.Option(1.0, "--radius-m", help="Camera to object centre [m]."),
+         frames: int = typer.Option(10, "--frames", help="Frames per view."),
+         mesh: Optional[Path] = typer.Option(None, "--mesh", help="Object mesh PLY (metres); default: a balustrade."),
+         elevation: float = typer.Option(30.0, "--elevation-deg", help="Camera elevation above horizontal [deg]."),
+         seed: int = _SEED, no_errors: bool = _NOERR, without: Optional[List[str]] = _WITHOUT,
+         force: bool = _FORCE) -> None:
+    """Scan dataset: views/NN captures around an object, reference.ply, true poses in truth.json."""
+    from tofmetry.simulate import datasets
+
+    with progress(f"simulating {views} views", views * frames) as adv:
+        p = datasets.scan(output, views, radius_m, frames, mesh, _errors(no_errors, without), seed, elevation,
+                          force=force, progress=adv)
+    _done(p, f"scan dataset ({views} views)")
+
+
+@sim_app.command("warmup")
+def warmup(output: Path = _OUT, duration_s: float = typer.Option(5400.0, "--duration-s", help="Duration from power-on [s]."),
+           interval_s: float = typer.Option(15.0, "--interval-s", help="Time between frames [s]."),
+           distance_m: float = typer.Option(1.36, "--distance-m", help="Wall distance [m]."),
+           seed: int = _SEED, no_errors: bool = _NOERR, without: Optional[List[str]] = _WITHOUT,
+           force: bool = _FORCE) -> None:
+    """Warm-up experiment: one frame every 15 s from power-on (paper §3.2)."""
+    from tofmetry.simulate import datasets
+
+    n = int(duration_s // interval_s) + 1
+    with progress("simulating warm-up frames", n) as adv:
+        p = datasets.warmup(output, duration_s, interval_s, distance_m, _errors(no_errors, without), seed,
+                            force=force, progress=adv)
+    _done(p, f"warm-up capture ({n} frames)")
+
+
+@sim_app.command("noise")
+def noise(output: Path = _OUT, frames: int = typer.Option(100, "--frames", help="Number of frames."),
+          distance_m: float = typer.Option(1.15, "--distance-m", help="Wall distance [m]."),
+          seed: int = _SEED, no_errors: bool = _NOERR, without: Optional[List[str]] = _WITHOUT,
+          force: bool = _FORCE) -> None:
+    """Noise experiment: many frames of a wall (paper §3.2, Fig. 3)."""
+    from tofmetry.simulate import datasets
+
+    with progress("simulating frames", frames) as adv:
+        p = datasets.noise(output, frames, distance_m, _errors(no_errors, without), seed, force=force, progress=adv)
+    _done(p, "noise capture")
+
+
+@sim_app.command("materials")
+def materials(output: Path = _OUT, board: str = typer.Option("grey", "--board", help="'grey' (grey levels) or 'samples'."),
+              frames: int = typer.Option(20, "--frames", help="Number of frames."),
+              distance_m: float = typer.Option(1.0, "--distance-m", help="Board distance [m]."),
+              seed: int = _SEED, no_errors: bool = _NOERR, without: Optional[List[str]] = _WITHOUT,
+              force: bool = _FORCE) -> None:
+    """Materials / grey-level board capture + regions.json (paper §3.3.1)."""
+    from tofmetry.simulate import datasets
+
+    with progress("simulating frames", frames) as adv:
+        p = datasets.materials(output, board, frames, distance_m, _errors(no_errors, without), seed,
+                               force=force, progress=adv)
+    _done(p, f"{board} board capture (+ regions.json)")
+
+
+@sim_app.command("outdoor")
+def outdoor(output: Path = _OUT, frames: int = typer.Option(10, "--frames", help="Number of frames."),
+            ambient: float = typer.Option(1.0, "--ambient", help="Ambient (sun) light 0..1."),
+            seed: int = _SEED, no_errors: bool = _NOERR, without: Optional[List[str]] = _WITHOUT,
+            force: bool = _FORCE) -> None:
+    """Sunny outdoor scene: table with a box, far background (paper §3.3.2)."""
+    from tofmetry.simulate import datasets
+
+    with progress("simulating frames", frames) as adv:
+        p = datasets.outdoor(output, frames, ambient, _errors(no_errors, without), seed, force=force, progress=adv)
+    _done(p, "outdoor capture")
 
 
 def register(app: typer.Typer) -> None:
-    """Add this module's commands to the main app."""
+    """Add the ``simulate`` command group to the main app."""
+    app.add_typer(sim_app, name="simulate")

@@ -34,6 +34,48 @@ def demo(
     console.print(f"summary: {output / 'summary.json'}")
 
 
+def study(
+    data_dir: Optional[Path] = typer.Argument(None, help="Folder with warmup/ noise/ materials/ outdoor/ checkerboard/ "
+                                              "wall/ scan/ (each optional) and reference.ply; omit to simulate."),
+    output: Path = typer.Option(Path("study-out"), "-o", "--output", help="Output folder (report.html, report.json)."),
+    config: Optional[Path] = typer.Option(None, "--config", help="study.toml (pydantic-validated; see OUT/study.toml)."),
+    force: bool = typer.Option(False, "--force", help="Reuse a non-empty output folder."),
+) -> None:
+    """Run the whole study (assessment → calibration → validation → model → accuracy) with an HTML report."""
+    from rich.table import Table
+
+    from tofmetry.errors import InputError
+    from tofmetry.io import atomic_write_bytes, atomic_write_json
+    from tofmetry.report import render_html
+    from tofmetry.study import config_to_toml, load_config
+    from tofmetry.study.pipeline import StudyPipeline
+    from tofmetry.study.summary import build_report, report_json
+
+    cfg = load_config(config)
+    if output.exists() and any(output.iterdir()) and not force:
+        raise InputError(f"output {output} is not empty; pass --force to reuse it")
+    output.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(output / "study.toml", config_to_toml(cfg).encode())
+    icons = {"start": "[cyan]▶[/]", "done": "[green]✔[/]", "skip": "[yellow]–[/]", "fail": "[red]✘[/]", "info": "  [dim]›[/]"}
+    pipe = StudyPipeline(data_dir, output, cfg, on_event=lambda k, t: console.print(f"{icons.get(k, '')} {t}"))
+    with console.status("running the study…"):
+        ctx = pipe.run()
+    report = build_report(ctx)
+    atomic_write_bytes(output / "report.html", render_html(report).encode())
+    atomic_write_json(output / "report.json", report_json(ctx, report))
+    t = Table(title="Side by side with the reference study")
+    for c in ("quantity", "tofmetry", "study", "where", "verdict"):
+        t.add_column(c)
+    for r in report.comparison:
+        t.add_row(r.quantity, r.ours, r.study, r.study_ref, r.verdict)
+    console.print(t)
+    skipped = [o for o in ctx.outcomes.values() if o.status != "ok"]
+    for o in skipped:
+        console.print(f"[yellow]{o.status}[/] {o.title}: {o.note}")
+    console.print(f"report: {output / 'report.html'} ({ctx.total_seconds:.0f} s)")
+
+
 def register(app: typer.Typer) -> None:
     """Add demo and study."""
     app.command("demo")(demo)
+    app.command("study")(study)

@@ -145,7 +145,7 @@ th,td{border:1px solid #d0d7de;padding:.3em .6em;text-align:right}th{background:
 .figs{display:flex;flex-wrap:wrap;gap:1em}figure{margin:0;flex:1 1 480px;max-width:100%}
 figure img{max-width:100%;border:1px solid #d0d7de}figcaption{font-size:.85em;color:#57606a}
 .note{background:#fff8c5;border:1px solid #d4a72c;padding:.5em;border-radius:4px;white-space:pre-wrap}
-.verdict-better{color:#1a7f37;font-weight:600}.verdict-worse{color:#cf222e;font-weight:600}.verdict-comparable{color:#57606a}
+.verdict-better{color:#1a7f37;font-weight:600}.verdict-worse{color:#cf222e;font-weight:600}.verdict-comparable{color:#57606a}.verdict-consistent{color:#0969da}.verdict-differs{color:#9a6700;font-weight:600}
 nav a{margin-right:1em}
 @media print{#viewer{display:none}figure{page-break-inside:avoid}section{page-break-inside:avoid}}
 """

@@ -331,8 +331,8 @@ def materials(out: str | os.PathLike, board: str = "grey", n_frames: int = 20, d
     return out
 
 
-#: Camera pose of the outdoor scene: 1.3 m high, 2.3 m in front of the box, looking at the table.
-OUTDOOR_POSITION = (0.0, 0.0, 1.3)
+#: Camera pose of the outdoor scene: 1.35 m high, ~1.4 m from the box, looking down at the table.
+OUTDOOR_POSITION = (0.0, 0.9, 1.35)
 OUTDOOR_TARGET = (0.0, 2.2, 0.75)
 
 

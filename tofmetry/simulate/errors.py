@@ -106,13 +106,14 @@ class ErrorModel:
     wiggle_steep_start_m: float = 4.4
     wiggle_steep_mm: float = 30.0
     # (b) deformation
-    deform_corner_mm_1m: float = 14.0
+    deform_corner_mm_1m: float = 12.0
     deform_centre_mm_1m: float = -2.0
-    deform_range_gain: float = 0.75
+    deform_range_gain: float = 0.6
     deform_sharpness: float = 2.2
-    deform_centre_shift: tuple = (0.03, -0.02)
+    deform_radius: float = 0.98
+    deform_centre_shift: tuple = (0.015, -0.01)
     deform_aspect: float = 1.08
-    deform_skew_mm_1m: float = 1.5
+    deform_skew_mm_1m: float = 1.0
     # (c) amplitude bias
     amp_bias_mm_per_ln: float = 12.0 / math.log(6.0)
     reflective_max_mm: float = 60.0
@@ -131,9 +132,9 @@ class ErrorModel:
     max_range_mm: float = 4500.0
     min_amplitude: float = 30.0
     ambient: float = 0.0
-    ambient_amp_threshold: float = 2400.0
+    ambient_amp_threshold: float = 770.0
     ambient_noise_amp: float = 4000.0
-    ambient_spray_prob: float = 0.045
+    ambient_spray_prob: float = 0.025
     # (g) warm-up
     warmup_mm: float = 5.0
     warmup_tau_s: float = 720.0
@@ -235,8 +236,9 @@ def deformation_shape(xy: np.ndarray, em: ErrorModel) -> np.ndarray:
     """(b) Per-pixel deformation pattern at 1 m [mm] from normalised rays.
 
     An exponential bowl in an off-centre, slightly elliptic radius, plus a small skew:
-    negative in a central disc (``deform_centre_mm_1m``), about ``deform_corner_mm_1m``
-    in the corners, not radially symmetric and not a polynomial.
+    negative in a central disc (``deform_centre_mm_1m`` = -2 mm), +11 .. +17 mm in the four
+    corner 10x10 patches of the Kinect v2 at 1 m (paper Fig. 8: ~1 cm), not radially
+    symmetric and not a polynomial.
 
     Parameters
     ----------
@@ -249,7 +251,7 @@ def deformation_shape(xy: np.ndarray, em: ErrorModel) -> np.ndarray:
     """
     x = xy[..., 0] - em.deform_centre_shift[0]
     y = xy[..., 1] - em.deform_centre_shift[1]
-    q = ((x * em.deform_aspect) ** 2 + y ** 2) / 0.9 ** 2  # ~1 in the Kinect v2 corners
+    q = ((x * em.deform_aspect) ** 2 + y ** 2) / em.deform_radius ** 2  # ~1 in the Kinect v2 corners
     a = em.deform_sharpness
     span = em.deform_corner_mm_1m - em.deform_centre_mm_1m
     bowl = em.deform_centre_mm_1m + span * (np.exp(a * q) - 1.0) / (math.exp(a) - 1.0)
@@ -258,7 +260,7 @@ def deformation_shape(xy: np.ndarray, em: ErrorModel) -> np.ndarray:
 
 
 def deformation_scale(z_mm: np.ndarray, em: ErrorModel) -> np.ndarray:
-    """Range growth of the deformation: ``(1 - g) + g z[m]`` (1 at 1 m; 2.5 at 3 m for g = 0.75)."""
+    """Range growth of the deformation: ``(1 - g) + g z[m]`` (1 at 1 m; 2.2 at 3 m for g = 0.6)."""
     z = np.asarray(z_mm, dtype=np.float64) * 1e-3
     return (1.0 - em.deform_range_gain) + em.deform_range_gain * z
 

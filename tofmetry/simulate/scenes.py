@@ -100,7 +100,7 @@ class PlaneSurface:
         alb, lab, refl, rb = self.texture(s, tt)
         dd = d[idx]
         h.t[idx] = t[idx]
-        h.cos_inc[idx] = np.abs(dd @ n) / np.linalg.norm(dd, axis=1)
+        h.cos_inc[idx] = np.abs(dn[idx]) / np.sqrt(np.einsum("ij,ij->i", dd, dd))
         h.albedo[idx] = alb
         h.label[idx] = lab
         h.reflective[idx] = refl
@@ -110,25 +110,36 @@ class PlaneSurface:
 
 @dataclass
 class MeshSurface:
-    """Triangle mesh (world frame, metres) with one albedo and label, raycast by Open3D."""
+    """Triangle mesh (world frame, metres) with one albedo and label, raycast by Open3D.
+
+    All meshes of a :class:`Scene` are cast together in one ``RaycastingScene``.
+    """
 
     vertices: np.ndarray
     triangles: np.ndarray
     albedo: float = 0.7
     label: int = 1
-    _scene: object = field(default=None, repr=False)
 
-    def _raycaster(self):
-        if self._scene is None:
-            import open3d as o3d
 
-            sc = o3d.t.geometry.RaycastingScene()
-            mesh = o3d.t.geometry.TriangleMesh()
-            mesh.vertex.positions = o3d.core.Tensor(np.asarray(self.vertices, np.float32))
-            mesh.triangle.indices = o3d.core.Tensor(np.asarray(self.triangles, np.int32))
-            sc.add_triangles(mesh)
-            self._scene = sc
-        return self._scene
+class _MeshGroup:
+    """One Open3D ``RaycastingScene`` holding several :class:`MeshSurface`."""
+
+    def __init__(self, meshes: list):
+        import open3d as o3d
+
+        self.meshes = meshes
+        self.scene = o3d.t.geometry.RaycastingScene()
+        ids = []
+        for m in meshes:
+            tm = o3d.t.geometry.TriangleMesh()
+            tm.vertex.positions = o3d.core.Tensor(np.ascontiguousarray(m.vertices, np.float32))
+            tm.triangle.indices = o3d.core.Tensor(np.ascontiguousarray(m.triangles, np.int32))
+            ids.append(self.scene.add_triangles(tm))
+        n = max(ids) + 1
+        self.albedo = np.zeros(n + 1)
+        self.label = np.zeros(n + 1, np.int32)
+        for gid, m in zip(ids, meshes):
+            self.albedo[gid], self.label[gid] = m.albedo, m.label
 
     def intersect(self, o: np.ndarray, d: np.ndarray) -> Hits:
         import open3d as o3d
@@ -136,16 +147,17 @@ class MeshSurface:
         rays = np.empty((d.shape[0], 6), np.float32)
         rays[:, :3] = o
         rays[:, 3:] = d
-        ans = self._raycaster().cast_rays(o3d.core.Tensor(rays))
-        t = ans["t_hit"].numpy().astype(np.float64)
-        nrm = ans["primitive_normals"].numpy().astype(np.float64)
+        ans = self.scene.cast_rays(o3d.core.Tensor(rays))
+        t = ans["t_hit"].numpy()
         h = Hits.empty(d.shape[0])
-        ok = np.isfinite(t)
-        h.t[ok] = t[ok]
-        dd = d[ok]
-        h.cos_inc[ok] = np.abs(np.einsum("ij,ij->i", dd, nrm[ok])) / np.linalg.norm(dd, axis=1)
-        h.albedo[ok] = self.albedo
-        h.label[ok] = self.label
+        idx = np.flatnonzero(np.isfinite(t))
+        gid = ans["geometry_ids"].numpy()[idx].astype(np.int64)
+        nrm = ans["primitive_normals"].numpy()[idx].astype(np.float64)
+        dd = d[idx]
+        h.t[idx] = t[idx]
+        h.cos_inc[idx] = np.abs(np.einsum("ij,ij->i", dd, nrm)) / np.sqrt(np.einsum("ij,ij->i", dd, dd))
+        h.albedo[idx] = self.albedo[gid]
+        h.label[idx] = self.label[gid]
         return h
 
 
@@ -168,15 +180,24 @@ class Scene:
     labels: dict = field(default_factory=dict)
     info: dict = field(default_factory=dict)
     smooth: bool = False
+    _group: object = field(default=None, repr=False, compare=False)
 
     def intersect(self, origin: np.ndarray, dirs: np.ndarray) -> Hits:
         """Nearest hits of rays ``origin + t dirs``: origin (3,) [m], dirs (N, 3)."""
         o = np.asarray(origin, np.float64).reshape(3)
         d = np.asarray(dirs, np.float64).reshape(-1, 3)
-        h = Hits.empty(d.shape[0])
+        h = None
         for s in self.surfaces:
-            h.merge(s.intersect(o, d))
-        return h
+            if isinstance(s, PlaneSurface):
+                hs = s.intersect(o, d)
+                h = hs if h is None else (h.merge(hs) or h)
+        meshes = [s for s in self.surfaces if isinstance(s, MeshSurface)]
+        if meshes:
+            if self._group is None:
+                self._group = _MeshGroup(meshes)
+            hs = self._group.intersect(o, d)
+            h = hs if h is None else (h.merge(hs) or h)
+        return h if h is not None else Hits.empty(d.shape[0])
 
 
 # ---------------------------------------------------------------- helpers
@@ -282,10 +303,13 @@ def grey_board(distance_m: float = 1.0, cols: int = 5, rows: int = 4, square_m: 
         k = j * cols + i
         return np.asarray(levels)[k], (k + 1).astype(np.int32), np.zeros(u.shape, bool), np.zeros(u.shape)
 
-    board = PlaneSurface(np.array([0.0, 0.0, distance_m - 0.002]), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]),
-                         (x0, x0 + w, y0, y0 + h), tex)
-    back = PlaneSurface(np.array([0.0, 0.0, distance_m]), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), None,
-                        _uniform_texture(background_albedo, 0))
+    def tex_all(u, v):
+        inside = (u >= x0) & (u < x0 + w) & (v >= y0) & (v < y0 + h)
+        alb, lab, refl, rb = tex(u, v)
+        return (np.where(inside, alb, background_albedo), np.where(inside, lab, 0).astype(np.int32), refl, rb)
+
+    # the board is modelled flush with the wall: one plane, albedo and labels from the texture
+    board = PlaneSurface(np.array([0.0, 0.0, distance_m]), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), None, tex_all)
     names = {}
     squares = []
     for k, a in enumerate(levels):
@@ -295,8 +319,8 @@ def grey_board(distance_m: float = 1.0, cols: int = 5, rows: int = 4, square_m: 
         squares.append({"name": name, "label": k + 1, "albedo": a, "reflective": False,
                         "rect_m": [x0 + i * square_m, y0 + j * square_m, x0 + (i + 1) * square_m, y0 + (j + 1) * square_m],
                         "reference": a == GREY_LEVELS[0]})
-    return Scene("grey_board", [board, back], names,
-                 {"type": "grey_board", "distance_m": distance_m, "board_z_m": distance_m - 0.002, "samples": squares})
+    return Scene("grey_board", [board], names | {0: "wall"},
+                 {"type": "grey_board", "distance_m": distance_m, "board_z_m": distance_m, "samples": squares})
 
 
 #: Material samples of :func:`material_board`: name -> (albedo, reflective).
@@ -319,24 +343,31 @@ def material_board(distance_m: float = 1.0, sample_m: float = 0.12, gap_m: float
     pitch = sample_m + gap_m
     x0 = -(ncol * pitch - gap_m) / 2
     y0 = -(nrow * pitch - gap_m) / 2
-    z = distance_m - 0.003
-    surfs = [PlaneSurface(np.array([0.0, 0.0, distance_m]), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), None,
-                          _uniform_texture(board_albedo, 0))]
+    rects = []
     samples = []
     for k, name in enumerate(names):
         alb, refl = MATERIALS[name]
         i, j = k % ncol, k // ncol
         sx, sy = x0 + i * pitch, y0 + j * pitch
-
-        def tex(u, v, alb=alb, refl=refl, lab=k + 1):
-            n = u.shape[0]
-            rb = _uneven_field(u, v, seed=17 + lab) if refl else np.zeros(n)
-            return np.full(n, alb), np.full(n, lab, np.int32), np.full(n, refl), rb
-
-        surfs.append(PlaneSurface(np.array([sx, sy, z]), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]),
-                                  (0.0, sample_m, 0.0, sample_m), tex, reflective_max_mm))
+        rects.append((sx, sy, alb, refl, k + 1))
         samples.append({"name": name, "label": k + 1, "albedo": alb, "reflective": refl,
                         "rect_m": [sx, sy, sx + sample_m, sy + sample_m], "reference": name == "white_paper"})
+
+    def tex(u, v):
+        n = u.shape[0]
+        alb, lab = np.full(n, board_albedo), np.zeros(n, np.int32)
+        refl, rb = np.zeros(n, bool), np.zeros(n)
+        for sx, sy, a, r, lb in rects:
+            m = (u >= sx) & (u < sx + sample_m) & (v >= sy) & (v < sy + sample_m)
+            alb[m], lab[m], refl[m] = a, lb, r
+            if r:
+                rb[m] = _uneven_field(u[m], v[m], seed=17 + lb)
+        return alb, lab, refl, rb
+
+    # samples are modelled flush with the board (one plane; labels and albedos from the texture)
+    z = distance_m
+    surfs = [PlaneSurface(np.array([0.0, 0.0, z]), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), None, tex,
+                          reflective_max_mm)]
     labels = {0: "board"} | {k + 1: n for k, n in enumerate(names)}
     return Scene("material_board", surfs, labels,
                  {"type": "material_board", "distance_m": distance_m, "board_z_m": z, "samples": samples})

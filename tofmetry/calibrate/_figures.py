@@ -1,0 +1,118 @@
+"""Calibration figures (matplotlib, Agg): return Figure objects, the caller saves them."""
+
+from __future__ import annotations
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from tofmetry.calibrate._model import DepthCalibration  # noqa: E402
+
+
+def fig_range_curve(cal: DepthCalibration, points_mm: np.ndarray, frame_points: list | None = None,
+                    held_out: list | None = None):
+    """Study Fig. 7a: central deviation [mm] against measured range [m], with the fitted spline.
+
+    Parameters
+    ----------
+    points_mm : (M, 2) (measured central distance, deviation) of the fitted stations [mm]
+    frame_points : optional list of (distance_mm, (T,) per-frame deviations) to scatter
+    held_out : optional list of (distance_mm, deviation_mm) of validation stations (before)
+    """
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    off = cal.offset_mm
+    if frame_points:
+        for d, devs in frame_points:
+            ax.plot(np.full(len(devs), d / 1000.0), np.asarray(devs) - off, ".", color="0.75", ms=2)
+    ax.plot(points_mm[:, 0] / 1000.0, points_mm[:, 1] - off, "o", color="C0", label="stations (central patch)")
+    lo, hi = cal.range_data_mm
+    x = np.linspace(lo, hi, 400)
+    ax.plot(x / 1000.0, cal.range_error(x) - off, "-", color="C1", label="smoothing B-spline")
+    if held_out:
+        h = np.asarray(held_out, float)
+        ax.plot(h[:, 0] / 1000.0, h[:, 1], "s", mfc="none", color="C3", label="held-out stations")
+    ax.axhline(0, color="k", lw=0.5)
+    ax.set_xlabel("measured range [m]")
+    ax.set_ylabel(f"deviation - offset ({off:+.1f} mm) [mm]")
+    ax.set_title("Range error of the central patch (cf. study Fig. 7a)")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    return fig
+
+
+def fig_std_vs_range(distances_mm, center_std_mm, pixel_std_mm=None, after_std_mm=None):
+    """Study Fig. 7b: temporal std [mm] per station against range [m]."""
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    d = np.asarray(distances_mm, float) / 1000.0
+    ax.plot(d, center_std_mm, "o-", label="std of per-frame central-patch means")
+    if pixel_std_mm is not None:
+        ax.plot(d, pixel_std_mm, "s-", label="mean per-pixel temporal std (central patch)")
+    if after_std_mm is not None:
+        ax.plot(d, after_std_mm, "^-", label="after correction")
+    ax.set_xlabel("range [m]")
+    ax.set_ylabel("standard deviation [mm]")
+    ax.set_title("Temporal scatter per station (cf. study Fig. 7b)")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    return fig
+
+
+def fig_residual_maps(before: np.ndarray, after: np.ndarray, title: str, limit_mm: float | None = None):
+    """Study Figs. 8/9: plane-fit residual maps [mm] before and after correction."""
+    lim = limit_mm or float(np.nanpercentile(np.abs(before), 99)) or 1.0
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    for ax, m, t in zip(axes, (before, after), ("before correction", "after correction")):
+        im = ax.imshow(m, cmap="RdBu_r", vmin=-lim, vmax=lim)
+        ax.set_title(f"{t}: std {np.nanstd(m):.2f} mm")
+        ax.set_xlabel("u [px]")
+        ax.set_ylabel("v [px]")
+        fig.colorbar(im, ax=ax, label="residual to fitted plane [mm]")
+    fig.suptitle(title)
+    fig.tight_layout()
+    return fig
+
+
+def fig_validation(reports) -> "plt.Figure":
+    """Before/after per station: central deviation, plane std, per-pixel RMS against range."""
+    d = np.array([r.distance_mm for r in reports]) / 1000.0
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    pairs = [("dev_before_mm", "dev_after_mm", "central deviation [mm]"),
+             ("plane_std_before_mm", "plane_std_after_mm", "plane-fit residual std [mm]"),
+             ("rms_before_mm", "rms_after_mm", "per-pixel RMS error, central 90 % [mm]")]
+    for ax, (b, a, lab) in zip(axes, pairs):
+        ax.plot(d, [getattr(r, b) for r in reports], "o-", label="before")
+        ax.plot(d, [getattr(r, a) for r in reports], "s-", label="after")
+        ax.set_xlabel("reference range [m]")
+        ax.set_ylabel(lab)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle("Depth calibration validation (held-out stations)")
+    fig.tight_layout()
+    return fig
+
+
+def fig_coverage(corners_px: list, shape: tuple[int, int], title: str = "Checkerboard corner coverage"):
+    """Coverage map of detected corners over the image (count per cell) with the corners."""
+    h, w = shape
+    cell = 32
+    grid = np.zeros((-(-h // cell), -(-w // cell)))
+    fig, ax = plt.subplots(figsize=(7, 5.2))
+    for c in corners_px:
+        c = np.asarray(c).reshape(-1, 2)
+        iu = np.clip((c[:, 0] // cell).astype(int), 0, grid.shape[1] - 1)
+        iv = np.clip((c[:, 1] // cell).astype(int), 0, grid.shape[0] - 1)
+        np.add.at(grid, (iv, iu), 1)
+    im = ax.imshow(grid, extent=(-0.5, w - 0.5, h - 0.5, -0.5), cmap="viridis", interpolation="nearest")
+    for c in corners_px:
+        c = np.asarray(c).reshape(-1, 2)
+        ax.plot(c[:, 0], c[:, 1], ".", ms=1.5, color="w")
+    ax.set_xlabel("u [px]")
+    ax.set_ylabel("v [px]")
+    ax.set_title(title)
+    fig.colorbar(im, ax=ax, label=f"corners per {cell}x{cell} px cell")
+    fig.tight_layout()
+    return fig

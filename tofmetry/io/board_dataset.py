@@ -1,0 +1,217 @@
+"""Board dataset: chessboard poses for board-based calibration (and the iai_kinect2 importer).
+
+::
+
+    dataset/
+      board.json            {"cols": 5, "rows": 7, "square_mm": 30.0, "sensor": "kinect_v2", "source": ...}
+      intrinsics.json       IR/depth intrinsics (optional; e.g. from iai_kinect2 calib_ir.yaml)
+      color_intrinsics.json colour intrinsics (optional)
+      extrinsics.json       IR -> colour extrinsics [m] (optional)
+      depth_shift.json      {"depth_shift_mm": s, "convention": "corrected = measured + shift"} (optional)
+      depth_shift.npz       the same shift as a tofmetry DepthCalibration (zero surfaces, constant range curve)
+      poses/NNNN/           one capture per board pose (capture.json, depth/, ir/, color/)
+      poses/NNNN/corners.json  {"board": [cols, rows], "corners_px": [[u, v], ...], "source": ...}
+
+``tofmetry calibrate depth`` dispatches here when the folder holds ``board.json``.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from tofmetry.errors import FormatError, InputError
+from tofmetry.io._atomic import atomic_dir, atomic_write_json, read_json
+from tofmetry.io.capture import Capture, CaptureMeta, CaptureWriter
+from tofmetry.io import images
+from tofmetry.io.intrinsics_json import read_intrinsics, write_intrinsics
+from tofmetry.sensor.extrinsics import Extrinsics
+from tofmetry.sensor.intrinsics import CameraIntrinsics
+
+
+@dataclass(frozen=True)
+class BoardSpec:
+    """Chessboard: ``cols x rows`` inner corners, square size [mm]."""
+
+    cols: int
+    rows: int
+    square_mm: float
+
+    @property
+    def size(self) -> tuple[int, int]:
+        return (self.cols, self.rows)
+
+    @classmethod
+    def parse(cls, text: str, square_mm: float) -> "BoardSpec":
+        """``"5x7"`` (inner corners, cols x rows) and a square size [mm]."""
+        m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text or "")
+        if not m:
+            raise InputError(f"--board: expected inner corners as COLSxROWS (e.g. 5x7), found {text!r}")
+        cols, rows = int(m.group(1)), int(m.group(2))
+        if cols < 2 or rows < 2:
+            raise InputError(f"--board: need at least 2x2 inner corners, found {text!r}")
+        if not square_mm or square_mm <= 0:
+            raise InputError(f"--square-mm must be > 0, found {square_mm}")
+        return cls(cols, rows, float(square_mm))
+
+
+def write_corners(path: str | os.PathLike, corners: np.ndarray, board: BoardSpec, source: str = "") -> Path:
+    c = np.asarray(corners, float).reshape(-1, 2)
+    if len(c) != board.cols * board.rows:
+        raise InputError(f"{path}: {len(c)} corners do not match the board {board.cols}x{board.rows}")
+    return atomic_write_json(path, {"board": [board.cols, board.rows], "corners_px": c, "source": source})
+
+
+def read_corners(path: str | os.PathLike, board: BoardSpec) -> np.ndarray:
+    """(cols*rows, 2) float64 corner pixels; FormatError naming the file on mismatch."""
+    d = read_json(path, "corners file")
+    try:
+        c = np.asarray(d["corners_px"], float)
+    except (KeyError, TypeError, ValueError):
+        raise FormatError(f"{path}: expected {{'corners_px': [[u, v], ...]}}") from None
+    if c.ndim != 2 or c.shape[1] != 2 or len(c) != board.cols * board.rows:
+        raise FormatError(
+            f"{path}: {c.shape[0] if c.ndim else 0} corners do not match the board {board.cols}x{board.rows} "
+            f"(expected {board.cols * board.rows})"
+        )
+    return c
+
+
+class BoardDataset:
+    """A board dataset opened for reading (see the module docstring)."""
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+        meta = read_json(self.path / "board.json", "board.json")
+        try:
+            self.board = BoardSpec(int(meta["cols"]), int(meta["rows"]), float(meta["square_mm"]))
+        except (KeyError, TypeError, ValueError):
+            raise FormatError(f"{self.path / 'board.json'}: expected cols, rows (inner corners) and square_mm") from None
+        self.meta = meta
+        self.sensor = str(meta.get("sensor", "unknown"))
+        pdir = self.path / "poses"
+        self.names = sorted(p.name for p in pdir.iterdir() if p.is_dir() and not p.name.startswith(".")) if pdir.is_dir() else []
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def capture(self, i: int) -> Capture:
+        return Capture(self.path / "poses" / self.names[i])
+
+    def corners(self, i: int) -> np.ndarray | None:
+        f = self.path / "poses" / self.names[i] / "corners.json"
+        return read_corners(f, self.board) if f.is_file() else None
+
+    def intrinsics(self) -> CameraIntrinsics | None:
+        f = self.path / "intrinsics.json"
+        return read_intrinsics(f) if f.is_file() else None
+
+    def depth_shift_mm(self) -> float | None:
+        f = self.path / "depth_shift.json"
+        return float(read_json(f, "depth_shift.json")["depth_shift_mm"]) if f.is_file() else None
+
+    def extrinsics(self) -> Extrinsics | None:
+        f = self.path / "extrinsics.json"
+        return Extrinsics.from_dict(read_json(f, "extrinsics.json"), source_name=str(f)) if f.is_file() else None
+
+    def load_poses(self, indices=None) -> list[tuple[np.ndarray, np.ndarray, np.ndarray | None]]:
+        """``[(depth (H,W) uint16 mm, ir (H,W) uint16, corners or None), ...]`` (first frame of each pose)."""
+        out = []
+        for i in (range(len(self)) if indices is None else indices):
+            cap = self.capture(i)
+            out.append((cap.depth(0), cap.ir(0), self.corners(i)))
+        return out
+
+
+_POSE_RE = re.compile(r"^(\d+)_depth\.(png|tif|tiff)$")
+
+
+def import_iai_kinect2(src: str | os.PathLike, out: str | os.PathLike, board: BoardSpec | None = None,
+                       force: bool = False, progress=None) -> dict:
+    """Convert an iai_kinect2 folder (``kinect_cal_data`` recording and/or ``calib_*.yaml``) to a board dataset.
+
+    Parameters
+    ----------
+    src : folder with ``NNNN_depth.png``, ``NNNN_ir.png``, optional ``NNNN_ir_points.yaml`` and
+        ``NNNN_color.png``, and/or ``calib_ir/color/pose/depth.yaml``.
+    out : new dataset folder (refused if it exists unless ``force``).
+    board : chessboard (required when the folder holds poses; not stored in iai_kinect2 files).
+    progress : optional ``advance()`` callable, called once per pose.
+
+    Returns
+    -------
+    dict summary: poses, files written, calibration found.
+    """
+    from tofmetry.io import iai_kinect2 as ik
+
+    src = Path(src)
+    if not src.is_dir():
+        raise InputError(f"iai_kinect2 folder not found: {src}")
+    poses = sorted((m.group(1), src / f) for f in os.listdir(src) if (m := _POSE_RE.match(f)))
+    has_cal = (src / "calib_ir.yaml").is_file()
+    if not poses and not has_cal:
+        raise InputError(f"{src}: neither NNNN_depth.png poses nor calib_ir.yaml found (not an iai_kinect2 folder)")
+    if poses and board is None:
+        raise InputError(f"{src}: holds {len(poses)} board poses; pass the board (--board COLSxROWS --square-mm S)")
+    cal = ik.read_iai_calibration(src) if has_cal else None
+    summary = {"poses": 0, "with_corners": 0, "calibration": {}}
+    with atomic_dir(out, force=force) as tmp:
+        if board is not None:
+            atomic_write_json(tmp / "board.json", {"cols": board.cols, "rows": board.rows, "square_mm": board.square_mm,
+                                                   "sensor": "kinect_v2", "source": f"iai_kinect2 {src}"})
+        if cal is not None:
+            write_intrinsics(tmp / "intrinsics.json", cal.ir, sensor="kinect_v2", source=str(src / "calib_ir.yaml"))
+            summary["calibration"]["intrinsics"] = cal.ir.to_dict()
+            if cal.color is not None:
+                write_intrinsics(tmp / "color_intrinsics.json", cal.color, sensor="kinect_v2", source=str(src / "calib_color.yaml"))
+            if cal.ir_to_color is not None:
+                atomic_write_json(tmp / "extrinsics.json", {**cal.ir_to_color.to_dict(), "sensor": "kinect_v2",
+                                                            "file": str(src / "calib_pose.yaml")})
+            if cal.depth_shift_mm is not None:
+                atomic_write_json(tmp / "depth_shift.json", {"depth_shift_mm": cal.depth_shift_mm,
+                                                             "convention": "corrected = measured + depth_shift_mm",
+                                                             "sensor": "kinect_v2", "source": str(src / "calib_depth.yaml")})
+                _write_shift_calibration(tmp / "depth_shift.npz", cal.depth_shift_mm, cal.ir, src)
+                summary["calibration"]["depth_shift_mm"] = cal.depth_shift_mm
+        meta = CaptureMeta(sensor="kinect_v2", intrinsics=cal.ir if cal else None)
+        for name, dpath in poses:
+            ir_f = src / f"{name}_ir.png"
+            if not ir_f.is_file():
+                raise InputError(f"{dpath}: no matching IR image {ir_f.name}")
+            depth = images.read_depth_image(dpath)
+            ir = images.read_ir_image(ir_f)
+            col_f = src / f"{name}_color.png"
+            color = images.read_color_image(col_f) if col_f.is_file() else None
+            pdir = tmp / "poses" / name
+            meta.extra = {"source": str(dpath)}
+            with CaptureWriter(pdir, meta) as w:
+                w.add(depth, ir=ir, color=color)
+            pts_f = src / f"{name}_ir_points.yaml"
+            if pts_f.is_file():
+                corners = ik.read_ir_points(pts_f, board.size)
+                write_corners(pdir / "corners.json", corners, board, source=str(pts_f))
+                summary["with_corners"] += 1
+            summary["poses"] += 1
+            if progress is not None:
+                progress()
+    return summary
+
+
+def _write_shift_calibration(path: Path, shift_mm: float, intr: CameraIntrinsics, src: Path) -> None:
+    """The iai_kinect2 depthShift as a tofmetry DepthCalibration (zero surfaces, constant range curve)."""
+    from tofmetry.calibrate.board import constant_shift_calibration
+    from tofmetry.io.calibration_file import save_calibration
+
+    save_calibration(path, constant_shift_calibration(shift_mm, intr, "kinect_v2",
+                                                      {"source": str(src / "calib_depth.yaml"), "tool": "iai_kinect2"}))
+
+
+def import_iai_kinect2_cli(src, out, *, force: bool = False, progress=None, board: str | None = None,
+                           square_mm: float | None = None, **_ignored) -> dict:
+    """Registry entry: ``board`` as ``"COLSxROWS"`` plus ``square_mm``."""
+    spec = BoardSpec.parse(board, square_mm) if board else None
+    return import_iai_kinect2(src, out, spec, force=force, progress=progress)

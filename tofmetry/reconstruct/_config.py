@@ -1,0 +1,88 @@
+"""Typed configuration of every reconstruction stage (pydantic, documented fields)."""
+
+from __future__ import annotations
+
+
+from pydantic import BaseModel, Field
+
+
+class PreprocessConfig(BaseModel):
+    """Per-view depth preparation (study §3.2, §5.2.1)."""
+
+    robust_k: float = Field(3.0, gt=0, description="temporal outlier rejection: median +- k robust sigmas")
+    min_valid_share: float = Field(0.5, ge=0, le=1, description="a pixel needs valid samples in this share of the frames")
+    min_mm: float = Field(500.0, description="working range: nearest depth kept [mm] (Kinect v2 spec: 500)")
+    max_mm: float = Field(2500.0, description="working range: farthest depth kept [mm]; small-object scans are at ~1 m")
+    remove_flying: bool = Field(True, description="remove flying (mixed) pixels with tofmetry.assess.remove_flying_pixels")
+    max_incidence_deg: float = Field(80.0, gt=0, le=90, description="drop grazing points (incidence angle above this) [deg]")
+
+
+class SegmentConfig(BaseModel):
+    """Object segmentation: support plane (RANSAC) + what stands on it + near-axis cluster."""
+
+    keep_all: bool = Field(False, description="skip segmentation: keep the whole working range")
+    plane_threshold_mm: float = Field(6.0, gt=0, description="RANSAC inlier distance to the support plane [mm]")
+    min_height_mm: float = Field(5.0, ge=0, description="object points lie at least this high above the plane [mm]")
+    max_height_mm: float = Field(600.0, gt=0, description="...and at most this high [mm] (drops walls/background)")
+    cluster_eps_mm: float = Field(12.0, gt=0, description="DBSCAN neighbour distance for the object cluster [mm]")
+    ring_mm: float = Field(60.0, ge=0, description="support-plane ring kept around the object footprint for registration [mm]")
+    max_footprint_mm: float = Field(600.0, gt=0, description="object points farther than this (in the plane) from the "
+                                    "cluster nearest the optical axis are background [mm]")
+
+
+class RegistrationConfig(BaseModel):
+    """Automatic registration: FPFH + RANSAC coarse, robust point-to-plane ICP fine, pose graph."""
+
+    feature_voxel_mm: float = Field(5.0, gt=0, description="voxel for FPFH features / RANSAC [mm]")
+    icp_voxel_mm: float = Field(2.5, gt=0, description="voxel of the ICP clouds [mm]")
+    icp_radii_mm: tuple[float, ...] = Field((15.0, 6.0, 3.0), description="ICP correspondence radii, coarse to fine [mm]")
+    kernel: str = Field("tukey", description="robust kernel: tukey | huber | none (k = radius / 3)")
+    max_incidence_deg: float = Field(70.0, gt=0, le=90, description="registration uses points seen at incidence below this [deg] "
+                                     "(§6.3 reliability: grazing points are noisy and biased)")
+    use_ground: bool = Field(True, description="register object + a ring of the support plane (ground constrains tilt/height)")
+    min_fitness: float = Field(0.35, ge=0, le=1, description="an edge needs this share of object points matched")
+    max_rmse_mm: float = Field(3.0, gt=0, description="...and an inlier RMSE below this [mm]")
+    all_pairs: bool = Field(True, description="try every pair (loop closures), not only successive views")
+    edge_prune: float = Field(0.25, ge=0, le=1, description="pose-graph line-process edge pruning threshold")
+    ransac_seeds: int = Field(2, ge=1, description="RANSAC restarts per successive pair (best after ICP kept)")
+    seed: int = 0
+
+
+class FusionConfig(BaseModel):
+    """TSDF fusion (Open3D tensor VoxelBlockGrid) and meshing.
+
+    Defaults follow the sensor: at range z the pixel footprint is z / f (1000 / 365 = 2.7 mm at
+    1 m); voxel = 0.6 * footprint (~1.6 mm at 1 m); truncation = max(4 sigma_eff, 3 voxels) with
+    sigma_eff the depth noise after averaging plus calibration / registration residuals
+    (~1.5 mm at 1 m) -> about 6 mm.
+    """
+
+    voxel_mm: float | None = Field(None, description="TSDF voxel [mm]; None = 0.6 * z_median / f")
+    trunc_mm: float | None = Field(None, description="TSDF truncation [mm]; None = max(4 sigma_eff, 3 voxels)")
+    sigma_eff_1m_mm: float = Field(1.5, gt=0, description="effective depth uncertainty at 1 m after averaging/calibration [mm]")
+    block_resolution: int = Field(8, description="voxels per block side")
+    poisson: bool = Field(False, description="also build a Poisson mesh of the fused cloud (density-trimmed)")
+    poisson_depth: int = Field(9, description="Poisson octree depth")
+    poisson_trim_quantile: float = Field(0.05, ge=0, lt=1, description="drop Poisson vertices of the lowest density quantile")
+    crop_margin_mm: float = Field(4.0, ge=0, description="mesh vertices farther than this from the segmented object points are cropped [mm]")
+
+    def voxel_for(self, z_mm: float, f_px: float) -> float:
+        """Voxel size [mm] at working range ``z_mm`` for focal ``f_px``."""
+        return self.voxel_mm if self.voxel_mm is not None else float(min(max(0.6 * z_mm / f_px, 1.0), 8.0))
+
+    def trunc_for(self, z_mm: float, voxel_mm: float) -> float:
+        """Truncation [mm]."""
+        if self.trunc_mm is not None:
+            return self.trunc_mm
+        return float(max(4.0 * self.sigma_eff_1m_mm * z_mm / 1000.0, 3.0 * voxel_mm))
+
+
+class ReconstructionConfig(BaseModel):
+    """All stages of ``tofmetry reconstruct``."""
+
+    preprocess: PreprocessConfig = PreprocessConfig()
+    segment: SegmentConfig = SegmentConfig()
+    registration: RegistrationConfig = RegistrationConfig()
+    fusion: FusionConfig = FusionConfig()
+
+

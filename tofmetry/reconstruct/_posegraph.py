@@ -1,0 +1,135 @@
+"""Pose graph over all accepted pairwise registrations, globally optimised (Open3D LM)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tofmetry.errors import EstimationError
+from tofmetry.reconstruct._register import PairResult
+
+
+def rotation_angle_deg(R: np.ndarray) -> float:
+    """Angle of a rotation matrix [deg]."""
+    return float(np.degrees(np.arccos(np.clip((np.trace(R[:3, :3]) - 1) / 2, -1, 1))))
+
+
+def connected_components(n: int, edges: list[tuple[int, int]]) -> list[list[int]]:
+    """Connected components of an undirected graph on nodes 0..n-1 (union-find)."""
+    parent = list(range(n))
+
+    def find(a: int) -> int:
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    for a, b in edges:
+        parent[find(a)] = find(b)
+    comps: dict[int, list[int]] = {}
+    for k in range(n):
+        comps.setdefault(find(k), []).append(k)
+    return sorted(comps.values(), key=lambda c: c[0])
+
+
+@dataclass
+class PoseGraphResult:
+    """Optimised poses and per-edge consistency.
+
+    Attributes
+    ----------
+    poses : (V, 4, 4) camera-to-world, world = camera frame of view 0
+    edges : list of dicts: source, target, fitness, inlier_rmse_mm, method, kept (after pruning),
+        residual_rot_deg / residual_trans_mm (edge transform vs optimised poses)
+    """
+
+    poses: np.ndarray
+    edges: list
+
+
+class PoseGraphBuilder:
+    """Collects pairwise results and optimises the poses (one ``add`` per registered pair)."""
+
+    def __init__(self, n_views: int, names: list[str]):
+        self.n = n_views
+        self.names = names
+        self.pairs: list[PairResult] = []
+
+    def add(self, pair: PairResult) -> None:
+        self.pairs.append(pair)
+
+    def accepted(self) -> list[PairResult]:
+        return [p for p in self.pairs if p.accepted]
+
+    def chain_poses(self) -> np.ndarray:
+        """Initial camera-to-world poses by a breadth-first walk over accepted edges from view 0."""
+        poses = np.full((self.n, 4, 4), np.nan)
+        poses[0] = np.eye(4)
+        done = {0}
+        changed = True
+        while changed:
+            changed = False
+            for p in self.accepted():
+                # T maps source -> target: pose_source = pose_target @ T
+                if p.target in done and p.source not in done:
+                    poses[p.source] = poses[p.target] @ p.transform
+                elif p.source in done and p.target not in done:
+                    poses[p.target] = poses[p.source] @ np.linalg.inv(p.transform)
+                else:
+                    continue
+                done |= {p.source, p.target}
+                changed = True
+        return poses
+
+    def check_connected(self) -> None:
+        """Raise EstimationError naming the view groups when the accepted edges do not connect all views."""
+        comps = connected_components(self.n, [(p.source, p.target) for p in self.accepted()])
+        if len(comps) > 1:
+            groups = "; ".join("{" + ", ".join(self.names[k] for k in c) + "}" for c in comps)
+            best = {}
+            for p in self.pairs:
+                key = (p.source, p.target)
+                best[key] = p
+            worst = ", ".join(f"{self.names[p.source]}->{self.names[p.target]} fitness {p.fitness:.2f} rmse "
+                              f"{p.inlier_rmse_mm:.1f} mm" for p in self.pairs if not p.accepted)[:600]
+            raise EstimationError(
+                f"registration graph is disconnected: {len(comps)} groups of views that do not overlap each other: "
+                f"{groups}. No model is written. Rejected pairs: {worst}. Take views with more overlap "
+                "(successive views should share most of the object)"
+            )
+
+    def optimize(self, max_corr_m: float, edge_prune: float = 0.25) -> PoseGraphResult:
+        """Global optimisation (Levenberg-Marquardt, line-process pruning), view 0 fixed."""
+        import open3d as o3d
+
+        reg = o3d.pipelines.registration
+        self.check_connected()
+        init = self.chain_poses()
+        pg = reg.PoseGraph()
+        for k in range(self.n):
+            pg.nodes.append(reg.PoseGraphNode(init[k]))
+        acc = self.accepted()
+        for p in acc:
+            # successive views (and the loop closure of the circle) are "certain" odometry-like edges
+            uncertain = not (abs(p.source - p.target) == 1)
+            pg.edges.append(reg.PoseGraphEdge(p.source, p.target, p.transform, p.information, uncertain=uncertain))
+        if len(acc) > self.n - 1:
+            opt = reg.GlobalOptimizationOption(max_correspondence_distance=max_corr_m, edge_prune_threshold=edge_prune,
+                                               preference_loop_closure=2.0, reference_node=0)
+            reg.global_optimization(pg, reg.GlobalOptimizationLevenbergMarquardt(),
+                                    reg.GlobalOptimizationConvergenceCriteria(), opt)
+        poses = np.stack([np.asarray(nd.pose) for nd in pg.nodes])
+        poses = np.linalg.inv(poses[0]) @ poses  # world = view 0 exactly
+        kept = {(e.source_node_id, e.target_node_id) for e in pg.edges}
+        edges = []
+        for p in self.pairs:
+            d = p.to_dict(self.names)
+            d["kept"] = bool(p.accepted and (p.source, p.target) in kept)
+            if p.accepted:
+                rel = np.linalg.inv(poses[p.target]) @ poses[p.source]
+                E = np.linalg.inv(p.transform) @ rel
+                d["residual_rot_deg"] = round(rotation_angle_deg(E), 4)
+                d["residual_trans_mm"] = round(float(np.linalg.norm(E[:3, 3])) * 1e3, 3)
+            edges.append(d)
+        return PoseGraphResult(poses, edges)

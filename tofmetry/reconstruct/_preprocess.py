@@ -1,0 +1,130 @@
+"""Per-view depth preparation: robust temporal mean, calibration, flying pixels, range, normals."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tofmetry.errors import InputError
+from tofmetry.pointcloud import depth_to_points, robust_mean_depth
+from tofmetry.reconstruct._config import PreprocessConfig
+from tofmetry.sensor import CameraIntrinsics
+
+
+@dataclass
+class ViewData:
+    """One prepared view (camera frame).
+
+    Attributes
+    ----------
+    name : str
+    depth_mm : (H, W) float64 [mm] cleaned, calibrated Z; 0 = invalid
+    points : (N, 3) float64 [m] valid points of ``depth_mm``
+    index : (N,) int64 flat pixel index of each point
+    normals : (N, 3) float64 unit normals oriented toward the camera
+    cos_incidence : (N,) float64 cosine of the angle between normal and line of sight
+    ir : (H, W) float or None, mean IR amplitude
+    stats : dict of counts (valid, flying removed, out of range, grazing)
+    """
+
+    name: str
+    depth_mm: np.ndarray
+    points: np.ndarray
+    index: np.ndarray
+    normals: np.ndarray
+    cos_incidence: np.ndarray
+    ir: np.ndarray | None
+    stats: dict
+
+
+def _flying_filter(depth: np.ndarray, intr: CameraIntrinsics) -> np.ndarray:
+    """Flying-pixel removal via tofmetry.assess (the assessment helper's detector)."""
+    from tofmetry.assess.flying import remove_flying_pixels
+
+    return remove_flying_pixels(depth, intr)
+
+
+def prepare_view(stack: np.ndarray, intr: CameraIntrinsics, calibration=None, config: PreprocessConfig | None = None,
+                 name: str = "view", ir: np.ndarray | None = None) -> ViewData:
+    """Average, calibrate and clean one view.
+
+    Parameters
+    ----------
+    stack : (T, H, W) uint16 [mm] depth frames of one pose
+    intr : CameraIntrinsics of the depth camera (the calibration's when calibrated)
+    calibration : tofmetry.calibrate.DepthCalibration or None
+    ir : (H, W) mean amplitude (optional, kept for colouring)
+
+    Returns
+    -------
+    ViewData
+    """
+    cfg = config or PreprocessConfig()
+    stack = np.asarray(stack)
+    if stack.ndim != 3 or stack.shape[1:] != intr.shape:
+        raise InputError(f"view {name}: depth stack shape {stack.shape} does not match the intrinsics {intr.shape} (T, H, W)")
+    min_count = max(1, int(np.ceil(cfg.min_valid_share * stack.shape[0])))
+    depth = robust_mean_depth(stack, k=cfg.robust_k, min_count=min_count)
+    n_valid0 = int((depth > 0).sum())
+    if calibration is not None:
+        from tofmetry.calibrate import apply_depth_calibration
+
+        depth = np.asarray(apply_depth_calibration(depth, calibration), dtype=np.float64)
+        depth[~np.isfinite(depth)] = 0.0
+    n_flying = 0
+    if cfg.remove_flying:
+        cleaned = np.asarray(_flying_filter(depth, intr), dtype=np.float64)
+        n_flying = int(((depth > 0) & (cleaned <= 0)).sum())
+        depth = cleaned
+    out_range = (depth > 0) & ((depth < cfg.min_mm) | (depth > cfg.max_mm))
+    depth = np.where(out_range, 0.0, depth)
+    pts, idx = depth_to_points(depth, intr, return_index=True)
+    if len(pts) < 100:
+        raise InputError(f"view {name}: only {len(pts)} valid depth pixels in the working range "
+                         f"{cfg.min_mm:g}..{cfg.max_mm:g} mm")
+    normals, cos_inc = image_normals(pts, idx, intr.shape)
+    grazing = cos_inc < np.cos(np.radians(cfg.max_incidence_deg))
+    keep = ~grazing
+    depth.ravel()[idx[grazing]] = 0.0
+    stats = {"valid_after_averaging": n_valid0, "flying_removed": n_flying, "out_of_range": int(out_range.sum()),
+             "grazing_removed": int(grazing.sum()), "points": int(keep.sum())}
+    return ViewData(name, depth, pts[keep], idx[keep], normals[keep], cos_inc[keep], ir, stats)
+
+
+def image_normals(points: np.ndarray, index: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Normals of an organised cloud from central differences on the pixel grid.
+
+    Parameters
+    ----------
+    points : (N, 3) [m]; index : (N,) flat pixel index; shape : (H, W)
+
+    Returns
+    -------
+    normals : (N, 3) unit, oriented toward the camera (origin)
+    cos_incidence : (N,) |n . line of sight|; 0 where a normal could not be formed
+    """
+    H, W = shape
+    img = np.full((H, W, 3), np.nan)
+    img.reshape(-1, 3)[index] = points
+    # 2-pixel baselines (v +- 1, u +- 1) smooth the per-pixel noise
+    du = np.full_like(img, np.nan)
+    dv = np.full_like(img, np.nan)
+    du[:, 1:-1] = img[:, 2:] - img[:, :-2]
+    dv[1:-1, :] = img[2:, :] - img[:-2, :]
+    n = np.cross(du.reshape(-1, 3)[index], dv.reshape(-1, 3)[index])
+    # reject normals across depth jumps: both baselines must be short relative to the range
+    z = points[:, 2]
+    lu = np.linalg.norm(du.reshape(-1, 3)[index], axis=1)
+    lv = np.linalg.norm(dv.reshape(-1, 3)[index], axis=1)
+    ok = np.isfinite(n).all(1) & (lu < 0.05 * z) & (lv < 0.05 * z)
+    nn = np.linalg.norm(n, axis=1)
+    ok &= nn > 0
+    normals = np.zeros_like(points)
+    normals[ok] = n[ok] / nn[ok, None]
+    flip = np.einsum("ij,ij->i", normals, points) > 0
+    normals[flip] *= -1
+    los = points / np.linalg.norm(points, axis=1, keepdims=True)
+    cos_inc = np.abs(np.einsum("ij,ij->i", normals, los))
+    cos_inc[~ok] = 0.0
+    return normals, cos_inc

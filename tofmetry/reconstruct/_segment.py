@@ -1,0 +1,126 @@
+"""Object segmentation in one view: support plane (RANSAC), what stands on it, near-axis cluster."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from tofmetry.errors import EstimationError
+from tofmetry.reconstruct._config import SegmentConfig
+from tofmetry.reconstruct._o3d import quiet, to_pcd
+
+
+@dataclass
+class Segmentation:
+    """Masks over a view's points and the support plane.
+
+    Attributes
+    ----------
+    object_mask : (N,) bool, points of the object
+    ring_mask : (N,) bool, support-plane points around the object footprint
+    plane : (4,) float64 (a, b, c, d), unit normal toward the camera, height = n . p + d [m]
+        (None when segmentation was skipped)
+    plane_inlier_share : float, share of the view's points on the support plane
+    """
+
+    object_mask: np.ndarray
+    ring_mask: np.ndarray
+    plane: np.ndarray | None
+    plane_inlier_share: float
+
+
+def fit_support_plane(points: np.ndarray, threshold_m: float, seed: int = 0) -> tuple[np.ndarray, float]:
+    """Dominant plane by RANSAC (Open3D ``segment_plane`` on 5 mm voxels), refined by least squares.
+
+    Returns
+    -------
+    plane : (4,) unit normal oriented toward the origin (camera), offset [m]
+    inlier_share : float
+    """
+    import open3d as o3d
+
+    quiet()
+    o3d.utility.random.seed(seed)
+    pcd = to_pcd(points).voxel_down_sample(0.005)
+    model, inl = pcd.segment_plane(threshold_m, 3, 1000)
+    plane = np.asarray(model, np.float64)
+    plane /= np.linalg.norm(plane[:3])
+    # least-squares refinement on all points within the threshold
+    h = points @ plane[:3] + plane[3]
+    sel = points[np.abs(h) < threshold_m]
+    if len(sel) >= 3:
+        c = sel.mean(0)
+        _, _, vt = np.linalg.svd(sel - c, full_matrices=False)
+        n = vt[2]
+        if n @ plane[:3] < 0:
+            n = -n
+        plane = np.r_[n, -n @ c]
+    if plane[3] < 0:  # camera (origin) on the positive side: height(origin) = d > 0
+        plane = -plane
+    share = float(np.mean(np.abs(points @ plane[:3] + plane[3]) < threshold_m))
+    return plane, share
+
+
+def segment_object(points: np.ndarray, config: SegmentConfig | None = None, seed: int = 0) -> Segmentation:
+    """Segment the object standing on the support plane.
+
+    Parameters
+    ----------
+    points : (N, 3) float64 [m], camera frame
+
+    Raises
+    ------
+    EstimationError when nothing stands on the plane.
+    """
+    cfg = config or SegmentConfig()
+    n = len(points)
+    if cfg.keep_all:
+        return Segmentation(np.ones(n, bool), np.zeros(n, bool), None, 0.0)
+    plane, share = fit_support_plane(points, cfg.plane_threshold_mm * 1e-3, seed)
+    h = points @ plane[:3] + plane[3]
+    cand = (h > cfg.min_height_mm * 1e-3) & (h < cfg.max_height_mm * 1e-3)
+    if cand.sum() < 50:
+        raise EstimationError(f"segmentation: only {int(cand.sum())} points stand on the support plane "
+                              f"(plane holds {share:.0%} of the view); use --keep-all to skip segmentation")
+    ci = np.flatnonzero(cand)
+    cp = points[ci]
+    # cluster on 4 mm voxels: label each voxel centroid, then propagate to the points
+    import open3d as o3d
+
+    down = to_pcd(cp).voxel_down_sample(0.004)
+    dp = np.asarray(down.points)
+    labels = np.asarray(down.cluster_dbscan(cfg.cluster_eps_mm * 1e-3, 8, False))
+    if labels.max() < 0:
+        raise EstimationError("segmentation: no compact cluster stands on the support plane")
+    best, best_score = -1, -np.inf
+    for lab in range(labels.max() + 1):
+        m = labels == lab
+        c = dp[m].mean(0)
+        ang = np.degrees(np.arccos(np.clip(c[2] / np.linalg.norm(c), -1, 1)))
+        score = m.sum() * (1.0 if ang < 20 else 0.1)  # favour clusters near the optical axis
+        if score > best_score:
+            best, best_score = lab, score
+    core = dp[labels == best]
+    d, _ = cKDTree(core).query(cp, distance_upper_bound=cfg.cluster_eps_mm * 1e-3, workers=-1)
+    obj_local = np.isfinite(d)
+    # footprint limit: in-plane distance from the core centroid
+    nrm = plane[:3]
+    c0 = core.mean(0)
+    rel = cp - c0
+    inplane = rel - np.outer(rel @ nrm, nrm)
+    obj_local &= np.linalg.norm(inplane, axis=1) < cfg.max_footprint_mm * 1e-3
+    obj = np.zeros(n, bool)
+    obj[ci[obj_local]] = True
+    _ = o3d
+    # ground ring around the footprint (in-plane distance to the object's projected points)
+    ring = np.zeros(n, bool)
+    if cfg.ring_mm > 0:
+        on_plane = np.flatnonzero(np.abs(h) <= cfg.plane_threshold_mm * 1e-3)
+        foot = points[obj] - np.outer(h[obj], nrm)
+        foot_down = np.asarray(to_pcd(foot).voxel_down_sample(0.01).points)
+        gp = points[on_plane]
+        dd, _ = cKDTree(foot_down).query(gp, distance_upper_bound=cfg.ring_mm * 1e-3, workers=-1)
+        ring[on_plane[np.isfinite(dd)]] = True
+    return Segmentation(obj, ring, plane, share)
