@@ -22,18 +22,18 @@ def warmup_ds(sim_root):
 def grey_ds(sim_root):
     from tofmetry.simulate import datasets
 
-    return datasets.materials(sim_root / "grey", board="grey", n_frames=8, seed=4)
+    return datasets.materials(sim_root / "grey", board="grey", n_frames=4, seed=4)
 
 
 @pytest.fixture(scope="session")
 def samples_ds(sim_root):
     from tofmetry.simulate import datasets
 
-    return datasets.materials(sim_root / "samples", board="samples", n_frames=8, seed=5)
+    return datasets.materials(sim_root / "samples", board="samples", n_frames=4, seed=5)
 
 
 @pytest.fixture(scope="session")
 def noise_small_ds(sim_root):
     from tofmetry.simulate import datasets
 
-    return datasets.noise(sim_root / "noise_small", n_frames=12, seed=6)
+    return datasets.noise(sim_root / "noise_small", n_frames=10, seed=6)

@@ -14,7 +14,8 @@ def test_switches():
     assert ErrorModel().enabled == frozenset(TERMS)
     assert ErrorModel.none().enabled == {"quantize"}
     assert ErrorModel.none(quantize=False).enabled == frozenset()
-    assert ErrorModel.only("wiggling").enabled == {"wiggling"}
+    assert ErrorModel.only("wiggling").enabled == {"wiggling", "quantize"}
+    assert ErrorModel.only("wiggling", quantize=False).enabled == {"wiggling"}
     em = ErrorModel().without("noise", "flying")
     assert not em.on("noise") and not em.on("flying") and em.on("wiggling")
     assert em.with_terms("noise").on("noise")

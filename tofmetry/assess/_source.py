@@ -7,7 +7,7 @@ streamed one at a time from captures; arrays are used as they are.
 
 from __future__ import annotations
 
-from typing import Callable, Iterable, Iterator
+from typing import Callable, Iterator
 
 import numpy as np
 
@@ -62,6 +62,3 @@ def check_frame(frame: np.ndarray, shape: tuple[int, int] | None, index: int, wh
         raise InputError(f"{what}: frame {index} has shape {f.shape}, expected {tuple(shape)}")
     return f
 
-
-def as_list(x: Iterable[int]) -> list[int]:
-    return sorted({int(v) for v in x})

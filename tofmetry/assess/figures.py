@@ -91,6 +91,14 @@ def noise_figures(res, out_dir) -> list[Path]:
         n = np.array([b["n"] for b in res.block_precision])
         ax.loglog(n, [b["std_of_mean_mm"] for b in res.block_precision], "o-", label="measured (disjoint blocks)")
         ax.loglog(n, [b["expected_mm"] for b in res.block_precision], "k--", label="σ / √n")
+        from matplotlib.ticker import NullFormatter, ScalarFormatter
+
+        for axis in (ax.xaxis, ax.yaxis):
+            axis.set_major_formatter(ScalarFormatter())
+            axis.set_minor_formatter(NullFormatter())
+        ax.set_xticks(n)
+        lo, hi = ax.get_ylim()
+        ax.set_yticks([v for v in (0.05, 0.1, 0.2, 0.3, 0.5, 1, 2, 3, 5, 10, 20) if lo <= v <= hi])
         ax.set_xlabel("frames averaged n")
         ax.set_ylabel("std of the n-frame mean depth [mm]")
         ax.set_title("Precision of the averaged depth")
@@ -138,12 +146,14 @@ def materials_figures(res, out_dir) -> list[Path]:
     paths = [_save(fig, out / "materials_samples.png")]
     fig, ax = plt.subplots(figsize=(8, 6))
     dev = res.deviation_mm
-    fin = dev[np.isfinite(dev)]
-    lim = float(np.percentile(np.abs(fin), 99)) if fin.size else 1.0
     rr = [r.rect for r in regs]
     u0, v0 = min(r[0] for r in rr), min(r[1] for r in rr)
     u1, v1 = max(r[2] for r in rr), max(r[3] for r in rr)
     pad = 20
+    # colour range from the regions themselves (edges with mixed pixels would dominate otherwise)
+    fin = np.concatenate([dev[r[1]:r[3], r[0]:r[2]].ravel() for r in rr])
+    fin = fin[np.isfinite(fin)]
+    lim = max(float(np.percentile(np.abs(fin), 99)), 1.0) if fin.size else 1.0
     im = ax.imshow(dev, cmap="RdBu_r", vmin=-lim, vmax=lim)
     for r, reg in zip(rr, regs):
         ax.add_patch(Rectangle((r[0] - 0.5, r[1] - 0.5), r[2] - r[0], r[3] - r[1], fill=False,

@@ -15,7 +15,8 @@ neighbourhood:
    pixel sits between two surfaces and is supported by none of them -- or, along a
    straight edge, by up to ``max_support_between`` (2) mixed neighbours of similar value.
    Such a pixel is flying only if it lies *between* its discontinuous neighbours: one of
-   them nearer than ``Z - tau`` and one farther than ``Z + tau``. A real edge pixel has
+   them nearer than ``Z - tau`` and one farther than ``Z + tau`` or invalid (a silhouette
+   against a background that returned nothing). A real edge pixel has
    discontinuous neighbours on one side only (all farther for the foreground, all nearer
    for the background), and a 1-pixel-wide line has background on both sides.
 
@@ -122,7 +123,7 @@ def neighbour_support(depth: np.ndarray, intr: CameraIntrinsics | None = None,
     n_valid : (H, W) int8, valid neighbours
     n_support : (H, W) int8, valid neighbours within ``tau(Z)``
     n_jump : (H, W) int8, valid neighbours differing by more than ``tau(Z)``
-    between : (H, W) bool, a neighbour nearer than Z - tau and one farther than Z + tau
+    between : (H, W) bool, a neighbour nearer than Z - tau and one farther than Z + tau (or invalid)
     """
     z = _validate(depth, intr)
     f = 365.0 if intr is None else 0.5 * (intr.fx + intr.fy)
@@ -146,7 +147,11 @@ def neighbour_support(depth: np.ndarray, intr: CameraIntrinsics | None = None,
         n_sup += ok & (np.abs(diff) <= tau)
         nearer |= ok & (diff < -tau)
         farther |= ok & (diff > tau)
-    return n_valid, n_sup, (n_valid - n_sup).astype(np.int8), nearer & farther
+    # a neighbour without a return (invalid: beyond range, too dark) counts as "farther":
+    # a mixed pixel on a silhouette against the empty background straddles the object and
+    # a surface that gave no measurement
+    open_side = valid & (n_valid < 8)
+    return n_valid, n_sup, (n_valid - n_sup).astype(np.int8), nearer & (farther | open_side)
 
 
 def detect_flying_pixels(depth: np.ndarray, intr: CameraIntrinsics | None = None,

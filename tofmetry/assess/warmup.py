@@ -34,8 +34,11 @@ class WarmupResult:
     stabilisation_time_s : float or None, time after which |smoothed - final| <= tolerance for good
     total_drift_mm : float, final level - smoothed value at the first frame (signed)
     drift_range_mm : float, max - min of the smoothed curve
-    residual_drift_mm : float, max |smoothed - final| after stabilisation
+    residual_drift_mm : float, peak-to-peak of the smoothed curve after stabilisation (whole curve if never stable)
     stable_confirmed : bool, stabilisation happened before the final window began
+    stabilisation_range_s : (t at 1.1 x tolerance, t at 0.9 x tolerance): sensitivity of the
+        stabilisation time to the tolerance; a wide range means the curve hovers near the
+        tolerance (e.g. an overshoot of about the tolerance when the fan starts)
     notes : list of str, warnings for the user (fallbacks, short recording...)
     """
 
@@ -53,6 +56,7 @@ class WarmupResult:
     drift_range_mm: float
     residual_drift_mm: float
     stable_confirmed: bool
+    stabilisation_range_s: tuple = (None, None)
     t0_s: float = 0.0
     notes: list[str] = field(default_factory=list)
 
@@ -64,6 +68,7 @@ class WarmupResult:
             "final_window_s": self.final_window_s, "final_level_mm": self.final_level_mm,
             "stabilisation_time_s": self.stabilisation_time_s,
             "stabilisation_time_min": None if self.stabilisation_time_s is None else self.stabilisation_time_s / 60.0,
+            "stabilisation_range_s": list(self.stabilisation_range_s),
             "total_drift_mm": self.total_drift_mm, "drift_range_mm": self.drift_range_mm,
             "residual_drift_mm": self.residual_drift_mm, "stable_confirmed": self.stable_confirmed,
             "t0_s": self.t0_s, "n_frames": int(len(self.time_s)), "duration_s": float(self.time_s[-1]),
@@ -120,18 +125,22 @@ def local_linear_smooth(t: np.ndarray, y: np.ndarray, window_s: float) -> np.nda
 
     Returns
     -------
-    (T,) float, NaN where fewer than 3 samples fall inside the window.
+    (T,) float; where fewer than 3 samples fall inside the window, the kernel is widened to
+    the 3 nearest samples (all NaN only if fewer than 3 valid samples exist).
     """
     t = np.asarray(t, np.float64)
     y = np.asarray(y, np.float64)
     out = np.full_like(y, np.nan)
     ok = np.isfinite(y)
-    h = max(window_s / 2.0, 1e-9)
+    h0 = max(window_s / 2.0, 1e-9)
+    if ok.sum() < 3:
+        return out
     for i, ti in enumerate(t):
-        r = np.abs(t - ti) / h
+        dist = np.abs(t - ti)
+        # widen the kernel where it holds fewer than 3 samples (ends, gaps, coarse sampling)
+        h = max(h0, np.partition(dist[ok], 2)[2] * 1.001 + 1e-9)
+        r = dist / h
         m = ok & (r < 1.0)
-        if m.sum() < 3:
-            continue
         wgt = (1 - r[m] ** 3) ** 3
         x = t[m] - ti
         sw, sx, sxx = wgt.sum(), (wgt * x).sum(), (wgt * x * x).sum()
@@ -139,6 +148,16 @@ def local_linear_smooth(t: np.ndarray, y: np.ndarray, window_s: float) -> np.nda
         det = sw * sxx - sx * sx
         out[i] = sy / sw if det <= 1e-12 * sw * sw * h * h else (sxx * sy - sx * sxy) / det
     return out
+
+
+def _stable_after(t: np.ndarray, dev: np.ndarray, tol: float) -> float | None:
+    """First time after which ``dev <= tol`` for good (NaN counts as outside); None if never."""
+    outside = np.flatnonzero(~(dev <= tol))
+    if outside.size == 0:
+        return float(t[0])
+    if outside[-1] == t.size - 1:
+        return None
+    return float(t[outside[-1] + 1])
 
 
 def assess_warmup(source, timestamps_s=None, *, ir: np.ndarray | None = None, patch: int = 10,
@@ -160,9 +179,11 @@ def assess_warmup(source, timestamps_s=None, *, ir: np.ndarray | None = None, pa
     tolerance_mm : float
         The curve is "stable" once it stays within this distance of its final level.
     smooth_window_s : float, optional
-        Width of the local-linear smoothing kernel [s]; default ``max(180 s, 8 x median
-        frame interval)`` (a 10x10 patch mean is precise to ~0.2 mm per frame, so a few
-        frames per window suffice, and a short window keeps kinks such as the fan start).
+        Width of the local-linear smoothing kernel [s]; default ``max(120 s, 5 x median
+        frame interval)``. A 10x10 patch mean is precise to ~0.15 mm per frame, so 8 frames
+        (15 s sampling) give ~0.06 mm; the kernel must stay short against the fastest
+        feature of the curve (the fan start: a kink relaxing in ~4 min), which a wider
+        kernel flattens (a 180 s kernel lowered the simulated fan overshoot by ~0.08 mm).
     final_window_s : float
         The final level is the median of the smoothed curve over this last stretch [s].
     progress : callable, optional
@@ -184,7 +205,7 @@ def assess_warmup(source, timestamps_s=None, *, ir: np.ndarray | None = None, pa
     if not np.all(np.isfinite(ts)) or np.any(np.diff(ts) <= 0):
         raise InputError("timestamps_s must be finite and strictly increasing")
     if smooth_window_s is None:
-        smooth_window_s = max(180.0, 8.0 * float(np.median(np.diff(ts))))
+        smooth_window_s = max(120.0, 5.0 * float(np.median(np.diff(ts))))
     if tolerance_mm <= 0 or smooth_window_s <= 0 or final_window_s <= 0:
         raise InputError("tolerance_mm, smooth_window_s and final_window_s must be positive")
     ir_img = capture_ir(source, ir)
@@ -220,16 +241,12 @@ def assess_warmup(source, timestamps_s=None, *, ir: np.ndarray | None = None, pa
     tail = t >= duration - final_window_s
     final = float(np.nanmedian(sm[tail]))
     dev = np.abs(sm - final)
-    outside = np.flatnonzero(~(dev <= tolerance_mm))  # NaN counts as outside
-    if outside.size == 0:
-        t_stab: float | None = 0.0
-    elif outside[-1] == t.size - 1:
-        t_stab = None
+    t_stab = _stable_after(t, dev, tolerance_mm)
+    if t_stab is None:
         notes.append(f"the smoothed distance never stays within {tolerance_mm} mm of its final level")
-    else:
-        t_stab = float(t[outside[-1] + 1])
+    t_range = (_stable_after(t, dev, 1.1 * tolerance_mm), _stable_after(t, dev, 0.9 * tolerance_mm))
     first = sm[np.flatnonzero(np.isfinite(sm))[0]]
-    after = dev[t >= t_stab] if t_stab is not None else dev
+    after = sm[t >= t_stab] if t_stab is not None else sm
     confirmed = t_stab is not None and t_stab < duration - final_window_s
     if t_stab is not None and not confirmed:
         notes.append("stabilisation only reached within the final window: record longer to confirm it")
@@ -237,6 +254,7 @@ def assess_warmup(source, timestamps_s=None, *, ir: np.ndarray | None = None, pa
         time_s=t, distance_mm=dist, smoothed_mm=sm, patch=sel, patch_source="ir_max" if ir_img is not None else "depth_min",
         tolerance_mm=float(tolerance_mm), smooth_window_s=float(smooth_window_s), final_window_s=float(final_window_s),
         final_level_mm=final, stabilisation_time_s=t_stab, total_drift_mm=float(final - first),
-        drift_range_mm=float(np.nanmax(sm) - np.nanmin(sm)), residual_drift_mm=float(np.nanmax(after)),
-        stable_confirmed=bool(confirmed), t0_s=float(ts[0]), notes=notes,
+        drift_range_mm=float(np.nanmax(sm) - np.nanmin(sm)),
+        residual_drift_mm=float(np.nanmax(after) - np.nanmin(after)),
+        stable_confirmed=bool(confirmed), stabilisation_range_s=t_range, t0_s=float(ts[0]), notes=notes,
     )

@@ -96,16 +96,29 @@ def _center_order(shape, cx, cy) -> np.ndarray:
     return np.argsort(((u - cx) ** 2 + (v - cy) ** 2).ravel(), kind="stable")
 
 
-def fit_range_curve(x: np.ndarray, y: np.ndarray, lam: float | None = None):
+def fit_range_curve(x: np.ndarray, y: np.ndarray, lam: float | None = None, merge_mm: float = 1.0):
     """Cubic smoothing B-spline of deviation ``y`` [mm] against measured distance ``x`` [mm].
 
-    Fewer than 5 points: interpolating spline of degree ``min(3, n - 1)``.
+    Points closer than ``merge_mm`` in ``x`` are averaged first (weight = their count).
+    Fewer than 5 distinct distances: interpolating spline of degree ``min(3, n - 1)``.
     Returns a ``scipy.interpolate.BSpline``.
     """
-    order = np.argsort(x)
+    order = np.argsort(x, kind="stable")
     x, y = np.asarray(x, float)[order], np.asarray(y, float)[order]
+    gx, gy, gw = [x[0]], [y[0]], [1.0]
+    for xi, yi in zip(x[1:], y[1:]):
+        if xi - gx[-1] / gw[-1] < merge_mm:
+            gx[-1] += xi
+            gy[-1] += yi
+            gw[-1] += 1.0
+        else:
+            gx.append(xi)
+            gy.append(yi)
+            gw.append(1.0)
+    w = np.array(gw)
+    x, y = np.array(gx) / w, np.array(gy) / w
     if len(x) >= 5:
-        return make_smoothing_spline(x, y, lam=lam)
+        return make_smoothing_spline(x, y, w=w / w.mean(), lam=lam)
     return make_interp_spline(x, y, k=min(3, len(x) - 1))
 
 
@@ -192,7 +205,7 @@ def fit_depth_model(samples: list[DepthSample], intrinsics: CameraIntrinsics, co
             ci = cidx[j]
             ww = wts[j].ravel()[ci] * ~bad[j].ravel()[ci]
             y[j] = np.sum((err[j].ravel()[ci] - s_j.ravel()[ci]) * ww) / max(ww.sum(), 1e-12)
-        spline = fit_range_curve(centers, y, cfg.range_smoothing)
+        spline = fit_range_curve(centers, y, cfg.range_smoothing, cfg.node_merge_mm)
         history.append(float(np.max(np.abs(y - prev_y))) if prev_y is not None else float("nan"))
         prev_y = y
         if cfg.surface.model == "none":

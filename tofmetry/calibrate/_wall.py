@@ -13,10 +13,27 @@ from typing import Iterable
 
 import numpy as np
 
+import numba as nb
+
 from tofmetry.calibrate._fit import DepthSample
 from tofmetry.errors import EstimationError, InputError
-from tofmetry.pointcloud import RunningDepthStats
 from tofmetry.sensor import CameraIntrinsics
+
+
+@nb.njit(parallel=True, cache=True)
+def _accumulate(frame, shift, s1, s2, cnt):  # pragma: no cover - numba
+    """Shifted running sums of one uint16 frame (0 = invalid); shift set at first valid sample."""
+    n = frame.shape[0]
+    for i in nb.prange(n):
+        d = frame[i]
+        if d == 0:
+            continue
+        if cnt[i] == 0:
+            shift[i] = d
+        x = np.float64(d) - shift[i]
+        s1[i] += x
+        s2[i] += x * x
+        cnt[i] += 1
 
 
 @dataclass(eq=False)
@@ -64,22 +81,35 @@ def station_statistics(frames: Iterable[np.ndarray], shape: tuple[int, int], cx:
     min_valid_fraction : pixels valid in fewer frames are NaN in the mean
     advance : optional callable run after each frame (progress)
     """
-    rs = RunningDepthStats(tuple(shape))
+    shape = tuple(shape)
+    npx = shape[0] * shape[1]
+    shift = np.zeros(npx)
+    s1 = np.zeros(npx)
+    s2 = np.zeros(npx)
+    cnt = np.zeros(npx, np.int64)
     sl = central_patch(shape, cx, cy, half)
     cen = []
+    n = 0
     for f in frames:
         f = np.asarray(f)
-        rs.update(f)
+        if f.shape != shape or f.dtype != np.uint16:
+            raise InputError(f"station frame {n}: expected {shape} uint16 depth [mm], found {f.shape} {f.dtype}")
+        _accumulate(np.ascontiguousarray(f).reshape(-1), shift, s1, s2, cnt)
         p = f[sl].astype(np.float64)
         p = p[p > 0]
         cen.append(p.mean() if len(p) else np.nan)
+        n += 1
         if advance is not None:
             advance()
-    if rs.n == 0:
+    if n == 0:
         raise InputError("station has no frames")
-    st = rs.result()
-    mean = np.where(st.count >= max(1, min_valid_fraction * rs.n), st.mean, np.nan)
-    return StationStats(mean_mm=mean, std_mm=st.std, n_frames=rs.n, frame_center_mm=np.array(cen))
+    c = cnt.astype(np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        m1 = s1 / c
+        mean = np.where(c >= max(1.0, min_valid_fraction * n), shift + m1, np.nan)
+        std = np.where(c > 1, np.sqrt(np.maximum((s2 - c * m1 * m1) / (c - 1), 0.0)), np.nan)
+    return StationStats(mean_mm=mean.reshape(shape), std_mm=std.reshape(shape), n_frames=n,
+                        frame_center_mm=np.array(cen))
 
 
 @dataclass(eq=False)
@@ -107,6 +137,16 @@ class PlaneFit:
         return self.c_mm / (n[0] * rays[..., 0] + n[1] * rays[..., 1] + n[2])
 
 
+def _plane(X: np.ndarray):
+    """Unit normal (n_z > 0) and centroid of the least-squares plane of (N, 3) points (3x3 eigen)."""
+    c0 = X.mean(axis=0)
+    Y = X - c0
+    S = np.einsum("ni,nj->ij", Y, Y)
+    _, vec = np.linalg.eigh(S)
+    n = vec[:, 0]
+    return (n if n[2] > 0 else -n), c0
+
+
 def fit_plane(depth_mm: np.ndarray, intrinsics: CameraIntrinsics, k: float = 3.0, iterations: int = 6,
               mask: np.ndarray | None = None, min_points: int = 50) -> PlaneFit:
     """Least-squares plane of the cloud of a depth map, with iterative k-MAD outlier removal.
@@ -127,13 +167,12 @@ def fit_plane(depth_mm: np.ndarray, intrinsics: CameraIntrinsics, k: float = 3.0
         raise EstimationError(f"plane fit: {int(valid.sum())} valid pixels, at least {min_points} needed")
     P = np.stack([rays[..., 0] * d, rays[..., 1] * d, d], axis=-1)
     inl = valid.copy()
+    sub = np.zeros(d.shape, bool)
+    sub[::2, ::2] = True  # robust scale from a quarter of the pixels (plenty, 4x cheaper)
     for _ in range(iterations):
-        X = P[inl]
-        c0 = X.mean(axis=0)
-        _, _, vt = np.linalg.svd(X - c0, full_matrices=False)
-        n = vt[2] if vt[2][2] > 0 else -vt[2]
+        n, c0 = _plane(P[inl])
         res = (P - c0) @ n
-        r = res[valid]
+        r = res[valid & sub] if (valid & sub).sum() >= min_points else res[valid]
         med = np.median(r)
         sig = 1.4826 * np.median(np.abs(r - med)) + 1e-9
         new = valid & (np.abs(res - med) <= k * sig)
@@ -141,10 +180,7 @@ def fit_plane(depth_mm: np.ndarray, intrinsics: CameraIntrinsics, k: float = 3.0
             inl = new if new.sum() >= min_points else inl
             break
         inl = new
-    X = P[inl]
-    c0 = X.mean(axis=0)
-    _, _, vt = np.linalg.svd(X - c0, full_matrices=False)
-    n = vt[2] if vt[2][2] > 0 else -vt[2]
+    n, c0 = _plane(P[inl])
     c = float(n @ c0)
     zp = c / (n[0] * rays[..., 0] + n[1] * rays[..., 1] + n[2])
     resid = np.where(valid, d - zp, np.nan)

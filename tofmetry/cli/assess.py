@@ -54,7 +54,7 @@ def warmup(capture: Path = typer.Argument(..., help="Capture of a static wall wi
            out: Path = typer.Option(..., "-o", "--out", help="Output folder (JSON + PNG)."),
            patch: int = typer.Option(10, "--patch", help="Side of the followed patch [px]."),
            tolerance_mm: float = typer.Option(1.0, "--tolerance-mm", help="Stability tolerance around the final level [mm]."),
-           smooth_s: Optional[float] = typer.Option(None, "--smooth-s", help="Smoothing window [s] (default max(180, 8 intervals))."),
+           smooth_s: Optional[float] = typer.Option(None, "--smooth-s", help="Smoothing window [s] (default max(120, 5 intervals))."),
            final_window_s: float = typer.Option(600.0, "--final-window-s", help="Final level = median over this last stretch [s]."),
            ) -> None:
     """Warm-up drift: mean distance of the brightest patch against operating time."""
@@ -69,9 +69,11 @@ def warmup(capture: Path = typer.Argument(..., help="Capture of a static wall wi
         ("frames / duration", f"{len(res.time_s)} / {res.time_s[-1] / 60:.1f} min"),
         ("patch (u0, v0, size)", f"{res.patch} ({res.patch_source})"),
         ("stabilisation time", "not reached" if ts is None else f"{ts / 60:.1f} min"),
+        ("  at 1.1x / 0.9x tolerance", " / ".join("not reached" if x is None else f"{x / 60:.1f} min"
+                                                  for x in res.stabilisation_range_s)),
         ("total drift", _fmt(res.total_drift_mm, "+.2f", " mm")),
         ("drift range", _fmt(res.drift_range_mm, ".2f", " mm")),
-        ("residual drift after stabilisation", _fmt(res.residual_drift_mm, ".2f", " mm")),
+        ("residual drift after stabilisation (p-p)", _fmt(res.residual_drift_mm, ".2f", " mm")),
     ])
 
 
@@ -116,7 +118,7 @@ def materials(capture: Path = typer.Argument(..., help="Capture (depth + IR) of 
         regs = regions_from_dict(read_json(regions, "regions"), cap.shape, str(regions))
     with progress("materials frames", len(cap)) as adv:
         res = assess_materials(cap, regs, intr=intr, auto_grey_board=auto_grey_board, progress=adv)
-    rows = [(r.name + (" (ref)" if r.reference else "") + (" [erratic]" if r.erratic else ""),
+    rows = [(r.name + (" (ref)" if r.reference else "") + (" \\[erratic]" if r.erratic else ""),
              f"A={r.amplitude:.0f}  bias={r.bias_mm:+.1f} mm  std={r.spatial_std_mm:.1f} mm") for r in res.regions]
     rows.append(("fit slope", f"{_fmt(res.slope_mm_per_ln)} ± {_fmt(res.slope_se_mm_per_ln)} mm per ln(A_ref/A)"))
     rows.append(("bias at 1/6 amplitude", _fmt(res.predicted_bias_mm(6.0), "+.1f", " mm")))

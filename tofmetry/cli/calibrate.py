@@ -47,9 +47,13 @@ def _load_wall(wall_dir: Path, intrinsics: Optional[Path], min_stations: int = 2
     if override is None and caps[0].meta.intrinsics is None:
         console.print(f"[yellow]note:[/] no --intrinsics and none in the captures: using the {src}")
     stats = []
-    with progress(f"reading {what} stations", sum(len(c) for c in caps)) as adv:
+    from concurrent.futures import ThreadPoolExecutor
+
+    with progress(f"reading {what} stations", sum(len(c) for c in caps)) as adv, ThreadPoolExecutor(2) as pool:
         for cap in caps:
-            stats.append(station_statistics(iter(cap), cap.shape, intr.cx, intr.cy, advance=adv))
+            # PNG decoding releases the GIL: two reader threads, frames consumed in order
+            frames = pool.map(cap.depth, range(len(cap)))
+            stats.append(station_statistics(frames, cap.shape, intr.cx, intr.cy, advance=adv))
     del np
     return ds, intr, src, sensor, stats
 
@@ -79,6 +83,109 @@ def _report_table(reports, title: str):
                   f"{r.plane_std_before_mm:.2f}", f"{r.plane_std_after_mm:.2f}", f"{r.rms_before_mm:.2f}",
                   f"{r.rms_after_mm:.2f}", str(r.n_outside_range))
     return t
+
+
+# ------------------------------------------------------------------ intrinsics
+_IMG_SUFFIXES = (".png", ".tif", ".tiff", ".npy", ".jpg", ".jpeg")
+
+
+def _write_calib_yaml(path: Path, intr) -> Path:
+    try:
+        from tofmetry.io.iai_kinect2 import write_calib_ir
+    except ImportError:  # fallback: OpenCV's own !!opencv-matrix YAML
+        import cv2
+        import numpy as np
+
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+        fs.write("cameraMatrix", intr.K)
+        fs.write("distortionCoefficients", np.asarray(intr.dist_array, float).reshape(1, 5))
+        fs.write("rotation", np.eye(3))
+        fs.write("projection", np.hstack([intr.K, np.zeros((3, 1))]))
+        fs.release()
+        return path
+    return write_calib_ir(path, intr)
+
+
+def intrinsics_cmd(
+    images_dir: Path = typer.Argument(..., help="Folder of IR (16-bit) or colour images of a checkerboard."),
+    board: str = typer.Option(..., "--board", help="Inner corners COLSxROWS, e.g. 9x6."),
+    square_mm: float = typer.Option(..., "--square-mm", help="Square size [mm]."),
+    output: Path = typer.Option(..., "-o", "--output", help="intrinsics.json to write."),
+    yaml: Optional[Path] = typer.Option(None, "--yaml", help="OpenCV YAML export (default: calib_ir.yaml next to "
+                                        "the output)."),
+    report: Optional[Path] = typer.Option(None, "--report", help="Folder for report JSON + coverage map "
+                                          "(default: <output stem>_report next to the output)."),
+    fix_k3: bool = typer.Option(False, "--fix-k3", help="Keep k3 = 0."),
+    no_loo: bool = typer.Option(False, "--no-loo", help="Skip the leave-one-out stability analysis."),
+    force: bool = typer.Option(False, "--force", help="Overwrite outputs."),
+) -> None:
+    """Estimate fx, fy, cx, cy, k1, k2, p1, p2, k3 from checkerboard images (with uncertainties and stability)."""
+    from rich.table import Table
+
+    from tofmetry.calibrate import _figures as F
+    from tofmetry.calibrate._intrinsics import PARAMS, calibrate_intrinsics, detect_corners, normalize_ir
+    from tofmetry.errors import InputError
+    from tofmetry.io import atomic_write_json, write_intrinsics
+    from tofmetry.io.images import read_color_image, read_ir_image
+
+    try:
+        cols, rows = (int(x) for x in board.lower().split("x"))
+    except ValueError:
+        raise InputError(f"--board must be COLSxROWS (inner corners), e.g. 9x6; found {board!r}") from None
+    if cols < 2 or rows < 2 or not square_mm > 0:
+        raise InputError(f"--board needs >= 2x2 inner corners and --square-mm > 0; found {board}, {square_mm}")
+    if output.exists() and not force:
+        raise InputError(f"output {output} exists; pass --force to overwrite it")
+    if not images_dir.is_dir():
+        raise InputError(f"images folder not found: {images_dir}")
+    files = sorted(p for p in images_dir.iterdir() if p.suffix.lower() in _IMG_SUFFIXES and not p.name.startswith("."))
+    if not files:
+        raise InputError(f"{images_dir}: no images ({', '.join(_IMG_SUFFIXES)})")
+    corners, names, rejected, size = [], [], [], None
+    with progress("detecting corners", len(files)) as adv:
+        for f in files:
+            img = read_color_image(f) if f.suffix.lower() in (".jpg", ".jpeg") else read_ir_image(f)
+            s = (img.shape[1], img.shape[0])
+            if size is None:
+                size = s
+            elif s != size:
+                raise InputError(f"{f}: size {s[0]}x{s[1]} differs from the first image's {size[0]}x{size[1]}")
+            c = detect_corners(normalize_ir(img), (cols, rows))
+            if c is None:
+                rejected.append(f.name)
+            else:
+                corners.append(c)
+                names.append(f.name)
+            adv()
+    if rejected:
+        console.print(f"[yellow]board not found in {len(rejected)} image(s), rejected:[/] {', '.join(rejected)}")
+    with progress("leave-one-out refits", 0 if no_loo else len(corners)) as adv:
+        res = calibrate_intrinsics(corners, names, (cols, rows), square_mm, size, leave_one_out=not no_loo,
+                                   fix_k3=fix_k3, advance=adv)
+    t = Table(title=f"intrinsics from {len(names)} images (RMS {res.rms_px:.3f} px)")
+    for col in ("param", "value", "std. uncertainty", "leave-one-out std", "leave-one-out range"):
+        t.add_column(col, justify="right")
+    vals = dict(zip(PARAMS, [res.intrinsics.fx, res.intrinsics.fy, res.intrinsics.cx, res.intrinsics.cy,
+                             *res.intrinsics.distortion]))
+    for p in PARAMS:
+        t.add_row(p, f"{vals[p]:.5g}", f"{res.std[p]:.3g}", f"{res.loo.get(p, float('nan')):.3g}",
+                  f"{res.loo_range.get(p, float('nan')):.3g}")
+    console.print(t)
+    worst = sorted(res.per_image_rms_px.items(), key=lambda kv: -kv[1])[:3]
+    console.print("per-image RMS [px], worst: " + ", ".join(f"{k} {v:.3f}" for k, v in worst))
+    for w in res.warnings:
+        console.print(f"[yellow]warning:[/] {w}")
+    write_intrinsics(output, res.intrinsics, rms_px=res.rms_px, std=res.std, n_images=len(names))
+    ypath = yaml or output.with_name("calib_ir.yaml")
+    _write_calib_yaml(ypath, res.intrinsics)
+    rdir = report or output.with_name(f"{output.stem}_report")
+    rdir.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(rdir / "intrinsics_report.json", {**res.to_dict(), "rejected": rejected,
+                                                        "board": [cols, rows], "square_mm": square_mm})
+    _save_fig(F.fig_coverage(corners, (size[1], size[0]),
+                             f"Checkerboard corner coverage ({len(names)} images, {100 * res.coverage:.0f} % of cells)"),
+              rdir / "coverage.png")
+    console.print(f"wrote {output}, {ypath} and {rdir}/")
 
 
 # ------------------------------------------------------------------ depth
@@ -219,10 +326,11 @@ def validate(
         output.mkdir(parents=True, exist_ok=True)
         atomic_write_json(output / "validation.json", result)
         _save_fig(F.fig_validation(reports), output / "validation.png")
-        held = [(r.distance_mm, r.dev_before_mm + cal.offset_mm) for r in reports]
+        # held-out stations at their measured central distance (the x axis of the curve)
+        held = [(r.distance_mm + r.dev_before_mm + cal.offset_mm, r.dev_before_mm) for r in reports]
         pts = np.array([[r["center_mm"], r["dev_before_mm"]] for r in cal.diagnostics.get("samples", [])]) \
             if cal.diagnostics.get("samples") else np.zeros((0, 2))
-        _save_fig(F.fig_range_curve(cal, pts, held_out=[(d, v - cal.offset_mm) for d, v in held]),
+        _save_fig(F.fig_range_curve(cal, pts, held_out=held),
                   output / "range_curve.png")
         _save_fig(F.fig_std_vs_range([st.distance_mm for st in ds.stations], [s.center_std_mm for s in stats]),
                   output / "std_vs_range.png")
@@ -292,6 +400,7 @@ def correct(
 
 def register(app: typer.Typer) -> None:
     """Add ``calibrate`` (group) and ``correct``."""
+    calibrate_app.command("intrinsics")(intrinsics_cmd)
     calibrate_app.command("depth")(depth)
     calibrate_app.command("validate")(validate)
     app.add_typer(calibrate_app, name="calibrate")

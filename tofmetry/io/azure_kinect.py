@@ -209,29 +209,27 @@ def _find_track(container, key: str):
     return None
 
 
-def _decode(path: Path, index: int, max_frames: int | None, fmt: str | None) -> tuple[list, list]:
-    import av
+@dataclass(frozen=True)
+class AzureInfo:
+    """What :func:`probe_azure_mkv` finds without decoding frames."""
 
-    frames, pts = [], []
-    with av.open(str(path)) as c:
-        st = c.streams[index]
-        for pkt in c.demux(st):
-            for fr in pkt.decode():
-                frames.append(fr.to_ndarray(format=fmt) if fmt else fr.to_ndarray())
-                pts.append(float(fr.time) if fr.time is not None else float("nan"))
-                if max_frames is not None and len(frames) >= max_frames:
-                    return frames, pts
-    return frames, pts
+    path: Path
+    calibration: dict
+    tags: dict
+    depth_mode: str
+    color_height: int | None
+    depth_index: int
+    ir_index: int | None
+    color_index: int | None
 
 
-def read_azure_mkv(path: str | os.PathLike, max_frames: int | None = None) -> AzureRecording:
-    """Decode an Azure Kinect ``.mkv``: depth, IR, colour and the calibration attachment.
+def probe_azure_mkv(path: str | os.PathLike) -> AzureInfo:
+    """Open an Azure Kinect ``.mkv`` and check its tracks and calibration attachment.
 
     Raises
     ------
     FormatError
-        Not a Matroska file PyAV can open, no depth track, no calibration attachment,
-        depth not 16-bit.
+        Not a Matroska file PyAV can open, no depth track, depth not 16-bit, no calibration.
     """
     import av
 
@@ -254,31 +252,96 @@ def read_azure_mkv(path: str | os.PathLike, max_frames: int | None = None) -> Az
         depth_mode = {k.upper(): v for k, v in dst.metadata.items()}.get("K4A_DEPTH_MODE", "NFOV_UNBINNED")
         irs = _find_track(c, "IR")
         cst = _find_track(c, "COLOR")
-        color_height = cst.codec_context.height if cst is not None else None
         calib = None
         for s in c.streams:
             if s.type == "attachment" and (s.name == "calibration.json" or (s.metadata or {}).get("filename") == "calibration.json"):
                 calib = json.loads(bytes(s.data).decode())
         if calib is None:
             raise FormatError(f"{path}: no calibration.json attachment (factory calibration)")
-        idx = (dst.index, irs.index if irs is not None else None, cst.index if cst is not None else None)
-    dframes, dpts = _decode(path, idx[0], max_frames, None)
-    if not dframes:
-        raise FormatError(f"{path}: the depth track holds no frames")
-    depth = np.stack([np.asarray(f, dtype=np.uint16) for f in dframes])
-    ir = color = None
-    if idx[1] is not None:
-        iframes, ipts = _decode(path, idx[1], None, None)
-        ir = np.stack([np.asarray(iframes[_nearest(ipts, t)], np.uint16) for t in dpts]) if iframes else None
-    if idx[2] is not None:
-        cframes, cpts = _decode(path, idx[2], None, "rgb24")
-        color = [cframes[_nearest(cpts, t)] for t in dpts] if cframes else None
-    return AzureRecording(depth, ir, color, np.asarray(dpts), calib, tags, depth_mode, color_height)
+        return AzureInfo(path, calib, tags, depth_mode, cst.codec_context.height if cst is not None else None,
+                         dst.index, irs.index if irs is not None else None, cst.index if cst is not None else None)
 
 
-def _nearest(pts: list, t: float) -> int:
-    a = np.asarray(pts)
-    return int(np.nanargmin(np.abs(a - t))) if np.isfinite(a).any() else 0
+def iter_azure_frames(info: AzureInfo, max_frames: int | None = None):
+    """Stream synchronised frames in one demux pass.
+
+    Yields
+    ------
+    (t_s, depth (H,W) uint16 [mm], ir (H,W) uint16 or None, color (Hc,Wc,3) uint8 RGB or None)
+
+    Frames of one capture share a timestamp in k4arecorder files; a track missing at a
+    timestamp takes its most recent frame (IR/colour stay aligned in count with depth).
+    """
+    import av
+
+    kinds = {info.depth_index: "depth"}
+    if info.ir_index is not None:
+        kinds[info.ir_index] = "ir"
+    if info.color_index is not None:
+        kinds[info.color_index] = "color"
+    pending: dict[float, dict] = {}
+    last: dict[str, np.ndarray] = {}
+    n = 0
+
+    def complete(entry):
+        return all(k in entry for k in kinds.values())
+
+    def emit(t, entry):
+        for k in ("ir", "color"):
+            if k in entry:
+                last[k] = entry[k]
+        return (t, entry["depth"], entry.get("ir", last.get("ir")), entry.get("color", last.get("color")))
+
+    with av.open(str(info.path)) as c:
+        streams = [c.streams[i] for i in kinds]
+        for pkt in c.demux(streams):
+            kind = kinds.get(pkt.stream.index)
+            if kind is None:
+                continue
+            for fr in pkt.decode():
+                t = float(fr.time) if fr.time is not None else float(n)
+                arr = fr.to_ndarray(format="rgb24") if kind == "color" else np.asarray(fr.to_ndarray(), np.uint16)
+                pending.setdefault(t, {})[kind] = arr
+                ready = sorted(tt for tt, e in pending.items() if complete(e))
+                for tt in ready:
+                    # everything older than a complete timestamp will not be completed any more
+                    for old in sorted(x for x in pending if x < tt):
+                        e = pending.pop(old)
+                        if "depth" in e:
+                            yield emit(old, e)
+                            n += 1
+                            if max_frames is not None and n >= max_frames:
+                                return
+                    yield emit(tt, pending.pop(tt))
+                    n += 1
+                    if max_frames is not None and n >= max_frames:
+                        return
+        for t in sorted(pending):
+            e = pending[t]
+            if "depth" in e:
+                yield emit(t, e)
+                n += 1
+                if max_frames is not None and n >= max_frames:
+                    return
+
+
+def read_azure_mkv(path: str | os.PathLike, max_frames: int | None = None) -> AzureRecording:
+    """Decode an Azure Kinect ``.mkv`` into memory (short recordings; :func:`import_azure_kinect` streams).
+
+    Raises
+    ------
+    FormatError
+        See :func:`probe_azure_mkv`; also a depth track without frames.
+    """
+    info = probe_azure_mkv(path)
+    frames = list(iter_azure_frames(info, max_frames))
+    if not frames:
+        raise FormatError(f"{info.path}: the depth track holds no frames")
+    ts = np.array([f[0] for f in frames])
+    depth = np.stack([f[1] for f in frames])
+    ir = np.stack([f[2] for f in frames]) if info.ir_index is not None and frames[0][2] is not None else None
+    color = [f[3] for f in frames] if info.color_index is not None and frames[0][3] is not None else None
+    return AzureRecording(depth, ir, color, ts, info.calibration, info.tags, info.depth_mode, info.color_height)
 
 
 def import_azure_kinect(src: str | os.PathLike, out: str | os.PathLike, force: bool = False,
@@ -293,32 +356,39 @@ def import_azure_kinect(src: str | os.PathLike, out: str | os.PathLike, force: b
     from tofmetry.io.intrinsics_json import write_intrinsics
 
     src = Path(src)
-    rec = read_azure_mkv(src, max_frames)
-    cams = parse_calibration(rec.calibration, rec.depth_mode, rec.color_height, f"{src} calibration.json")
+    info = probe_azure_mkv(src)
+    cams = parse_calibration(info.calibration, info.depth_mode, info.color_height, f"{src} calibration.json")
     d, c = cams["depth"], cams["color"]
-    azure = {"depth_mode": rec.depth_mode, "color_height": rec.color_height,
-             "serial": rec.tags.get("K4A_DEVICE_SERIAL_NUMBER"), "source": str(src),
+    azure = {"depth_mode": info.depth_mode, "color_height": info.color_height,
+             "serial": info.tags.get("K4A_DEVICE_SERIAL_NUMBER"), "source": str(src),
              "depth_rational_distortion": d.rational, "depth_brown_refit_rms_px": d.refit_rms_px,
              "depth_brown_refit_max_px": d.refit_max_px, "dropped": list(d.dropped)}
     if c is not None:
         azure.update({"color_intrinsics": c.intrinsics.to_dict(), "color_rational_distortion": c.rational,
                       "color_brown_refit_rms_px": c.refit_rms_px, "depth_to_color": c.to_depth.to_dict()})
-    meta = CaptureMeta(sensor=SENSOR, intrinsics=d.intrinsics, timestamps_s=[float(t) for t in rec.timestamps_s],
-                       extra={"azure": azure})
+    meta = CaptureMeta(sensor=SENSOR, intrinsics=d.intrinsics, timestamps_s=[], extra={"azure": azure})
     with CaptureWriter(out, meta, force=force) as w:
-        for i in range(len(rec.depth)):
-            w.add(rec.depth[i], ir=None if rec.ir is None else rec.ir[i], color=None if rec.color is None else rec.color[i])
+        for t, depth, ir, color in iter_azure_frames(info, max_frames):
+            if depth.shape != d.intrinsics.shape:
+                raise FormatError(f"{src}: depth frames are {depth.shape[1]}x{depth.shape[0]}, the {info.depth_mode} "
+                                  f"calibration is {d.intrinsics.width}x{d.intrinsics.height}")
+            w.add(depth, ir=ir, color=color)
+            meta.timestamps_s.append(float(t))
             if progress is not None:
                 progress()
-        atomic_write_bytes(w._tmp / "azure_calibration.json", json.dumps(rec.calibration, indent=1).encode())
-        if c is not None:
-            write_intrinsics(w._tmp / "color_intrinsics.json", c.intrinsics, sensor=SENSOR)
-            atomic_write_json(w._tmp / "extrinsics.json", c.to_depth.to_dict())
+        if w.n == 0:
+            raise FormatError(f"{src}: the depth track holds no frames")
+    # side files (each atomic) once the capture folder is in place
+    out = Path(out)
+    atomic_write_bytes(out / "azure_calibration.json", json.dumps(info.calibration, indent=1).encode())
+    if c is not None:
+        write_intrinsics(out / "color_intrinsics.json", c.intrinsics, sensor=SENSOR)
+        atomic_write_json(out / "extrinsics.json", c.to_depth.to_dict())
     notes = [f"depth lens: rational model refitted to 5 Brown coefficients, {d.refit_rms_px:.3f} px RMS "
              f"(max {d.refit_max_px:.3f} px); dropped: {'; '.join(d.dropped)}"]
     if c is not None:
         notes.append(f"colour lens: Brown refit {c.refit_rms_px:.3f} px RMS (max {c.refit_max_px:.3f} px)")
-    return {"frames": int(len(rec.depth)), "depth_mode": rec.depth_mode, "color": bool(rec.color),
+    return {"frames": int(w.n), "depth_mode": info.depth_mode, "color": info.color_index is not None,
             "sensor": SENSOR, "notes": notes}
 
 

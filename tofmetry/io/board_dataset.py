@@ -215,3 +215,64 @@ def import_iai_kinect2_cli(src, out, *, force: bool = False, progress=None, boar
     """Registry entry: ``board`` as ``"COLSxROWS"`` plus ``square_mm``."""
     spec = BoardSpec.parse(board, square_mm) if board else None
     return import_iai_kinect2(src, out, spec, force=force, progress=progress)
+
+
+def export_iai_kinect2(src: str | os.PathLike, out: str | os.PathLike, force: bool = False,
+                       depth_shift_mm: float | None = None) -> dict:
+    """Write iai_kinect2 calibration files from a tofmetry calibration.
+
+    Parameters
+    ----------
+    src : one of
+        * a depth calibration ``.npz`` -> ``calib_ir.yaml`` (its intrinsics) and ``calib_depth.yaml``
+          with ``depthShift = -offset_mm`` (iai_kinect2 holds only a constant: the range curve's
+          mean; per-pixel surfaces and the range shape are dropped, reported in the summary);
+        * an ``intrinsics.json`` -> ``calib_ir.yaml`` (+ ``calib_depth.yaml`` if ``depth_shift_mm``);
+        * a folder from ``tofmetry import iai-kinect2`` -> every file it can (ir, color, pose, depth).
+    out : output folder; existing ``calib_*.yaml`` there are refused unless ``force``.
+    """
+    from tofmetry.io.iai_kinect2 import CALIB_FILES, IR_SIZE, IaiCalibration, write_iai_calibration
+
+    src, out = Path(src), Path(out)
+    dropped = []
+    if src.is_dir():
+        if not (src / "intrinsics.json").is_file():
+            raise InputError(f"{src}: no intrinsics.json (expected a folder written by 'tofmetry import iai-kinect2')")
+        ir = read_intrinsics(src / "intrinsics.json")
+        color = read_intrinsics(src / "color_intrinsics.json") if (src / "color_intrinsics.json").is_file() else None
+        pose = None
+        if (src / "extrinsics.json").is_file():
+            pose = Extrinsics.from_dict(read_json(src / "extrinsics.json"), source_name=str(src / "extrinsics.json"))
+        shift = depth_shift_mm
+        if shift is None and (src / "depth_shift.json").is_file():
+            shift = float(read_json(src / "depth_shift.json")["depth_shift_mm"])
+        cal = IaiCalibration(ir, color, pose, shift)
+    elif src.suffix.lower() == ".npz":
+        from tofmetry.io.calibration_file import load_calibration
+
+        dc = load_calibration(src)
+        if dc.sensor not in ("kinect_v2", "unknown"):
+            from tofmetry.errors import SensorMismatchError
+
+            raise SensorMismatchError(f"{src}: calibration is for sensor {dc.sensor!r}; iai_kinect2 is for kinect_v2")
+        shift = -float(dc.offset_mm) if depth_shift_mm is None else float(depth_shift_mm)
+        if dc.surface_model != "none" or len(dc.node_mm) > 1:
+            dropped.append("per-pixel surfaces")
+        dropped.append("range-curve shape (only its mean is kept as depthShift)")
+        cal = IaiCalibration(dc.intrinsics, None, None, shift)
+    elif src.suffix.lower() == ".json":
+        cal = IaiCalibration(read_intrinsics(src), None, None, depth_shift_mm)
+    else:
+        raise InputError(f"{src}: expected a calibration .npz, an intrinsics.json or an imported iai-kinect2 folder")
+    if cal.ir.shape != (IR_SIZE[1], IR_SIZE[0]):
+        raise InputError(f"{src}: intrinsics are {cal.ir.width}x{cal.ir.height}; iai_kinect2 IR files are 512x424")
+    existing = [f for f in CALIB_FILES if (out / f).exists()]
+    if existing and not force:
+        raise InputError(f"{out}: already holds {existing}; refusing to overwrite (pass --force)")
+    written = write_iai_calibration(out, cal)
+    return {"written": [str(p) for p in written], "depth_shift_mm": cal.depth_shift_mm, "dropped": dropped}
+
+
+def export_iai_kinect2_cli(src, out, *, force: bool = False, depth_shift_mm: float | None = None, **_ignored) -> dict:
+    """Registry entry for :func:`export_iai_kinect2`."""
+    return export_iai_kinect2(src, out, force=force, depth_shift_mm=depth_shift_mm)

@@ -1,6 +1,6 @@
 """Depth calibration file: ``.npz`` with a JSON header (no pickle).
 
-Layout (``np.savez_compressed``, loaded with ``allow_pickle=False``)::
+Layout (``np.savez``, loaded with ``allow_pickle=False``)::
 
     header        0-d unicode array: JSON {"format": "tofmetry-depth-calibration", "version": 1,
                   "sensor", "intrinsics", "offset_mm", "valid_range_mm", "range_data_mm",
@@ -40,7 +40,7 @@ def save_calibration(path: str | os.PathLike, cal: DepthCalibration) -> Path:
         "provenance": cal.provenance, "diagnostics": cal.diagnostics,
     }
     buf = io.BytesIO()
-    np.savez_compressed(
+    np.savez(  # uncompressed: smooth float32 maps barely compress and zlib costs seconds
         buf, header=np.array(to_json(header, indent=None)), range_knots=cal.range_knots,
         range_coeffs=cal.range_coeffs, node_mm=cal.node_mm, surfaces=cal.surfaces.astype(np.float32),
     )

@@ -292,22 +292,35 @@ def write_opencv_yaml(path: str | os.PathLike, entries: dict) -> Path:
     return atomic_write_bytes(path, format_opencv_yaml(entries).encode())
 
 
-def _camera_entries(intr: CameraIntrinsics) -> dict:
+def _camera_entries(intr: CameraIntrinsics, projection: np.ndarray | None = None) -> dict:
     K = intr.K
-    P = np.eye(4)
-    P[:3, :3] = K
+    if projection is None:
+        projection = np.eye(4)
+        projection[:3, :3] = K
+    P = np.asarray(projection, float)
+    if P.shape != (4, 4):
+        raise InputError(f"projection must be 4x4, found {P.shape}")
     return {"cameraMatrix": K, "distortionCoefficients": intr.dist_array.reshape(1, 5),
             "rotation": np.eye(3), "projection": P}
 
 
-def write_calib_ir(path: str | os.PathLike, intr: CameraIntrinsics) -> Path:
-    """Write iai_kinect2 ``calib_ir.yaml`` (cameraMatrix, distortionCoefficients, rotation=I, projection)."""
-    return write_opencv_yaml(path, _camera_entries(intr))
+def write_calib_ir(path: str | os.PathLike, intr: CameraIntrinsics, projection: np.ndarray | None = None) -> Path:
+    """Write iai_kinect2 ``calib_ir.yaml`` (cameraMatrix, distortionCoefficients, rotation=I,
+    projection = ``[K 0; 0 1]`` unless given)."""
+    return write_opencv_yaml(path, _camera_entries(intr, projection))
 
 
-def write_calib_color(path: str | os.PathLike, intr: CameraIntrinsics) -> Path:
+def write_calib_color(path: str | os.PathLike, intr: CameraIntrinsics, projection: np.ndarray | None = None) -> Path:
     """Write iai_kinect2 ``calib_color.yaml`` (same layout as ``calib_ir.yaml``)."""
-    return write_opencv_yaml(path, _camera_entries(intr))
+    return write_opencv_yaml(path, _camera_entries(intr, projection))
+
+
+def read_projection(path: str | os.PathLike) -> np.ndarray | None:
+    """The 4x4 ``projection`` of a camera file (iai_kinect2 usually stores ``[K 0; 0 1]``;
+    some devices hold a different, rectified matrix), or None if absent."""
+    path = Path(path)
+    d = read_opencv_yaml(path)
+    return _matrix(d, "projection", (4, 4), path) if "projection" in d else None
 
 
 def write_calib_depth(path: str | os.PathLike, depth_shift_mm: float) -> Path:
@@ -330,11 +343,12 @@ def essential_fundamental(extr: Extrinsics, ir: CameraIntrinsics, color: CameraI
 
 
 def write_calib_pose(path: str | os.PathLike, extr: Extrinsics, ir: CameraIntrinsics | None = None,
-                     color: CameraIntrinsics | None = None) -> Path:
+                     color: CameraIntrinsics | None = None, essential: np.ndarray | None = None,
+                     fundamental: np.ndarray | None = None) -> Path:
     """Write iai_kinect2 ``calib_pose.yaml`` from IR -> colour extrinsics [m].
 
-    ``essential`` and ``fundamental`` are derived (needs ``ir`` and ``color`` intrinsics for
-    the fundamental; without them it is written as zeros, which iai_kinect2 does not use).
+    ``essential`` and ``fundamental`` are written as given, else derived (the fundamental needs
+    ``ir`` and ``color`` intrinsics; without them it is written as zeros, unused by iai_kinect2).
     """
     if (extr.source, extr.target) not in (("ir", "color"), ("depth", "color")):
         raise InputError(f"write_calib_pose: expected IR -> colour extrinsics, found {extr.source} -> {extr.target}")
@@ -344,6 +358,8 @@ def write_calib_pose(path: str | os.PathLike, extr: Extrinsics, ir: CameraIntrin
         t = extr.translation
         E = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]]) @ extr.rotation
         F = np.zeros((3, 3))
+    E = E if essential is None else np.asarray(essential, float).reshape(3, 3)
+    F = F if fundamental is None else np.asarray(fundamental, float).reshape(3, 3)
     return write_opencv_yaml(path, {"rotation": extr.rotation, "translation": extr.translation.reshape(3, 1),
                                     "essential": E, "fundamental": F})
 
@@ -365,12 +381,20 @@ class IaiCalibration:
     color : CameraIntrinsics | None  colour camera (1920x1080), if present.
     ir_to_color : Extrinsics | None  ``p_color = R p_ir + t`` [m], if present.
     depth_shift_mm : float | None   iai_kinect2 ``depthShift`` [mm], if present.
+    ir_projection, color_projection : (4, 4) or None, the files' ``projection`` (kept for exact
+        round trips; not used by tofmetry).
+    essential, fundamental : (3, 3) or None, as stored in ``calib_pose.yaml`` (derivable from the
+        rest; kept for exact round trips).
     """
 
     ir: CameraIntrinsics
     color: CameraIntrinsics | None = None
     ir_to_color: Extrinsics | None = None
     depth_shift_mm: float | None = None
+    ir_projection: np.ndarray | None = None
+    color_projection: np.ndarray | None = None
+    essential: np.ndarray | None = None
+    fundamental: np.ndarray | None = None
 
 
 def read_iai_calibration(folder: str | os.PathLike) -> IaiCalibration:
@@ -382,82 +406,28 @@ def read_iai_calibration(folder: str | os.PathLike) -> IaiCalibration:
         raise InputError(f"{folder}: no calib_ir.yaml (an iai_kinect2 calibration folder holds calib_ir/color/pose/depth.yaml)")
     ir = read_calib_ir(folder / "calib_ir.yaml")
     color = read_calib_color(folder / "calib_color.yaml") if (folder / "calib_color.yaml").is_file() else None
-    pose = read_calib_pose(folder / "calib_pose.yaml") if (folder / "calib_pose.yaml").is_file() else None
+    pose = E = F = None
+    if (folder / "calib_pose.yaml").is_file():
+        pose = read_calib_pose(folder / "calib_pose.yaml")
+        pd = read_opencv_yaml(folder / "calib_pose.yaml")
+        E = _matrix(pd, "essential", (3, 3), folder / "calib_pose.yaml") if "essential" in pd else None
+        F = _matrix(pd, "fundamental", (3, 3), folder / "calib_pose.yaml") if "fundamental" in pd else None
     shift = read_calib_depth(folder / "calib_depth.yaml") if (folder / "calib_depth.yaml").is_file() else None
-    return IaiCalibration(ir, color, pose, shift)
+    return IaiCalibration(ir, color, pose, shift, read_projection(folder / "calib_ir.yaml"),
+                          read_projection(folder / "calib_color.yaml") if color is not None else None, E, F)
 
 
 def write_iai_calibration(folder: str | os.PathLike, cal: IaiCalibration) -> list[Path]:
     """Write the files of ``cal`` that are present into ``folder`` (each atomically)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    written = [write_calib_ir(folder / "calib_ir.yaml", cal.ir)]
+    written = [write_calib_ir(folder / "calib_ir.yaml", cal.ir, cal.ir_projection)]
     if cal.color is not None:
-        written.append(write_calib_color(folder / "calib_color.yaml", cal.color))
+        written.append(write_calib_color(folder / "calib_color.yaml", cal.color, cal.color_projection))
     if cal.ir_to_color is not None:
-        written.append(write_calib_pose(folder / "calib_pose.yaml", cal.ir_to_color, cal.ir, cal.color))
+        written.append(write_calib_pose(folder / "calib_pose.yaml", cal.ir_to_color, cal.ir, cal.color,
+                                        cal.essential, cal.fundamental))
     if cal.depth_shift_mm is not None:
         written.append(write_calib_depth(folder / "calib_depth.yaml", cal.depth_shift_mm))
     return written
 
-
-def export_iai_kinect2(src: str | os.PathLike, out: str | os.PathLike, force: bool = False,
-                       depth_shift_mm: float | None = None) -> dict:
-    """Write iai_kinect2 calibration files from a tofmetry calibration.
-
-    Parameters
-    ----------
-    src : one of
-        * a depth calibration ``.npz`` -> ``calib_ir.yaml`` (its intrinsics) and ``calib_depth.yaml``
-          with ``depthShift = -offset_mm`` (iai_kinect2 holds only a constant: the range curve's
-          mean; per-pixel surfaces and the range shape are dropped, reported in the summary);
-        * an ``intrinsics.json`` -> ``calib_ir.yaml`` (+ ``calib_depth.yaml`` if ``depth_shift_mm``);
-        * a folder from ``tofmetry import iai-kinect2`` -> every file it can (ir, color, pose, depth).
-    out : output folder; existing ``calib_*.yaml`` there are refused unless ``force``.
-    """
-    from tofmetry.io._atomic import read_json
-    from tofmetry.io.intrinsics_json import read_intrinsics
-
-    src, out = Path(src), Path(out)
-    dropped = []
-    if src.is_dir():
-        if not (src / "intrinsics.json").is_file():
-            raise InputError(f"{src}: no intrinsics.json (expected a folder written by 'tofmetry import iai-kinect2')")
-        ir = read_intrinsics(src / "intrinsics.json")
-        color = read_intrinsics(src / "color_intrinsics.json") if (src / "color_intrinsics.json").is_file() else None
-        pose = None
-        if (src / "extrinsics.json").is_file():
-            pose = Extrinsics.from_dict(read_json(src / "extrinsics.json"), source_name=str(src / "extrinsics.json"))
-        shift = depth_shift_mm
-        if shift is None and (src / "depth_shift.json").is_file():
-            shift = float(read_json(src / "depth_shift.json")["depth_shift_mm"])
-        cal = IaiCalibration(ir, color, pose, shift)
-    elif src.suffix.lower() == ".npz":
-        from tofmetry.io.calibration_file import load_calibration
-
-        dc = load_calibration(src)
-        if dc.sensor not in ("kinect_v2", "unknown"):
-            from tofmetry.errors import SensorMismatchError
-
-            raise SensorMismatchError(f"{src}: calibration is for sensor {dc.sensor!r}; iai_kinect2 is for kinect_v2")
-        shift = -float(dc.offset_mm) if depth_shift_mm is None else float(depth_shift_mm)
-        if dc.surface_model != "none" or len(dc.node_mm) > 1:
-            dropped.append("per-pixel surfaces")
-        dropped.append("range-curve shape (only its mean is kept as depthShift)")
-        cal = IaiCalibration(dc.intrinsics, None, None, shift)
-    elif src.suffix.lower() == ".json":
-        cal = IaiCalibration(read_intrinsics(src), None, None, depth_shift_mm)
-    else:
-        raise InputError(f"{src}: expected a calibration .npz, an intrinsics.json or an imported iai-kinect2 folder")
-    if cal.ir.shape != (IR_SIZE[1], IR_SIZE[0]):
-        raise InputError(f"{src}: intrinsics are {cal.ir.width}x{cal.ir.height}; iai_kinect2 IR files are 512x424")
-    existing = [f for f in CALIB_FILES if (out / f).exists()]
-    if existing and not force:
-        raise InputError(f"{out}: already holds {existing}; refusing to overwrite (pass --force)")
-    written = write_iai_calibration(out, cal)
-    return {"written": [str(p) for p in written], "depth_shift_mm": cal.depth_shift_mm, "dropped": dropped}
-
-
-def export_iai_kinect2_cli(src, out, *, force: bool = False, depth_shift_mm: float | None = None, **_ignored) -> dict:
-    """Registry entry for :func:`export_iai_kinect2`."""
-    return export_iai_kinect2(src, out, force=force, depth_shift_mm=depth_shift_mm)

@@ -89,7 +89,7 @@ for _f in (
     register_importer(_f)
 
 for _f in (
-    Format("iai-kinect2", "tofmetry.io.iai_kinect2:export_iai_kinect2_cli",
+    Format("iai-kinect2", "tofmetry.io.board_dataset:export_iai_kinect2_cli",
            "calibration (.npz, intrinsics.json or board dataset) -> calib_ir.yaml + calib_depth.yaml"),
     Format("e57", "tofmetry.io.e57:export_e57_cli", "PLY point cloud or mesh vertices -> E57", ("pye57",)),
     Format("ply", "tofmetry.io.e57:export_ply_cli", "E57 point cloud -> PLY", ("pye57",)),

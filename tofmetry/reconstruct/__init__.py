@@ -1,0 +1,33 @@
+"""3D modelling of small objects from several ToF views (study §5), fully automatic.
+
+Stages (one module each): :mod:`._preprocess` (robust mean, calibration, flying pixels,
+range, normals) -> :mod:`._segment` (support plane + object) -> :mod:`._register` (plane-yaw
+or FPFH coarse, robust point-to-plane ICP) -> :mod:`._posegraph` (all pairs, LM global
+optimisation) -> :mod:`._fusion` (TSDF VoxelBlockGrid on undistorted depth, mesh, Poisson).
+:class:`ReconstructionPipeline` runs them; :func:`write_reconstruction` writes the outputs.
+"""
+
+from tofmetry.reconstruct._config import (
+    FusionConfig,
+    PreprocessConfig,
+    ReconstructionConfig,
+    RegistrationConfig,
+    SegmentConfig,
+)
+from tofmetry.reconstruct._fusion import TSDFFusion, crop_mesh, poisson_mesh, undistort_depth, undistort_maps
+from tofmetry.reconstruct._output import poses_document, write_reconstruction
+from tofmetry.reconstruct._pipeline import ReconstructionPipeline, ReconstructionResult
+from tofmetry.reconstruct._posegraph import PoseGraphBuilder, PoseGraphResult, connected_components, rotation_angle_deg
+from tofmetry.reconstruct._preprocess import ViewData, image_normals, prepare_view
+from tofmetry.reconstruct._register import PairResult, RegView, make_reg_view, plane_consistent, register_pair
+from tofmetry.reconstruct._segment import Segmentation, fit_support_plane, segment_object
+
+__all__ = [
+    "FusionConfig", "PreprocessConfig", "ReconstructionConfig", "RegistrationConfig", "SegmentConfig",
+    "TSDFFusion", "crop_mesh", "poisson_mesh", "undistort_depth", "undistort_maps",
+    "poses_document", "write_reconstruction", "ReconstructionPipeline", "ReconstructionResult",
+    "PoseGraphBuilder", "PoseGraphResult", "connected_components", "rotation_angle_deg",
+    "ViewData", "image_normals", "prepare_view",
+    "PairResult", "RegView", "make_reg_view", "plane_consistent", "register_pair",
+    "Segmentation", "fit_support_plane", "segment_object",
+]

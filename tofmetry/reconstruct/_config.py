@@ -34,6 +34,8 @@ class RegistrationConfig(BaseModel):
     """Automatic registration: FPFH + RANSAC coarse, robust point-to-plane ICP fine, pose graph."""
 
     feature_voxel_mm: float = Field(5.0, gt=0, description="voxel for FPFH features / RANSAC [mm]")
+    coarse_voxel_mm: float = Field(8.0, gt=0, description="voxel of the clouds for the quick ICP of coarse hypotheses [mm]")
+    refine_candidates: int = Field(3, ge=1, description="distinct coarse hypotheses refined by the full ICP")
     icp_voxel_mm: float = Field(2.5, gt=0, description="voxel of the ICP clouds [mm]")
     icp_radii_mm: tuple[float, ...] = Field((15.0, 6.0, 3.0), description="ICP correspondence radii, coarse to fine [mm]")
     kernel: str = Field("tukey", description="robust kernel: tukey | huber | none (k = radius / 3)")
@@ -44,6 +46,11 @@ class RegistrationConfig(BaseModel):
     max_rmse_mm: float = Field(3.0, gt=0, description="...and an inlier RMSE below this [mm]")
     all_pairs: bool = Field(True, description="try every pair (loop closures), not only successive views")
     edge_prune: float = Field(0.25, ge=0, le=1, description="pose-graph line-process edge pruning threshold")
+    yaw_step_deg: float = Field(30.0, gt=0, description="support-plane yaw hypotheses step [deg] (coarse search "
+                                "when FPFH is ambiguous on a nearly symmetric object)")
+    max_loop_jump_deg: float = Field(5.0, gt=0, description="a loop-closure ICP may move at most this far from the "
+                                      "chained initial pose [deg]")
+    max_loop_jump_mm: float = Field(30.0, gt=0, description="... and this far [mm]")
     ransac_seeds: int = Field(2, ge=1, description="RANSAC restarts per successive pair (best after ICP kept)")
     seed: int = 0
 

@@ -36,6 +36,9 @@ class RegView:
     obj_points: np.ndarray
     feat_points: np.ndarray
     feat_normals: np.ndarray
+    coarse_points: np.ndarray | None = None
+    coarse_normals: np.ndarray | None = None
+    plane: np.ndarray | None = None
     _tree: cKDTree | None = field(default=None, repr=False)
 
     @property
@@ -53,7 +56,44 @@ def make_reg_view(view: ViewData, seg: Segmentation, cfg: RegistrationConfig) ->
     p, n = voxel_down(view.points[sel], view.normals[sel], cfg.icp_voxel_mm * 1e-3)
     po, _ = voxel_down(view.points[obj], None, cfg.icp_voxel_mm * 1e-3)
     pf, nf = voxel_down(view.points[seg.object_mask], view.normals[seg.object_mask], cfg.feature_voxel_mm * 1e-3)
-    return RegView(view.name, p, n, po, pf, nf)
+    pc, nc = voxel_down(view.points[sel], view.normals[sel], cfg.coarse_voxel_mm * 1e-3)
+    return RegView(view.name, p, n, po, pf, nf, pc, nc, seg.plane)
+
+
+def _plane_frame(plane: np.ndarray, obj: np.ndarray) -> np.ndarray:
+    """4x4 frame: origin = object centroid projected on the plane, z = plane normal (up)."""
+    n = plane[:3]
+    c = obj.mean(0)
+    o = c - (n @ c + plane[3]) * n
+    x = np.array([1.0, 0, 0]) - n[0] * n
+    x /= np.linalg.norm(x)
+    F = np.eye(4)
+    F[:3, 0], F[:3, 1], F[:3, 2], F[:3, 3] = x, np.cross(n, x), n, o
+    return F
+
+
+def plane_consistent(src: RegView, tgt: RegView, T: np.ndarray, max_deg: float = 3.0, max_mm: float = 8.0) -> bool:
+    """Does ``T`` map the source support plane onto the target one (normal and offset)?"""
+    if src.plane is None or tgt.plane is None:
+        return True
+    n_s = T[:3, :3] @ src.plane[:3]
+    ang = np.degrees(np.arccos(np.clip(n_s @ tgt.plane[:3], -1, 1)))
+    # a source-plane point mapped into the target must lie on the target plane
+    p0 = -src.plane[3] * src.plane[:3]
+    h = tgt.plane[:3] @ (T[:3, :3] @ p0 + T[:3, 3]) + tgt.plane[3]
+    return bool(ang <= max_deg and abs(h) * 1e3 <= max_mm)
+
+
+def yaw_candidates(src: RegView, tgt: RegView, step_deg: float = 30.0) -> list[np.ndarray]:
+    """Transforms that put the source support plane on the target one, at yaw steps about its normal."""
+    Fs = _plane_frame(src.plane, src.obj_points)
+    Ft = _plane_frame(tgt.plane, tgt.obj_points)
+    out = []
+    for a in np.radians(np.arange(0.0, 360.0, step_deg)):
+        Rz = np.eye(4)
+        Rz[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+        out.append(Ft @ Rz @ np.linalg.inv(Fs))
+    return out
 
 
 @dataclass
@@ -105,7 +145,7 @@ def object_fitness(src: RegView, tgt: RegView, T: np.ndarray, radius_m: float) -
 
 
 def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationConfig,
-                  init: np.ndarray | None = None) -> PairResult:
+                  init: np.ndarray | None = None, global_search: bool = True) -> PairResult:
     """Register view ``i`` (source) onto view ``j`` (target).
 
     With ``init`` the ICP starts there first; FPFH + RANSAC (``cfg.ransac_seeds`` restarts)
@@ -116,16 +156,48 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
     cands = []
     if init is not None:
         T = _refine(src, tgt, init, cfg)
-        cands.append((*object_fitness(src, tgt, T, r_final), T, "init+icp"))
-    if not cands or not _passes(cands[0][0], cands[0][1], cfg):
-        for s in range(cfg.ransac_seeds):
+        E = np.linalg.inv(init) @ T
+        jump_deg = np.degrees(np.arccos(np.clip((np.trace(E[:3, :3]) - 1) / 2, -1, 1)))
+        if global_search or (jump_deg <= cfg.max_loop_jump_deg and np.linalg.norm(E[:3, 3]) * 1e3 <= cfg.max_loop_jump_mm):
+            cands.append((*object_fitness(src, tgt, T, r_final), T, "init+icp"))
+    if global_search and (not cands or not _passes(cands[0][0], cands[0][1], cfg) or not plane_consistent(src, tgt, cands[0][2])):
+        coarse = []
+        use_plane = src.plane is not None and tgt.plane is not None and cfg.use_ground
+        for s in range(0 if use_plane else cfg.ransac_seeds):
             g = global_register(src.feat_points, src.feat_normals, tgt.feat_points, tgt.feat_normals,
                                 cfg.feature_voxel_mm * 1e-3, seed=cfg.seed + s)
-            T = _refine(src, tgt, g.transform, cfg)
-            cands.append((*object_fitness(src, tgt, T, r_final), T, "fpfh+icp"))
-    fit, rmse, T, method = max(cands, key=lambda c: (round(c[0], 2), -c[1]))
+            coarse.append((g.transform, "fpfh+icp"))
+        if use_plane:
+            coarse += [(T, "plane-yaw+icp") for T in yaw_candidates(src, tgt, cfg.yaw_step_deg)]
+        # quick ICP of every coarse candidate on the feature-voxel clouds, keep the best few
+        quick = []
+        for T0, how in coarse:
+            T = T0
+            for r in (2.5 * cfg.coarse_voxel_mm, 1.25 * cfg.coarse_voxel_mm):
+                T = icp(src.coarse_points, tgt.coarse_points, tgt.coarse_normals, T, r * 1e-3, kernel=cfg.kernel,
+                        max_iter=12).transform
+            if plane_consistent(src, tgt, T, 5.0, 15.0):
+                quick.append((*object_fitness(src, tgt, T, 1.25 * cfg.coarse_voxel_mm * 1e-3), T, how))
+        quick.sort(key=lambda c: (-c[0], c[1]))
+        distinct: list = []  # several yaw seeds converge to the same pose: refine distinct ones only
+        for c in quick:
+            if all(not _same_pose(c[2], d[2]) for d in distinct):
+                distinct.append(c)
+        for fit0, rm0, T0, how in distinct[:cfg.refine_candidates]:
+            T = _refine(src, tgt, T0, cfg)
+            if plane_consistent(src, tgt, T):
+                cands.append((*object_fitness(src, tgt, T, r_final), T, how))
+    if not cands:
+        return PairResult(i, j, np.eye(4), 0.0, np.inf, np.zeros((6, 6)), "none", False)
+    fit, rmse, T, method = max(cands, key=lambda c: (c[0] if plane_consistent(src, tgt, c[2]) else -1, -c[1]))
     info = information_matrix(src.icp_points, tgt.icp_points, r_final, T)
     return PairResult(i, j, T, fit, rmse * 1e3, info, method, _passes(fit, rmse, cfg))
+
+
+def _same_pose(A: np.ndarray, B: np.ndarray, deg: float = 3.0, mm: float = 10.0) -> bool:
+    E = np.linalg.inv(A) @ B
+    ang = np.degrees(np.arccos(np.clip((np.trace(E[:3, :3]) - 1) / 2, -1, 1)))
+    return bool(ang <= deg and np.linalg.norm(E[:3, 3]) * 1e3 <= mm)
 
 
 def _passes(fit: float, rmse_m: float, cfg: RegistrationConfig) -> bool:

@@ -8,8 +8,12 @@
 from tofmetry.simulate import scenes
 from tofmetry.simulate.camera import Frame, Frames, VirtualKinect
 from tofmetry.simulate.errors import TERMS, ErrorModel
+from tofmetry.simulate.meshes import balustrade_mesh
+from tofmetry.simulate.poses import look_at, orbit_poses
 from tofmetry.simulate.render import Rendering, render
+from tofmetry.simulate.surfaces import Scene
 
 from tofmetry.simulate import datasets  # noqa: E402  (imports the above)
 
-__all__ = ["VirtualKinect", "ErrorModel", "Frames", "Frame", "Rendering", "render", "TERMS", "scenes", "datasets"]
+__all__ = ["VirtualKinect", "ErrorModel", "Frames", "Frame", "Rendering", "render", "TERMS", "Scene", "scenes",
+           "datasets", "balustrade_mesh", "look_at", "orbit_poses"]

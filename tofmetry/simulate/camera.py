@@ -18,7 +18,7 @@ from tofmetry.sensor.intrinsics import CameraIntrinsics
 from tofmetry.sensor.profiles import KINECT_V2
 from tofmetry.simulate import errors as E
 from tofmetry.simulate.render import Rendering, render
-from tofmetry.simulate.scenes import Scene
+from tofmetry.simulate.surfaces import Scene
 
 
 @dataclass

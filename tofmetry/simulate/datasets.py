@@ -241,6 +241,8 @@ def warmup(out: str | os.PathLike, duration_s: float = 5400.0, interval_s: float
     ``out/truth.json`` (true drift per frame). Returns ``out``."""
     from tofmetry.simulate.errors import warmup_mm
 
+    if not interval_s > 0 or not duration_s >= 0:
+        raise InputError(f"warmup: need interval_s > 0 and duration_s >= 0, found {interval_s}, {duration_s}")
     em = _em(errors)
     ts = np.arange(0.0, duration_s + 1e-9, interval_s)
     vk = VirtualKinect(em, seed=seed)

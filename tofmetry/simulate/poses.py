@@ -51,7 +51,7 @@ def orbit_poses(n_views: int, radius_m: float, elevation_deg: float, target: np.
 
 def board_poses(n: int, intr: CameraIntrinsics, cols: int, rows: int, square_m: float, rng: np.random.Generator,
                 dist_range: tuple = (0.6, 1.6), max_tilt_deg: float = 40.0, margin_px: float = 12.0,
-                board_margin_m: float = 0.03) -> list[np.ndarray]:
+                board_margin_m: float = 0.05) -> list[np.ndarray]:
     """Board-to-camera poses covering the whole image (incl. corners), distances and tilts.
 
     Board centres aim at a 3 x 3 grid of image positions (cycled, jittered); tilts up to

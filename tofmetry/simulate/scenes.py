@@ -14,190 +14,15 @@ Label 0 = background / nothing of interest; ``Scene.labels`` names the others.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
 from tofmetry.errors import InputError
+from tofmetry.simulate.surfaces import Hits, MeshSurface, PlaneSurface, Scene, Texture, _uniform_texture
 
-
-@dataclass
-class Hits:
-    """Nearest hits of N rays ``o + t d`` (d not normalised: t is in units of |d|).
-
-    Attributes: t (N,) float64 (inf = miss); cos_inc (N,) |cos| of the incidence angle;
-    albedo (N,); label (N,) int32; refl_bias_mm (N,) static bias of reflective samples [mm];
-    reflective (N,) bool.
-    """
-
-    t: np.ndarray
-    cos_inc: np.ndarray
-    albedo: np.ndarray
-    label: np.ndarray
-    refl_bias_mm: np.ndarray
-    reflective: np.ndarray
-
-    @classmethod
-    def empty(cls, n: int) -> "Hits":
-        return cls(np.full(n, np.inf), np.zeros(n), np.zeros(n), np.zeros(n, np.int32), np.zeros(n), np.zeros(n, bool))
-
-    def merge(self, other: "Hits") -> None:
-        """Keep, per ray, the nearer of ``self`` and ``other`` (in place)."""
-        m = other.t < self.t
-        for f in ("t", "cos_inc", "albedo", "label", "refl_bias_mm", "reflective"):
-            getattr(self, f)[m] = getattr(other, f)[m]
-
-
-#: texture(s, t) -> (albedo (N,), label (N,) int, reflective (N,) bool, refl_bias (N,) mm-fraction 0..1)
-Texture = Callable[[np.ndarray, np.ndarray], tuple]
-
-
-def _uniform_texture(albedo: float, label: int) -> Texture:
-    def tex(s, t):
-        n = s.shape[0]
-        return np.full(n, albedo), np.full(n, label, np.int32), np.zeros(n, bool), np.zeros(n)
-    return tex
-
-
-@dataclass
-class PlaneSurface:
-    """Planar patch ``p = origin + s e1 + t e2`` with ``s, t`` inside ``extent`` (None = infinite).
-
-    Attributes
-    ----------
-    origin : (3,) [m]; e1, e2 : (3,) orthonormal in-plane axes;
-    extent : (s0, s1, t0, t1) [m] or None; texture : see :data:`Texture`.
-    reflective_max_mm : float, scale of the ``refl_bias`` fraction returned by the texture.
-    """
-
-    origin: np.ndarray
-    e1: np.ndarray
-    e2: np.ndarray
-    extent: tuple | None
-    texture: Texture
-    reflective_max_mm: float = 60.0
-
-    @property
-    def normal(self) -> np.ndarray:
-        n = np.cross(self.e1, self.e2)
-        return n / np.linalg.norm(n)
-
-    def intersect(self, o: np.ndarray, d: np.ndarray) -> Hits:
-        n = self.normal
-        dn = d @ n
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = ((self.origin - o) @ n) / dn
-        ok = np.isfinite(t) & (t > 1e-9)
-        h = Hits.empty(d.shape[0])
-        idx = np.flatnonzero(ok)
-        p = o + d[idx] * t[idx, None] - self.origin
-        s, tt = p @ self.e1, p @ self.e2
-        if self.extent is not None:
-            s0, s1, t0, t1 = self.extent
-            inside = (s >= s0) & (s <= s1) & (tt >= t0) & (tt <= t1)
-            idx, s, tt = idx[inside], s[inside], tt[inside]
-        alb, lab, refl, rb = self.texture(s, tt)
-        dd = d[idx]
-        h.t[idx] = t[idx]
-        h.cos_inc[idx] = np.abs(dn[idx]) / np.sqrt(np.einsum("ij,ij->i", dd, dd))
-        h.albedo[idx] = alb
-        h.label[idx] = lab
-        h.reflective[idx] = refl
-        h.refl_bias_mm[idx] = rb * self.reflective_max_mm
-        return h
-
-
-@dataclass
-class MeshSurface:
-    """Triangle mesh (world frame, metres) with one albedo and label, raycast by Open3D.
-
-    All meshes of a :class:`Scene` are cast together in one ``RaycastingScene``.
-    """
-
-    vertices: np.ndarray
-    triangles: np.ndarray
-    albedo: float = 0.7
-    label: int = 1
-
-
-class _MeshGroup:
-    """One Open3D ``RaycastingScene`` holding several :class:`MeshSurface`."""
-
-    def __init__(self, meshes: list):
-        import open3d as o3d
-
-        self.meshes = meshes
-        self.scene = o3d.t.geometry.RaycastingScene()
-        ids = []
-        for m in meshes:
-            tm = o3d.t.geometry.TriangleMesh()
-            tm.vertex.positions = o3d.core.Tensor(np.ascontiguousarray(m.vertices, np.float32))
-            tm.triangle.indices = o3d.core.Tensor(np.ascontiguousarray(m.triangles, np.int32))
-            ids.append(self.scene.add_triangles(tm))
-        n = max(ids) + 1
-        self.albedo = np.zeros(n + 1)
-        self.label = np.zeros(n + 1, np.int32)
-        for gid, m in zip(ids, meshes):
-            self.albedo[gid], self.label[gid] = m.albedo, m.label
-
-    def intersect(self, o: np.ndarray, d: np.ndarray) -> Hits:
-        import open3d as o3d
-
-        rays = np.empty((d.shape[0], 6), np.float32)
-        rays[:, :3] = o
-        rays[:, 3:] = d
-        ans = self.scene.cast_rays(o3d.core.Tensor(rays))
-        t = ans["t_hit"].numpy()
-        h = Hits.empty(d.shape[0])
-        idx = np.flatnonzero(np.isfinite(t))
-        gid = ans["geometry_ids"].numpy()[idx].astype(np.int64)
-        nrm = ans["primitive_normals"].numpy()[idx].astype(np.float64)
-        dd = d[idx]
-        h.t[idx] = t[idx]
-        h.cos_inc[idx] = np.abs(np.einsum("ij,ij->i", dd, nrm)) / np.sqrt(np.einsum("ij,ij->i", dd, dd))
-        h.albedo[idx] = self.albedo[gid]
-        h.label[idx] = self.label[gid]
-        return h
-
-
-@dataclass
-class Scene:
-    """A set of surfaces plus ground-truth description.
-
-    Attributes
-    ----------
-    name : str
-    surfaces : list of PlaneSurface / MeshSurface
-    labels : dict int -> str, region / sample names of the label ids
-    info : dict, JSON-able truth (geometry parameters, albedos, reflective flags)
-    smooth : bool, True when the scene has no depth or albedo edges (a bare uniform plane):
-        the renderer then needs no supersampling.
-    """
-
-    name: str
-    surfaces: list
-    labels: dict = field(default_factory=dict)
-    info: dict = field(default_factory=dict)
-    smooth: bool = False
-    _group: object = field(default=None, repr=False, compare=False)
-
-    def intersect(self, origin: np.ndarray, dirs: np.ndarray) -> Hits:
-        """Nearest hits of rays ``origin + t dirs``: origin (3,) [m], dirs (N, 3)."""
-        o = np.asarray(origin, np.float64).reshape(3)
-        d = np.asarray(dirs, np.float64).reshape(-1, 3)
-        h = None
-        for s in self.surfaces:
-            if isinstance(s, PlaneSurface):
-                hs = s.intersect(o, d)
-                h = hs if h is None else (h.merge(hs) or h)
-        meshes = [s for s in self.surfaces if isinstance(s, MeshSurface)]
-        if meshes:
-            if self._group is None:
-                self._group = _MeshGroup(meshes)
-            hs = self._group.intersect(o, d)
-            h = hs if h is None else (h.merge(hs) or h)
-        return h if h is not None else Hits.empty(d.shape[0])
+__all__ = ["Hits", "MeshSurface", "PlaneSurface", "Scene", "Texture", "wall", "checkerboard", "grey_board",
+           "material_board", "mesh_on_ground", "balustrade", "outdoor_table", "ground_plane", "rotation_xyz",
+           "GREY_LEVELS", "MATERIALS"]
 
 
 # ---------------------------------------------------------------- helpers
@@ -247,7 +72,8 @@ def wall(distance_m: float = 1.0, tilt_deg: tuple[float, float] = (0.0, 0.0), al
 
 
 def checkerboard(cols: int = 9, rows: int = 6, square_m: float = 0.04, board_to_world: np.ndarray | None = None,
-                 margin_m: float = 0.03, black: float = 0.133, white: float = 0.8) -> Scene:
+                 margin_m: float = 0.05, black: float = 0.133, white: float = 0.8,
+                 pose: np.ndarray | None = None) -> Scene:
     """Printed checkerboard with ``cols x rows`` INNER corners.
 
     Board frame: origin at the first inner corner, x along the columns, y along the rows,
@@ -257,8 +83,10 @@ def checkerboard(cols: int = 9, rows: int = 6, square_m: float = 0.04, board_to_
 
     Parameters
     ----------
-    board_to_world : (4, 4), default places the board 1 m in front of an identity camera.
+    board_to_world : (4, 4), default places the board 1 m in front of an identity camera
+        (``pose`` is an alias).
     """
+    board_to_world = pose if board_to_world is None else board_to_world
     if cols < 2 or rows < 2:
         raise InputError(f"scenes.checkerboard: need at least 2x2 inner corners, found {cols}x{rows}")
     T = np.eye(4) if board_to_world is None else np.asarray(board_to_world, float)

@@ -71,12 +71,15 @@ def stage_warmup(ctx: StudyContext, out: StageOutcome) -> None:
     _save_json(ctx, "warmup", d)
     out.figures = _fig_list(save_figures(res, ctx.stage_dir("warmup")))
     st = d["stabilisation_time_min"]
-    out.data = {k: d[k] for k in ("stabilisation_time_min", "total_drift_mm", "drift_range_mm", "residual_drift_mm",
-                                  "final_level_mm", "n_frames", "duration_s", "patch", "notes")}
+    out.data = {k: d[k] for k in ("stabilisation_time_min", "stabilisation_range_s", "total_drift_mm", "drift_range_mm",
+                                  "residual_drift_mm", "final_level_mm", "n_frames", "duration_s", "patch", "notes")}
+    rng = [None if x is None else x / 60.0 for x in d["stabilisation_range_s"]]
+    rng_txt = " – ".join("not reached" if x is None else f"{x:.1f}" for x in rng) + " min"
     out.tables.append(("Warm-up (study §3.2: ~5 mm over 30 min, then ~1 mm)", ["quantity", "value"], [
         ["frames / duration", f"{d['n_frames']} / {d['duration_s'] / 60:.0f} min"],
         ["patch (highest IR)", f"{d['patch']['size']}x{d['patch']['size']} at u={d['patch']['u0']}, v={d['patch']['v0']}"],
         ["stabilisation time", "not reached" if st is None else f"{st:.1f} min"],
+        [f"… at {1.1 * a.warmup_tolerance_mm:.2g} / {0.9 * a.warmup_tolerance_mm:.2g} mm tolerance", rng_txt],
         ["total drift", f"{d['total_drift_mm']:+.2f} mm"],
         ["residual drift after stabilisation", f"{d['residual_drift_mm']:.2f} mm"],
     ]))

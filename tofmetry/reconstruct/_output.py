@@ -1,0 +1,32 @@
+"""Write a reconstruction: points.ply, mesh.ply (+ mesh_poisson.ply), poses.json."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from tofmetry.io import atomic_dir, atomic_write_json, write_ply
+from tofmetry.reconstruct._pipeline import ReconstructionResult
+
+
+def poses_document(res: ReconstructionResult) -> dict:
+    """The poses.json content: camera-to-world per view + registration diagnostics."""
+    return {
+        "world": "camera frame of the first view in name order (x right, y down, z forward), metres",
+        "convention": "camera_to_world 4x4",
+        "views": [{"name": n, "camera_to_world": T.tolist()} for n, T in zip(res.names, res.poses)],
+        "edges": res.edges,
+        "support_plane_world": None if res.support_plane is None else res.support_plane.tolist(),
+        "diagnostics": res.diagnostics,
+    }
+
+
+def write_reconstruction(out: str | os.PathLike, res: ReconstructionResult, force: bool = False) -> Path:
+    """Write the outputs into the folder ``out`` atomically (refuses to overwrite unless ``force``)."""
+    with atomic_dir(out, force=force) as tmp:
+        write_ply(tmp / "points.ply", res.points, normals=res.normals)
+        write_ply(tmp / "mesh.ply", res.mesh_vertices, normals=res.mesh_normals, faces=res.mesh_triangles)
+        if res.poisson is not None:
+            write_ply(tmp / "mesh_poisson.ply", res.poisson[0], faces=res.poisson[1])
+        atomic_write_json(tmp / "poses.json", poses_document(res))
+    return Path(out)

@@ -1,0 +1,216 @@
+"""The reconstruction pipeline: views -> segmentation -> registration -> pose graph -> TSDF -> mesh.
+
+:class:`ReconstructionPipeline` owns the looping, progress and outputs; the algorithms are
+the small classes/functions of the sibling modules (kiss-icp style).
+"""
+
+from __future__ import annotations
+
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from tofmetry.errors import EstimationError, InputError, SensorMismatchError
+from tofmetry.reconstruct._config import ReconstructionConfig
+from tofmetry.reconstruct._fusion import TSDFFusion, crop_mesh, poisson_mesh
+from tofmetry.reconstruct._posegraph import PoseGraphBuilder
+from tofmetry.reconstruct._preprocess import ViewData, prepare_view
+from tofmetry.reconstruct._register import RegView, make_reg_view, register_pair
+from tofmetry.reconstruct._segment import Segmentation, segment_object
+
+
+@contextmanager
+def _no_progress(description: str, total: int | None):
+    yield lambda n=1: None
+
+
+@dataclass
+class ReconstructionResult:
+    """Outputs of a reconstruction (world frame = camera frame of the first view, metres).
+
+    Attributes
+    ----------
+    names : view names in processing order
+    poses : (V, 4, 4) camera-to-world
+    edges : per-pair registration diagnostics (fitness, inlier RMSE, kept, residuals)
+    mesh_vertices, mesh_triangles, mesh_normals : cropped TSDF mesh
+    points, normals : cropped fused cloud
+    poisson : (vertices, triangles) or None
+    support_plane : (4,) world-frame plane (unit normal up, offset) or None
+    diagnostics : per-view stats, fusion parameters, timings [s]
+    """
+
+    names: list
+    poses: np.ndarray
+    edges: list
+    mesh_vertices: np.ndarray
+    mesh_triangles: np.ndarray
+    mesh_normals: np.ndarray
+    points: np.ndarray
+    normals: np.ndarray
+    poisson: tuple | None
+    support_plane: np.ndarray | None
+    diagnostics: dict = field(default_factory=dict)
+
+
+class ReconstructionPipeline:
+    """Run the whole chain on a scan dataset.
+
+    Parameters
+    ----------
+    dataset : tofmetry.io.ScanDataset (``len`` / ``[i]`` -> Capture, ``names``)
+    calibration : tofmetry.calibrate.DepthCalibration or None (raw data)
+    config : ReconstructionConfig
+    progress : callable(description, total) -> context manager yielding ``advance(n=1)``
+    """
+
+    def __init__(self, dataset, calibration=None, config: ReconstructionConfig | None = None, progress=None):
+        if len(dataset) < 2:
+            raise InputError(f"{getattr(dataset, 'path', 'scan')}: {len(dataset)} view(s); at least 2 are needed")
+        self.ds = dataset
+        self.cal = calibration
+        self.cfg = config or ReconstructionConfig()
+        self.progress = progress or _no_progress
+        self.timings: dict[str, float] = {}
+
+    # -- stages -----------------------------------------------------------------------------
+    def _intrinsics(self, cap):
+        if self.cal is not None:
+            self.cal.check_compatible(sensor=cap.sensor, shape=cap.shape)
+            return self.cal.intrinsics
+        return cap.intrinsics()[0]
+
+    def load_views(self) -> tuple[list[ViewData], list[Segmentation], list[RegView], object]:
+        views, segs, regs = [], [], []
+        intr0 = None
+        with self.progress("preparing views", len(self.ds)) as adv:
+            for i in range(len(self.ds)):
+                cap = self.ds[i]
+                name = self.ds.names[i]
+                try:
+                    intr = self._intrinsics(cap)
+                except SensorMismatchError as exc:
+                    raise SensorMismatchError(f"view {name} ({cap.path}): {exc}") from None
+                if intr0 is None:
+                    intr0 = intr
+                elif intr.shape != intr0.shape:
+                    raise SensorMismatchError(f"view {name}: depth {intr.shape} differs from the first view's {intr0.shape}")
+                ir = cap.ir_mean() if cap.has_ir else None
+                v = prepare_view(cap.depth_stack(), intr, self.cal, self.cfg.preprocess, name=name, ir=ir)
+                try:
+                    s = segment_object(v.points, self.cfg.segment, seed=self.cfg.registration.seed)
+                except EstimationError as exc:
+                    raise EstimationError(f"view {name}: {exc}") from None
+                v.stats["object_points"] = int(s.object_mask.sum())
+                views.append(v)
+                segs.append(s)
+                regs.append(make_reg_view(v, s, self.cfg.registration))
+                adv()
+        return views, segs, regs, intr0
+
+    def register(self, regs: list[RegView]):
+        """Successive pairs (and last -> first) with the global search; a failed successive pair is
+        bridged by a global search to the view after next; every other pair is a loop-closure
+        candidate seeded by the chained poses (ICP only, bounded jump). Global search between
+        distant views is never used: a nearly symmetric object seen from opposite sides matches
+        itself rotated by 180 degrees."""
+        rc = self.cfg.registration
+        n = len(regs)
+        names = list(self.ds.names)
+        pg = PoseGraphBuilder(n, names)
+        succ = [(i, i + 1) for i in range(n - 1)] + ([(0, n - 1)] if n > 2 else [])
+        done = set()
+        with self.progress("registering successive views", len(succ)) as adv:
+            for i, j in succ:
+                p = register_pair(regs[i], regs[j], i, j, rc)
+                pg.add(p)
+                done.add((i, j))
+                if not p.accepted and j == i + 1:
+                    for a, b in ((i - 1, j), (i, j + 1)):
+                        if 0 <= a < b < n and (a, b) not in done:
+                            pg.add(register_pair(regs[a], regs[b], a, b, rc))
+                            done.add((a, b))
+                adv()
+        if rc.all_pairs:
+            chain = pg.chain_poses()
+            rest = [(i, j) for i in range(n) for j in range(i + 1, n) if (i, j) not in done]
+            with self.progress("loop closures (all pairs)", len(rest)) as adv:
+                for i, j in rest:
+                    if np.isfinite(chain[i]).all() and np.isfinite(chain[j]).all():
+                        init = np.linalg.inv(chain[j]) @ chain[i]
+                        pg.add(register_pair(regs[i], regs[j], i, j, rc, init=init, global_search=False))
+                    adv()
+        return pg.optimize(rc.icp_radii_mm[-1] * 1e-3, rc.edge_prune)
+
+    def fuse(self, views, segs, poses, intr):
+        fc = self.cfg.fusion
+        z_obj = np.concatenate([v.points[s.object_mask, 2] for v, s in zip(views, segs)]) * 1e3
+        z_med = float(np.median(z_obj)) if len(z_obj) else 1000.0
+        voxel = fc.voxel_for(z_med, intr.fx)
+        trunc = fc.trunc_for(z_med, voxel)
+        tsdf = TSDFFusion(intr, voxel, trunc, depth_max_mm=self.cfg.preprocess.max_mm,
+                          block_resolution=fc.block_resolution)
+        keep_all = self.cfg.segment.keep_all
+        with self.progress("TSDF fusion", len(views)) as adv:
+            for v, s, T in zip(views, segs, poses):
+                d = v.depth_mm
+                if not keep_all:  # integrate the object and its ground ring only
+                    m = np.zeros(d.size, bool)
+                    m[v.index[s.object_mask | s.ring_mask]] = True
+                    d = np.where(m.reshape(d.shape), d, 0.0)
+                tsdf.integrate(d, T)
+                adv()
+        V, F, N, P, PN = tsdf.extract(1.0)
+        return V, F, N, P, PN, {"voxel_mm": voxel, "trunc_mm": trunc, "median_object_depth_mm": z_med,
+                                "rule": "voxel = 0.6 * z / f; trunc = max(4 * sigma_eff(z), 3 voxels)"}
+
+    def crop(self, pts: np.ndarray, world_obj: np.ndarray, plane_w: np.ndarray | None) -> np.ndarray:
+        """Mask of points near the segmented object points and above the support plane."""
+        if self.cfg.segment.keep_all:
+            return np.ones(len(pts), bool)
+        d, _ = cKDTree(world_obj).query(pts, distance_upper_bound=self.cfg.fusion.crop_margin_mm * 1e-3, workers=-1)
+        keep = np.isfinite(d)
+        if plane_w is not None:
+            keep &= pts @ plane_w[:3] + plane_w[3] > 0.5 * self.cfg.segment.min_height_mm * 1e-3
+        return keep
+
+    # -- driver -------------------------------------------------------------------------------
+    def run(self) -> ReconstructionResult:
+        t0 = time.perf_counter()
+        views, segs, regs, intr = self.load_views()
+        t1 = time.perf_counter()
+        graph = self.register(regs)
+        t2 = time.perf_counter()
+        poses = graph.poses
+        V, F, N, P, PN, fusion_info = self.fuse(views, segs, poses, intr)
+        t3 = time.perf_counter()
+        world_obj = np.concatenate([
+            v.points[s.object_mask] @ T[:3, :3].T + T[:3, 3] for v, s, T in zip(views, segs, poses)])
+        plane_w = None
+        if segs[0].plane is not None:
+            R, t = poses[0][:3, :3], poses[0][:3, 3]
+            n = R @ segs[0].plane[:3]
+            plane_w = np.r_[n, segs[0].plane[3] - n @ t]
+        keep_v = self.crop(V, world_obj, plane_w)
+        V, F, used = crop_mesh(V, F, keep_v)
+        N = N[used]
+        keep_p = self.crop(P, world_obj, plane_w)
+        P, PN = P[keep_p], PN[keep_p]
+        if len(F) == 0 or len(P) == 0:
+            raise EstimationError("fusion produced an empty model after cropping to the object")
+        poisson = None
+        if self.cfg.fusion.poisson:
+            pv, pf = poisson_mesh(P, PN, self.cfg.fusion.poisson_depth, self.cfg.fusion.poisson_trim_quantile)
+            pv_keep = self.crop(pv, world_obj, plane_w)
+            pv, pf, _ = crop_mesh(pv, pf, pv_keep)
+            poisson = (pv, pf)
+        t4 = time.perf_counter()
+        self.timings = {"views_s": t1 - t0, "registration_s": t2 - t1, "fusion_s": t3 - t2, "meshing_s": t4 - t3,
+                        "total_s": t4 - t0}
+        diag = {"views": {v.name: v.stats for v in views}, "fusion": fusion_info, "timings_s": self.timings,
+                "calibrated": self.cal is not None, "intrinsics": intr.to_dict(),
+                "config": self.cfg.model_dump()}
+        return ReconstructionResult(list(self.ds.names), poses, graph.edges, V, F, N, P, PN, poisson, plane_w, diag)
