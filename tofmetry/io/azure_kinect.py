@@ -37,7 +37,7 @@ import numpy as np
 from tofmetry.errors import FormatError, InputError
 from tofmetry.sensor.extrinsics import Extrinsics
 from tofmetry.sensor.intrinsics import CameraIntrinsics
-from tofmetry.sensor.profiles import PROFILES, SensorProfile, register_profile
+from tofmetry.sensor.profiles import AZURE_KINECT  # noqa: F401  (re-exported: the sensor identity of imports)
 
 SENSOR = "azure_kinect"
 
@@ -60,17 +60,6 @@ COLOR_MODES = {  # for a 4:3 (4096x3072) colour sensor
 
 #: Azure Kinect DK, NFOV unbinned depth (typical values; the factory calibration of each device
 #: is in its recordings): 640x576, 75x65 deg, 0.5-3.86 m, 30 fps; colour 1280x720 (720P).
-AZURE_KINECT = SensorProfile(
-    name=SENSOR,
-    depth=CameraIntrinsics(640, 576, 504.0, 504.0, 319.5, 287.5, (0.0, 0.0, 0.0, 0.0, 0.0)),
-    color=CameraIntrinsics(1280, 720, 612.0, 612.0, 639.5, 359.5, (0.0, 0.0, 0.0, 0.0, 0.0)),
-    ir_to_color=Extrinsics(np.eye(3), np.array([-0.032, -0.002, 0.004]), "ir", "color"),
-    min_range_mm=500.0, max_range_mm=3860.0, fps=30.0,
-)
-if SENSOR not in PROFILES:
-    register_profile(AZURE_KINECT)
-
-
 @dataclass(frozen=True)
 class AzureCamera:
     """One camera of the factory calibration in a given mode.

@@ -71,7 +71,17 @@ KINECT_V2 = SensorProfile(
     fps=30.0,
 )
 
-PROFILES: dict[str, SensorProfile] = {KINECT_V2.name: KINECT_V2}
+#: Azure Kinect DK, NFOV unbinned depth mode (640x576, 75 x 65 deg, 0.5-3.86 m) and 1280x720 colour.
+#: Typical values; each device carries its factory calibration (``tofmetry import azure-kinect``).
+AZURE_KINECT = SensorProfile(
+    name="azure_kinect",
+    depth=CameraIntrinsics(640, 576, 504.0, 504.0, 319.5, 287.5, (0.0, 0.0, 0.0, 0.0, 0.0)),
+    color=CameraIntrinsics(1280, 720, 612.0, 612.0, 639.5, 359.5, (0.0, 0.0, 0.0, 0.0, 0.0)),
+    ir_to_color=Extrinsics(np.eye(3), np.array([-0.032, -0.002, 0.004]), "ir", "color"),
+    min_range_mm=500.0, max_range_mm=3860.0, fps=30.0,
+)
+
+PROFILES: dict[str, SensorProfile] = {KINECT_V2.name: KINECT_V2, AZURE_KINECT.name: AZURE_KINECT}
 
 
 def get_profile(name: str) -> SensorProfile:

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 
 from tofmetry.io import Capture, atomic_write_json
 from tofmetry.study.pipeline import Skip, StageOutcome, StudyContext
