@@ -123,3 +123,24 @@ def test_wrong_shape_rejected(small_intr):
     s = DepthSample(np.full((10, 10), 1000.0), np.full((10, 10), 1000.0), name="tiny")
     with pytest.raises(InputError, match="tiny"):
         fit_depth_model([s, s], small_intr)
+
+
+def test_cross_validation_and_evaluation(small_intr):
+    from tofmetry.calibrate import cross_validate, evaluate_wall_station, summarize
+
+    dists = [800, 1050, 1300, 1550, 1800, 2050, 2300]
+    samples = [wall_sample(render_wall(small_intr, d), d, small_intr, name=f"d{d}", frontal=True)[0] for d in dists]
+    cfg = DepthFitConfig(surface=SurfaceSpec(model="spline", block=2))
+    reps = cross_validate(samples, dists, small_intr, cfg, frontal=True)
+    assert [r.name for r in reps] == [f"d{d}" for d in dists[1:-1]]
+    for r in reps:
+        # held out: the neighbours are 500 mm apart around it; cubic-spline error on a 3 mm sine
+        # of period 1.5 m: 5/384 h^4 max|f(4)| = 0.75 mm; the deformation is removed
+        assert abs(r.dev_after_mm) < 1.5 and r.rms_after_mm < r.rms_before_mm / 2, r
+        assert r.plane_std_after_mm < r.plane_std_before_mm / 4, r
+    s = summarize(reps)
+    assert s["n_stations"] == 5 and s["min_rms_reduction"] > 2
+    cal = fit_depth_model(samples, small_intr, cfg).calibration
+    rep, maps = evaluate_wall_station(samples[3].measured_mm, 1550, cal, name="d1550")
+    assert abs(rep.dev_after_mm) < 0.05 and set(maps) == {"residual_before", "residual_after", "error_before",
+                                                            "error_after"}

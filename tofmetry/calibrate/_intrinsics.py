@@ -93,7 +93,8 @@ class IntrinsicsResult:
     loo_range : dict param -> max - min over the leave-one-out folds
     influence : dict image -> max over params of |change on removal| / std
     flagged : list of images whose removal changes a parameter beyond its uncertainty
-    coverage : float, fraction of 8x8 image cells holding a detected corner
+    coverage : float, fraction of the image area inside the boards' corner hulls
+    cell_coverage : float, fraction of 8x8 image cells holding a detected corner
     warnings : list of str
     used : list of image names used
     """
@@ -107,6 +108,7 @@ class IntrinsicsResult:
     influence: dict = field(default_factory=dict)
     flagged: list = field(default_factory=list)
     coverage: float = float("nan")
+    cell_coverage: float = float("nan")
     warnings: list = field(default_factory=list)
     used: list = field(default_factory=list)
 
@@ -115,7 +117,7 @@ class IntrinsicsResult:
             "intrinsics": self.intrinsics.to_dict(), "rms_px": self.rms_px, "std": self.std,
             "per_image_rms_px": self.per_image_rms_px, "leave_one_out_std": self.loo,
             "leave_one_out_range": self.loo_range, "influence": self.influence, "flagged": self.flagged,
-            "coverage": self.coverage, "warnings": self.warnings, "images_used": self.used,
+            "coverage": self.coverage, "cell_coverage": self.cell_coverage, "warnings": self.warnings, "images_used": self.used,
         }
 
 
@@ -144,7 +146,7 @@ def corner_coverage(corners: list[np.ndarray], shape: tuple[int, int], cells: in
 
 def calibrate_intrinsics(corners: list[np.ndarray], names: list[str], board: tuple[int, int], square_mm: float,
                          image_size: tuple[int, int], leave_one_out: bool = True, fix_k3: bool = False,
-                         min_coverage: float = 0.6, advance=None) -> IntrinsicsResult:
+                         min_coverage: float = 0.5, advance=None) -> IntrinsicsResult:
     """Brown-model calibration from detected checkerboard corners.
 
     Parameters
@@ -156,7 +158,8 @@ def calibrate_intrinsics(corners: list[np.ndarray], names: list[str], board: tup
     image_size : (width, height) [px]
     leave_one_out : refit without each image in turn (stability analysis)
     fix_k3 : keep k3 = 0 (advisable when coverage is poor)
-    min_coverage : below this fraction of covered 8x8 cells a warning is issued
+    min_coverage : below this fraction of the image area covered by the boards (union of
+        the corner hulls) a warning is issued
 
     Raises
     ------
@@ -182,11 +185,13 @@ def calibrate_intrinsics(corners: list[np.ndarray], names: list[str], board: tup
         intrinsics=intr, rms_px=rms, std=dict(zip(PARAMS, std.tolist())),
         per_image_rms_px=dict(zip(names, per_view.tolist())), used=list(names),
     )
-    res.coverage = corner_coverage(corners, (h, w))
+    res.cell_coverage = corner_coverage(corners, (h, w))
+    res.coverage = float(coverage_mask(corners, (h, w)).mean())
     if res.coverage < min_coverage:
         res.warnings.append(
-            f"corners cover only {100 * res.coverage:.0f} % of the image (8x8 cells): distortion is poorly "
-            "constrained near the uncovered borders; add images with the board in the corners"
+            f"the boards cover only {100 * res.coverage:.0f} % of the image area ({100 * res.cell_coverage:.0f} % of "
+            "8x8 cells): distortion and focal length are poorly constrained where there are no corners; add "
+            "images with larger or closer boards reaching the image borders and corners"
         )
     if leave_one_out and len(corners) >= 4:
         folds = []

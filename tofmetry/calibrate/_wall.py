@@ -20,11 +20,14 @@ from tofmetry.errors import EstimationError, InputError
 from tofmetry.sensor import CameraIntrinsics
 
 
-@nb.njit(parallel=True, cache=True)
+@nb.njit(cache=True)
 def _accumulate(frame, shift, s1, s2, cnt):  # pragma: no cover - numba
-    """Shifted running sums of one uint16 frame (0 = invalid); shift set at first valid sample."""
+    """Shifted running sums of one uint16 frame (0 = invalid); shift set at first valid sample.
+
+    Serial on purpose: it runs while reader threads decode the next PNGs (memory-bound anyway).
+    """
     n = frame.shape[0]
-    for i in nb.prange(n):
+    for i in range(n):
         d = frame[i]
         if d == 0:
             continue

@@ -22,9 +22,10 @@ def _save_fig(fig, path: Path) -> Path:
     return path
 
 
-def _load_wall(wall_dir: Path, intrinsics: Optional[Path], min_stations: int = 2, what: str = "wall"):
+def _load_wall(wall_dir: Path, intrinsics: Optional[Path], min_stations: int = 2, what: str = "wall", given=None):
     """Stream every station of a wall dataset into statistics.
 
+    ``given``: CameraIntrinsics to use instead of ``--intrinsics`` / the captures' (validation).
     Returns (dataset, intrinsics, source, sensor, [StationStats]).
     """
     import numpy as np
@@ -34,7 +35,7 @@ def _load_wall(wall_dir: Path, intrinsics: Optional[Path], min_stations: int = 2
     from tofmetry.io import WallDataset
 
     ds = WallDataset(wall_dir, min_stations=min_stations)
-    override = load_intrinsics_option(intrinsics)
+    override = given if given is not None else load_intrinsics_option(intrinsics)
     caps = [st.open() for st in ds.stations]
     intr, src = caps[0].intrinsics(override)
     sensor = caps[0].sensor
@@ -183,7 +184,8 @@ def intrinsics_cmd(
     atomic_write_json(rdir / "intrinsics_report.json", {**res.to_dict(), "rejected": rejected,
                                                         "board": [cols, rows], "square_mm": square_mm})
     _save_fig(F.fig_coverage(corners, (size[1], size[0]),
-                             f"Checkerboard corner coverage ({len(names)} images, {100 * res.coverage:.0f} % of cells)"),
+                             f"Corner coverage: {len(names)} images, {100 * res.coverage:.0f} % of the area, "
+                             f"{100 * res.cell_coverage:.0f} % of 8x8 cells"),
               rdir / "coverage.png")
     console.print(f"wrote {output}, {ypath} and {rdir}/")
 
@@ -291,10 +293,14 @@ def validate(
     cal = load_calibration(calibration)
     ov = load_intrinsics_option(intrinsics)
     intr = ov or cal.intrinsics
-    ds, _, _, sensor, stats = _load_wall(wall_dir, None, min_stations=1, what="validation")
+    ds, _, _, sensor, stats = _load_wall(wall_dir, None, min_stations=1, what="validation", given=intr)
     cal.check_compatible(sensor=sensor, shape=stats[0].mean_mm.shape)
     reports, maps = [], []
-    fit_names = set(cal.provenance.get("samples", []))
+    same_data = str(Path(cal.provenance.get("wall_dataset", "")).resolve()) == str(wall_dir.resolve())
+    fit_names = set(cal.provenance.get("samples", [])) if same_data else set()
+    if same_data:
+        console.print("[yellow]note:[/] validating on the calibration's own training data (not held out); "
+                      "use --cv for leave-one-station-out figures")
     for st, s in zip(ds.stations, stats):
         rep, mp = evaluate_wall_station(s.mean_mm, st.distance_mm - reference_offset_mm, cal, intr, name=st.name,
                                         frontal=not tilted, held_out=st.name not in fit_names)

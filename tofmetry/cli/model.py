@@ -1,9 +1,144 @@
-"""CLI commands: model (see register)."""
+"""CLI commands: ``reconstruct`` (scan folder -> mesh) and ``evaluate`` (model vs reference)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Optional
+
 import typer
+
+from tofmetry.cli._common import console, progress
+
+
+def reconstruct(
+    scan_dir: Path = typer.Argument(..., help="Scan dataset (views/<name>/ captures, processed in name order)."),
+    output: Path = typer.Option(..., "-o", "--output", help="Output folder (points.ply, mesh.ply, poses.json)."),
+    calibration: Optional[Path] = typer.Option(None, "--calibration", help="Depth calibration file (tofmetry calibrate depth)."),
+    no_calibration: bool = typer.Option(False, "--no-calibration", help="Run on raw depth (no calibration)."),
+    keep_all: bool = typer.Option(False, "--keep-all", help="Skip object segmentation: keep the whole working range."),
+    poisson: bool = typer.Option(False, "--poisson", help="Also write a density-trimmed Poisson mesh (mesh_poisson.ply)."),
+    voxel_mm: Optional[float] = typer.Option(None, help="TSDF voxel [mm] (default: 0.6 * range / focal)."),
+    max_mm: float = typer.Option(2500.0, help="Farthest depth kept [mm]."),
+    force: bool = typer.Option(False, "--force", help="Replace an existing output folder."),
+) -> None:
+    """Automatic 3D model of an object from several views: segment, register (pose graph), fuse (TSDF), mesh."""
+    from tofmetry.errors import InputError
+    from tofmetry.io import ScanDataset
+    from tofmetry.reconstruct import ReconstructionConfig, ReconstructionPipeline, write_reconstruction
+
+    if (calibration is None) == (not no_calibration):
+        raise InputError("pass either --calibration FILE or --no-calibration (raw depth), not both / not neither")
+    if output.exists() and any(output.iterdir() if output.is_dir() else [output]) and not force:
+        raise InputError(f"output {output} already exists; pass --force to replace it")
+    cal = None
+    if calibration is not None:
+        from tofmetry.calibrate import load_calibration
+
+        cal = load_calibration(calibration)
+    cfg = ReconstructionConfig()
+    cfg.segment.keep_all = keep_all
+    cfg.fusion.poisson = poisson
+    cfg.fusion.voxel_mm = voxel_mm
+    cfg.preprocess.max_mm = max_mm
+    ds = ScanDataset(scan_dir)
+    console.print(f"{len(ds)} views: {', '.join(ds.names)}; calibration: {calibration or 'none (raw depth)'}")
+    res = ReconstructionPipeline(ds, cal, cfg, progress=progress).run()
+    write_reconstruction(output, res, force=force)
+    from rich.table import Table
+
+    t = Table(title="registration edges (fitness = matched share of object points)")
+    for col in ("source", "target", "method", "fitness", "RMSE [mm]", "kept", "resid [deg]", "resid [mm]"):
+        t.add_column(col, justify="right")
+    for e in res.edges:
+        if e["accepted"]:
+            t.add_row(e["source"], e["target"], e["method"], f"{e['fitness']:.3f}", f"{e['inlier_rmse_mm']:.2f}",
+                      "yes" if e["kept"] else "pruned", f"{e.get('residual_rot_deg', float('nan')):.3f}",
+                      f"{e.get('residual_trans_mm', float('nan')):.2f}")
+    console.print(t)
+    n_rej = sum(not e["accepted"] for e in res.edges)
+    f = res.diagnostics["fusion"]
+    console.print(f"{n_rej} pair(s) rejected (no overlap / failed gates); TSDF voxel {f['voxel_mm']:.2f} mm, "
+                  f"truncation {f['trunc_mm']:.2f} mm; mesh {len(res.mesh_vertices)} vertices / "
+                  f"{len(res.mesh_triangles)} triangles; cloud {len(res.points)} points")
+    tm = res.diagnostics["timings_s"]
+    console.print(f"wrote {output} in {tm['total_s']:.1f} s (views {tm['views_s']:.1f}, registration "
+                  f"{tm['registration_s']:.1f}, fusion {tm['fusion_s']:.1f}, meshing {tm['meshing_s']:.1f})")
+
+
+def _parse_floats(text: str, what: str, n: int | None = None) -> tuple[float, ...]:
+    from tofmetry.errors import InputError
+
+    try:
+        vals = tuple(float(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise InputError(f"{what}: expected comma-separated numbers, found {text!r}") from None
+    if not vals or (n is not None and len(vals) != n):
+        raise InputError(f"{what}: expected {n or 'some'} comma-separated numbers, found {text!r}")
+    return vals
+
+
+def _read_transform(path: Path):
+    import numpy as np
+
+    from tofmetry.errors import InputError
+    from tofmetry.io import read_json
+
+    d = read_json(path, "initial transform")
+    if isinstance(d, dict) and "views" in d:  # a poses.json: no transform inside, only the model frame
+        raise InputError(f"{path}: a poses.json does not hold a model->reference transform; pass a JSON "
+                         "{'transform': 4x4} or a bare 4x4 list")
+    T = np.asarray(d["transform"] if isinstance(d, dict) else d, dtype=float)
+    if T.shape != (4, 4):
+        raise InputError(f"{path}: expected a 4x4 matrix, found shape {T.shape}")
+    return T
+
+
+def evaluate(
+    model: Path = typer.Argument(..., help="Model: PLY/OBJ/STL cloud or mesh [m]."),
+    reference: Path = typer.Option(..., "--reference", help="Reference: PLY/OBJ/STL mesh (or cloud) [m]."),
+    output: Path = typer.Option(..., "-o", "--output", help="Output folder (metrics.json, PNGs, deviation.ply)."),
+    align: bool = typer.Option(False, "--align", help="Coarse FPFH/RANSAC alignment before the fine ICP."),
+    no_icp: bool = typer.Option(False, "--no-icp", help="Compare as given (no ICP)."),
+    init_transform: Optional[Path] = typer.Option(None, "--init-transform", help="JSON 4x4 model->reference initial transform."),
+    thresholds_mm: str = typer.Option("1,2,5,10", "--thresholds-mm", help="Thresholds for 'share within', completeness, F-score [mm]."),
+    edge_trim_mm: float = typer.Option(3.0, help="Exclude model points within this of a sharp/boundary reference edge [mm] (0 = off)."),
+    exclude_normal: Optional[str] = typer.Option(None, help="x,y,z: leave reference surface facing this way (e.g. the face on "
+                                                 "the ground: 0,0,-1) out of completeness."),
+    color_scale_mm: float = typer.Option(5.0, help="Deviation colour scale +-[mm] (diverging, saturating)."),
+) -> None:
+    """Accuracy of a model against a reference: align, signed distances, statistics, completeness, figures."""
+    from tofmetry.evaluate import EvaluationConfig, evaluate_model, write_evaluation
+    from tofmetry.io.mesh import read_geometry
+
+    cfg = EvaluationConfig(
+        align=align, icp=not no_icp, thresholds_mm=_parse_floats(thresholds_mm, "--thresholds-mm"),
+        edge_trim_mm=edge_trim_mm, color_scale_mm=color_scale_mm,
+        exclude_normal=None if exclude_normal is None else _parse_floats(exclude_normal, "--exclude-normal", 3))
+    m = read_geometry(model, "model")
+    r = read_geometry(reference, "reference")
+    init = _read_transform(init_transform) if init_transform is not None else None
+    with progress("evaluating", None):
+        res = evaluate_model(m, r, cfg, init=init)
+    write_evaluation(output, res, title=model.name)
+    s, st = res.stats_all, res.stats_trimmed
+    from rich.table import Table
+
+    t = Table(title=f"{model.name} vs {reference.name} ({res.comparison})")
+    for col in ("", "mean |d|", "std", "RMS", "p95 |d|", "max |d|", "<= 5 mm"):
+        t.add_column(col, justify="right")
+    for name, x in (("all", s), ("edge-trimmed", st)):
+        t.add_row(name, f"{x.mean_abs_mm:.2f}", f"{x.std_signed_mm:.2f}", f"{x.rms_mm:.2f}",
+                  f"{x.percentiles_abs_mm['p95']:.2f}", f"{x.max_abs_mm:.2f}", f"{x.share_within.get('5', float('nan')):.1%}")
+    console.print(t)
+    c5 = res.completeness.get("5")
+    if c5:
+        console.print(f"completeness at 5 mm {c5['completeness']:.1%}, F-score {c5['fscore']:.3f}")
+    if res.alignment is not None:
+        console.print(f"alignment: fitness {res.alignment.fitness:.3f}, inlier RMSE {res.alignment.inlier_rmse_mm:.2f} mm")
+    console.print(f"wrote {output}")
 
 
 def register(app: typer.Typer) -> None:
     """Add this module's commands to the main app."""
+    app.command("reconstruct")(reconstruct)
+    app.command("evaluate")(evaluate)

@@ -5,6 +5,14 @@
 * :mod:`~tofmetry.io.intrinsics_json` — ``intrinsics.json``
 * :mod:`~tofmetry.io.images` — single depth/IR/colour images (PNG/TIFF/NPY/JPG)
 * :mod:`~tofmetry.io.ply` — binary PLY clouds and meshes
+* :mod:`~tofmetry.io.mesh` — PLY/OBJ/STL cloud-or-mesh loading (Open3D)
+* :mod:`~tofmetry.io.calibration_file` — the versioned depth calibration file (.npz + JSON header)
+* :mod:`~tofmetry.io.iai_kinect2` — iai_kinect2 / OpenCV ``!!opencv-matrix`` YAML calibration files
+* :mod:`~tofmetry.io.board_dataset` — board datasets (``board.json`` + ``poses/NNNN``), iai_kinect2 import/export
+* :mod:`~tofmetry.io.azure_kinect` — Azure Kinect ``.mkv`` recordings and their factory calibration
+* :mod:`~tofmetry.io.tum`, :mod:`~tofmetry.io.open3d_rgbd` — TUM and Open3D RGB-D folders
+* :mod:`~tofmetry.io.e57` — E57 point clouds (pye57)
+* :mod:`~tofmetry.io.registry` — importer / exporter registry behind ``tofmetry import|export``
 """
 
 from tofmetry.io._atomic import atomic_dir, atomic_write_bytes, atomic_write_json, read_json

@@ -367,12 +367,11 @@ def import_azure_kinect(src: str | os.PathLike, out: str | os.PathLike, force: b
                 progress()
         if w.n == 0:
             raise FormatError(f"{src}: the depth track holds no frames")
-    # side files (each atomic) once the capture folder is in place
-    out = Path(out)
-    atomic_write_bytes(out / "azure_calibration.json", json.dumps(info.calibration, indent=1).encode())
-    if c is not None:
-        write_intrinsics(out / "color_intrinsics.json", c.intrinsics, sensor=SENSOR)
-        atomic_write_json(out / "extrinsics.json", c.to_depth.to_dict())
+        # side files go into the staging folder: they appear together with the capture
+        atomic_write_bytes(w.staging / "azure_calibration.json", json.dumps(info.calibration, indent=1).encode())
+        if c is not None:
+            write_intrinsics(w.staging / "color_intrinsics.json", c.intrinsics, sensor=SENSOR)
+            atomic_write_json(w.staging / "extrinsics.json", c.to_depth.to_dict())
     notes = [f"depth lens: rational model refitted to 5 Brown coefficients, {d.refit_rms_px:.3f} px RMS "
              f"(max {d.refit_max_px:.3f} px); dropped: {'; '.join(d.dropped)}"]
     if c is not None:

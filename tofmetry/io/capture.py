@@ -281,6 +281,14 @@ class CaptureWriter:
             images.write_color_jpg(self._tmp / "color" / f"{name}.jpg", color)
         self.n += 1
 
+    @property
+    def staging(self) -> Path:
+        """The temporary folder being filled; side files written here appear atomically with the capture
+        (e.g. ``write_intrinsics(w.staging / "color_intrinsics.json", ...)``)."""
+        if self._tmp is None:
+            raise RuntimeError("CaptureWriter.staging is only available inside the 'with' block")
+        return self._tmp
+
     def _finish(self) -> None:
         if self.n == 0:
             raise FormatError(f"{self.path}: no frames were written")

@@ -25,6 +25,7 @@ class SegmentConfig(BaseModel):
     min_height_mm: float = Field(5.0, ge=0, description="object points lie at least this high above the plane [mm]")
     max_height_mm: float = Field(600.0, gt=0, description="...and at most this high [mm] (drops walls/background)")
     cluster_eps_mm: float = Field(12.0, gt=0, description="DBSCAN neighbour distance for the object cluster [mm]")
+    merge_gap_mm: float = Field(120.0, ge=0, description="clusters closer than this to the object are part of it [mm]")
     ring_mm: float = Field(60.0, ge=0, description="support-plane ring kept around the object footprint for registration [mm]")
     max_footprint_mm: float = Field(600.0, gt=0, description="object points farther than this (in the plane) from the "
                                     "cluster nearest the optical axis are background [mm]")

@@ -51,11 +51,14 @@ class RegView:
 def make_reg_view(view: ViewData, seg: Segmentation, cfg: RegistrationConfig) -> RegView:
     """Select reliable object (+ ring) points and downsample them for registration."""
     reliable = view.cos_incidence >= np.cos(np.radians(cfg.max_incidence_deg))
-    obj = seg.object_mask & reliable
+    # the main cluster registers better than the whole object: the parts merged across a gap are
+    # the least reliable (seen around occlusions) and make the object more symmetric
+    objm = seg.core_mask if seg.core_mask is not None else seg.object_mask
+    obj = objm & reliable
     sel = obj | (seg.ring_mask & reliable) if cfg.use_ground else obj
     p, n = voxel_down(view.points[sel], view.normals[sel], cfg.icp_voxel_mm * 1e-3)
     po, _ = voxel_down(view.points[obj], None, cfg.icp_voxel_mm * 1e-3)
-    pf, nf = voxel_down(view.points[seg.object_mask], view.normals[seg.object_mask], cfg.feature_voxel_mm * 1e-3)
+    pf, nf = voxel_down(view.points[objm], view.normals[objm], cfg.feature_voxel_mm * 1e-3)
     pc, nc = voxel_down(view.points[sel], view.normals[sel], cfg.coarse_voxel_mm * 1e-3)
     return RegView(view.name, p, n, po, pf, nf, pc, nc, seg.plane)
 

@@ -20,6 +20,7 @@ class Segmentation:
     ----------
     object_mask : (N,) bool, points of the object
     ring_mask : (N,) bool, support-plane points around the object footprint
+    core_mask : (N,) bool, the main cluster only (nearest the optical axis), used for registration
     plane : (4,) float64 (a, b, c, d), unit normal toward the camera, height = n . p + d [m]
         (None when segmentation was skipped)
     plane_inlier_share : float, share of the view's points on the support plane
@@ -27,6 +28,7 @@ class Segmentation:
 
     object_mask: np.ndarray
     ring_mask: np.ndarray
+    core_mask: np.ndarray | None
     plane: np.ndarray | None
     plane_inlier_share: float
 
@@ -77,7 +79,7 @@ def segment_object(points: np.ndarray, config: SegmentConfig | None = None, seed
     cfg = config or SegmentConfig()
     n = len(points)
     if cfg.keep_all:
-        return Segmentation(np.ones(n, bool), np.zeros(n, bool), None, 0.0)
+        return Segmentation(np.ones(n, bool), np.zeros(n, bool), None, None, 0.0)
     plane, share = fit_support_plane(points, cfg.plane_threshold_mm * 1e-3, seed)
     h = points @ plane[:3] + plane[3]
     cand = (h > cfg.min_height_mm * 1e-3) & (h < cfg.max_height_mm * 1e-3)
@@ -102,7 +104,22 @@ def segment_object(points: np.ndarray, config: SegmentConfig | None = None, seed
         score = m.sum() * (1.0 if ang < 20 else 0.1)  # favour clusters near the optical axis
         if score > best_score:
             best, best_score = lab, score
-    core = dp[labels == best]
+    # parts of one object can be separated in a view (occlusion, removed mixed pixels at depth
+    # jumps): merge every cluster within merge_gap of the object grown so far
+    members = {best}
+    grown = True
+    while grown:
+        grown = False
+        tree = cKDTree(dp[np.isin(labels, list(members))])
+        for lab in range(labels.max() + 1):
+            if lab in members or (labels == lab).sum() < 10:
+                continue
+            dmin, _ = tree.query(dp[labels == lab], distance_upper_bound=cfg.merge_gap_mm * 1e-3)
+            if np.isfinite(dmin).any():
+                members.add(lab)
+                grown = True
+    core_only = dp[labels == best]
+    core = dp[np.isin(labels, list(members))]
     d, _ = cKDTree(core).query(cp, distance_upper_bound=cfg.cluster_eps_mm * 1e-3, workers=-1)
     obj_local = np.isfinite(d)
     # footprint limit: in-plane distance from the core centroid
@@ -113,6 +130,9 @@ def segment_object(points: np.ndarray, config: SegmentConfig | None = None, seed
     obj_local &= np.linalg.norm(inplane, axis=1) < cfg.max_footprint_mm * 1e-3
     obj = np.zeros(n, bool)
     obj[ci[obj_local]] = True
+    dc, _ = cKDTree(core_only).query(cp, distance_upper_bound=cfg.cluster_eps_mm * 1e-3, workers=-1)
+    core_mask = np.zeros(n, bool)
+    core_mask[ci[np.isfinite(dc) & obj_local]] = True
     _ = o3d
     # ground ring around the footprint (in-plane distance to the object's projected points)
     ring = np.zeros(n, bool)
@@ -123,4 +143,4 @@ def segment_object(points: np.ndarray, config: SegmentConfig | None = None, seed
         gp = points[on_plane]
         dd, _ = cKDTree(foot_down).query(gp, distance_upper_bound=cfg.ring_mm * 1e-3, workers=-1)
         ring[on_plane[np.isfinite(dd)]] = True
-    return Segmentation(obj, ring, plane, share)
+    return Segmentation(obj, ring, core_mask, plane, share)
