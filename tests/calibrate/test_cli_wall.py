@@ -72,6 +72,10 @@ def test_calibrate_validate_correct(walls, tmp_path):
         orig = Capture(src).depth(0)
         assert np.array_equal(cap.depth(0) > 0, orig > 0)  # validity preserved
         assert abs(np.median(cap.depth(0)[orig > 0].astype(float) - orig[orig > 0])) > 5  # offset removed
+        if ext == ".npy":   # float read path: the float32 correction is kept, not rounded to mm
+            f = cap.depth(0, as_float=True)
+            assert f.dtype == np.float32 and np.array_equal(np.rint(f).astype(np.uint16), cap.depth(0))
+            assert np.abs(f - np.rint(f))[orig > 0].max() > 0.01
 
 
 def _copy_wall(src, dst, rows):
@@ -109,3 +113,21 @@ def test_calibration_for_other_resolution(walls, tmp_path, small_intr):
     r = _run("correct", src, "--calibration", p, "-o", tmp_path / "out")
     assert isinstance(r.exception, SensorMismatchError) and "128x96" in str(r.exception)
     assert not (tmp_path / "out").exists()
+
+
+def test_station_beyond_range_is_skipped_with_a_note(walls, tmp_path):
+    from tofmetry.calibrate.pipelines import calibrate_depth_dataset, write_depth_report
+    from tofmetry.io.images import write_png16
+
+    train, _ = walls
+    ds = shutil.copytree(train, tmp_path / "far")
+    last = WallDataset(ds).stations[-1]
+    for f in sorted((last.path / "depth").glob("*.png")):      # nothing measured (e.g. a wall at 5 m)
+        write_png16(f, np.zeros((424, 512), np.uint16))
+    run = calibrate_depth_dataset(ds)
+    assert run.kind == "wall" and [r["station"] for r in run.rows] == [s.name for s in WallDataset(ds).stations[:-1]]
+    assert any(last.name in n and "skipped" in n for n in run.notes)
+    assert any("typical" in n or "profile" in n for n in run.notes)     # no intrinsics anywhere: said so
+    files = write_depth_report(run, tmp_path / "rep")
+    assert {f.name for f in files} == {"fit.json", "range_curve.png", "std_vs_range.png"}
+    assert json.loads((tmp_path / "rep" / "fit.json").read_text())["notes"] == run.notes

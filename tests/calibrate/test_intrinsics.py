@@ -121,7 +121,7 @@ def test_coverage_warning_and_too_few():
     rng = np.random.default_rng(1)
     obj = board_object_points(BOARD, SQ)
     corners = []
-    for k in range(5):  # boards only in the centre of the image, small
+    for _k in range(5):  # boards only in the centre of the image, small
         R = _rot(*np.deg2rad(rng.uniform(-20, 20, 3)))
         t = np.array([rng.uniform(-20, 20), rng.uniform(-20, 20), 900.0]) - R @ np.array([90.0, 60.0, 0])
         corners.append(TRUE.project(obj @ R.T + t).astype(np.float32))

@@ -118,7 +118,7 @@ def test_apply_and_serialise_model(poses):
 def test_intrinsics_from_synthetic_corners(poses):
     rng = np.random.default_rng(1)
     corners = [c + rng.normal(0, 0.05, c.shape) for _, _, c in poses]
-    fit = B.calibrate_intrinsics(corners, BOARD, SQ, (INTR.width, INTR.height))
+    fit = B.calibrate_intrinsics(corners, None, BOARD, SQ, (INTR.width, INTR.height), leave_one_out=False)
     # 0.05 px noise per axis -> 2-D RMS 0.05*sqrt(2) = 0.071 px, times sqrt(1 - dof/obs) ~ 0.97
     assert fit.rms_px == pytest.approx(0.069, abs=0.008)
     assert fit.intrinsics.fx == pytest.approx(INTR.fx, abs=1.5)
@@ -129,11 +129,14 @@ def test_intrinsics_from_synthetic_corners(poses):
 
 def test_detect_corners_in_rendered_ir(poses):
     _, ir, corners = poses[2]
-    det = B.detect_board_corners(ir, BOARD)
+    det = B.detect_corners(ir, BOARD)
     assert det is not None
-    # hard-edged synthetic squares: detection within 0.5 px (pixel-sampled edges)
-    err = min(np.abs(det - corners).max(), np.abs(det[::-1] - corners).max())
-    assert err < 0.5
+    # hard-edged synthetic squares (pixel-centre sampled, no anti-aliasing): each square edge is
+    # only known to +-0.5 px, so a corner (two edges crossing at an angle) to 0.5 sqrt(2) = 0.71 px
+    # at worst per axis; an error uniform on +-0.5 px has a median |e| of 0.25 px
+    d = det if np.abs(det - corners).max() < np.abs(det[::-1] - corners).max() else det[::-1]
+    err = np.abs(d - corners)
+    assert err.max() < 0.71 and np.median(err) < 0.25
 
 
 def test_corner_count_mismatch_is_clear(poses):
@@ -159,13 +162,18 @@ def test_board_calibrate_cli_on_synthetic_dataset(poses, tmp_path):
         with CaptureWriter(root / "poses" / f"{i:04d}", CaptureMeta(sensor="kinect_v2")) as w:
             w.add(depth, ir=ir)
         write_corners(root / "poses" / f"{i:04d}" / "corners.json", corners, spec)
-    r = CliRunner().invoke(app, ["board-calibrate", str(root), "-o", str(tmp_path / "out"), "--folds", "2"])
+    out = tmp_path / "out"
+    r = CliRunner().invoke(app, ["calibrate", "depth", str(root), "-o", str(tmp_path / "cal.npz"), "--folds", "2",
+                                 "--report", str(out)])
     assert r.exit_code == 0, r.output
-    rep = json.loads((tmp_path / "out" / "report.json").read_text())
-    assert rep["intrinsics_fit"]["rms_px"] < 0.01          # exact synthetic corners
-    assert rep["depth"]["cv_held_out"]["model"]["rms_mm"] < rep["depth"]["cv_held_out"]["none"]["rms_mm"]
-    assert (tmp_path / "out" / "board_calibration.png").stat().st_size > 10000
-    cal = load_calibration(tmp_path / "out" / "depth_calibration.npz", sensor="kinect_v2", shape=(424, 512))
+    assert "tofmetry" in r.output and "held-out" in r.output and "white" in r.output    # the case table
+    rep = json.loads((out / "fit.json").read_text())
+    assert rep["kind"] == "board" and rep["fit"]["squares"] == "white"
+    assert rep["fit"]["intrinsics_fit"]["rms_px"] < 0.01          # exact synthetic corners
+    assert rep["fit"]["cv_held_out"]["model"]["rms_mm"] < rep["fit"]["cv_held_out"]["none"]["rms_mm"]
+    assert any("depth_shift" in n for n in rep["notes"])       # no iai shift in this dataset: said so
+    assert (out / "board_calibration.png").stat().st_size > 10000 and (out / "intrinsics.json").is_file()
+    cal = load_calibration(tmp_path / "cal.npz", sensor="kinect_v2", shape=(424, 512))
     assert cal.surface_model == "board-grid"
 
 

@@ -122,10 +122,10 @@ def test_checkerboard_images_detectable(tmp_path):
 
     out = datasets.checkerboard_images(tmp_path / "cb", n_images=4, seed=5)
     board = json.loads((out / "board.json").read_text())
-    assert board == {"cols": 9, "rows": 6, "square_mm": 40.0}
+    assert board == {"cols": 9, "rows": 6, "square_mm": 50.0}
     truth = json.loads((out / "truth.json").read_text())
     intr = CameraIntrinsics.from_dict(truth["true_intrinsics"])
-    obj = np.array([[i * 0.04, j * 0.04, 0] for j in range(6) for i in range(9)])
+    obj = np.array([[i * 0.05, j * 0.05, 0] for j in range(6) for i in range(9)])
     found = 0
     for im in truth["images"]:
         ir = read_ir_image(out / im["file"]).astype(float)

@@ -6,7 +6,10 @@
 * :mod:`._surface` — smooth surfaces over the image (polynomial / tensor spline)
 * :mod:`._wall` — wall mode: station statistics, plane fit, wall samples
 * :mod:`._validate` — before/after evaluation, leave-one-station-out cross-validation
-* :mod:`._intrinsics` — checkerboard intrinsics with stability analysis
+* :mod:`._intrinsics` — checkerboard intrinsics (the one implementation): detector, outlier-view
+  rejection, stability analysis, k-fold pose-wise cross-validation
+* :mod:`.board` — board-based depth calibration (board planes as the reference)
+* :mod:`.pipelines` — dataset folders in, result objects out (used by the CLI and the study)
 * :mod:`._figures` — study-style figures (Figs. 7a/7b/8/9, validation, corner coverage)
 * file format: :mod:`tofmetry.io.calibration_file` (``.npz`` + JSON header, no pickle)
 
@@ -22,8 +25,9 @@ from tofmetry.calibrate._apply import (
 )
 from tofmetry.calibrate._fit import DepthCalibrationResult, DepthFitConfig, DepthSample, fit_depth_model, fit_range_curve
 from tofmetry.calibrate._intrinsics import (
-    IntrinsicsResult, board_object_points, calibrate_intrinsics, corner_coverage, coverage_mask, detect_corners,
-    normalize_ir, ray_difference_px,
+    IntrinsicsResult, board_object_points, calibrate_intrinsics, corner_coverage, coverage_mask,
+    cross_validate_intrinsics, detect_corners, normalize_ir, ray_difference_px, reprojection_rms_with,
+    solve_board_pose,
 )
 from tofmetry.calibrate._model import FORMAT_VERSION, DepthCalibration
 from tofmetry.calibrate._surface import SurfaceSpec, fit_surface
@@ -41,7 +45,8 @@ __all__ = [
     "FORMAT_VERSION", "DepthCalibration", "SurfaceSpec", "fit_surface",
     "PlaneFit", "StationStats", "central_patch", "fit_plane", "station_statistics", "wall_reference", "wall_sample",
     "IntrinsicsResult", "board_object_points", "calibrate_intrinsics", "corner_coverage", "coverage_mask",
-    "detect_corners", "normalize_ir", "ray_difference_px",
+    "detect_corners", "normalize_ir", "ray_difference_px", "cross_validate_intrinsics", "reprojection_rms_with",
+    "solve_board_pose",
     "StationReport", "central_fraction_mask", "cross_validate", "evaluate_wall_station", "summarize", "with_surface",
     "load_calibration", "read_calibration_header", "save_calibration",
 ]

@@ -116,3 +116,82 @@ def fig_coverage(corners_px: list, shape: tuple[int, int], title: str = "Checker
     fig.colorbar(im, ax=ax, label=f"corners per {cell}x{cell} px cell")
     fig.tight_layout()
     return fig
+
+
+def fig_intrinsics_per_image(run):
+    """Per-image reprojection RMS [px] (outlier views and the rejection threshold marked) and
+    leave-one-out influence (parameter change on removal / its standard uncertainty)."""
+    res = run.result
+    names = list(run.names)
+    rms = [res.per_image_rms_px.get(n, res.rejected_rms_px.get(n, np.nan)) for n in names]
+    colours = ["C3" if n in res.rejected_views else ("C1" if n in res.flagged else "C0") for n in names]
+    fig, ax = plt.subplots(2, 1, figsize=(max(7, 0.18 * len(names) + 3), 6.5), sharex=True)
+    x = np.arange(len(names))
+    ax[0].bar(x, rms, color=colours)
+    if np.isfinite(res.reject_threshold_px):
+        ax[0].axhline(res.reject_threshold_px, color="C3", ls="--", lw=1,
+                      label=f"rejection threshold {res.reject_threshold_px:.2f} px")
+    ax[0].axhline(res.rms_px, color="k", lw=0.8, label=f"overall RMS {res.rms_px:.3f} px (kept views)")
+    cv = run.cv or {}
+    if "rms_px" in cv:
+        ax[0].axhline(cv["rms_px"], color="C2", lw=0.8, ls=":", label=f"{cv['k']}-fold held-out RMS {cv['rms_px']:.3f} px")
+    ax[0].set_ylabel("reprojection RMS [px]")
+    ax[0].set_yscale("log")
+    ax[0].set_title(f"Per-image reprojection error ({len(res.used)} kept, {len(res.rejected_views)} rejected in red)")
+    ax[0].legend(fontsize=7)
+    ax[0].grid(alpha=0.3)
+    infl = [res.influence.get(n, np.nan) for n in names]
+    ax[1].bar(x, infl, color=colours)
+    ax[1].axhline(1.0, color="C1", ls="--", lw=1, label="1 standard uncertainty (flagged above, orange)")
+    ax[1].set_ylabel("leave-one-out influence [std]")
+    ax[1].set_title("Stability: largest parameter change when the image is removed")
+    ax[1].legend(fontsize=7)
+    ax[1].grid(alpha=0.3)
+    ax[1].set_xticks(x)
+    ax[1].set_xticklabels(names, rotation=90, fontsize=6)
+    ax[1].set_xlabel("image")
+    fig.tight_layout()
+    return fig
+
+
+def fig_board_calibration(res):
+    """Board-based depth calibration: range term, surface term (board support outlined) and
+    held-out error per pose for each case (none / iai shift / constant refit / model)."""
+    m = res.model
+    fig, ax = plt.subplots(1, 3, figsize=(16, 4.6))
+    if hasattr(m, "z_knots_mm"):
+        z = np.linspace(m.z_knots_mm[0] - 100, m.z_knots_mm[-1] + 100, 200)
+        ax[0].plot(z, np.interp(z, m.z_knots_mm, m.range_mm), "-", label="a(Z)")
+        ax[0].plot(m.z_knots_mm, m.range_mm, "o", label="knots")
+        img = m.surface_image()
+    else:  # core DepthCalibration: correction = -(R + S)
+        lo, hi = m.range_data_mm
+        z = np.linspace(lo, hi, 200)
+        ax[0].plot(z, -m.range_error(z), "-", label="-R(Z)")
+        img = -np.asarray(m.surfaces[0], float)
+    ax[0].set_xlabel("measured Z [mm]")
+    ax[0].set_ylabel("range correction a(Z) [mm]")
+    ax[0].set_title("Range term (added to measured depth)")
+    ax[0].legend()
+    ax[0].grid(alpha=0.3)
+    lim = float(np.max(np.abs(img))) or 1.0
+    im = ax[1].imshow(img, cmap="RdBu_r", vmin=-lim, vmax=lim)
+    if hasattr(m, "support"):
+        ax[1].contour(m.grid_u, m.grid_v, (m.support > 0).astype(float), levels=[0.5], colors="k", linewidths=1)
+    ax[1].set_title("Surface term s(u, v)\n(black line: limit of board coverage)")
+    ax[1].set_xlabel("u [px]")
+    ax[1].set_ylabel("v [px]")
+    fig.colorbar(im, ax=ax[1], label="s [mm]")
+    for case, st in res.cv.items():
+        ax[2].plot([], [], " ", label=f"{case}: RMS {st['rms_mm']:.1f}, P95 {st['p95_abs_mm']:.1f} mm")
+    per = res.cv_per_pose
+    vals = [v[np.isfinite(v)] for v in per.values()]
+    top = max(50.0, float(np.nanmax(np.concatenate(vals)))) if vals and sum(len(v) for v in vals) else 50.0
+    ax[2].hist(vals, bins=np.linspace(0, top, 26), label=list(per), alpha=0.8)
+    ax[2].set_xlabel("held-out RMS per pose [mm]")
+    ax[2].set_ylabel("poses")
+    ax[2].set_title(f"Held-out board-plane error ({res.k_folds}-fold over poses)")
+    ax[2].legend(fontsize=7)
+    fig.suptitle(f"Board-based depth calibration ({res.squares} squares)")
+    fig.tight_layout()
+    return fig

@@ -197,7 +197,7 @@ def fit_depth_model(samples: list[DepthSample], intrinsics: CameraIntrinsics, co
     history: list[float] = []
     prev_y = None
     spline = None
-    for it in range(max(1, cfg.iterations)):
+    for _it in range(max(1, cfg.iterations)):
         # 1. range data: central deviation minus the current surface at that distance
         y = np.empty(len(samples))
         for j in range(len(samples)):

@@ -28,186 +28,22 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tofmetry.calibrate._board_model import BoardDepthModel, fit_board_model, to_depth_calibration
+from tofmetry.calibrate._intrinsics import (
+    _folds, board_object_points, calibrate_intrinsics, check_corners, cross_validate_intrinsics, detect_corners,
+    normalize_ir, reprojection_rms_with, solve_board_pose,
+)
 from tofmetry.errors import EstimationError, InputError
 from tofmetry.sensor.intrinsics import CameraIntrinsics
 
+# intrinsics helpers (board_object_points, calibrate_intrinsics, cross_validate_intrinsics, detect_corners,
+# normalize_ir, reprojection_rms_with, solve_board_pose) live in tofmetry.calibrate._intrinsics and are
+# re-exported here for convenience.
 __all__ = [
-    "BoardCalibrationResult", "BoardDepthModel", "BoardSamples", "IntrinsicsFit", "board_object_points", "board_samples",
-    "calibrate_depth_from_board", "calibrate_intrinsics", "constant_shift_calibration", "core_correction",
-    "cross_validate_intrinsics", "detect_board_corners", "error_stats", "fit_board_model", "reprojection_rms_with",
-    "samples_to_depth_samples", "solve_board_pose", "stretch_ir", "to_depth_calibration",
+    "BoardCalibrationResult", "BoardDepthModel", "BoardSamples", "board_object_points", "board_samples",
+    "calibrate_depth_from_board", "calibrate_intrinsics", "check_corners", "constant_shift_calibration",
+    "core_correction", "cross_validate_intrinsics", "detect_corners", "error_stats", "fit_board_model",
+    "normalize_ir", "reprojection_rms_with", "samples_to_depth_samples", "solve_board_pose", "to_depth_calibration",
 ]
-
-
-# ----------------------------------------------------------------------------- geometry
-def board_object_points(board: tuple[int, int], square_mm: float) -> np.ndarray:
-    """Inner-corner coordinates on the board: (cols*rows, 3) float64 [mm], row-major, Z = 0."""
-    cols, rows = board
-    gx, gy = np.meshgrid(np.arange(cols), np.arange(rows))
-    return np.column_stack([gx.ravel() * square_mm, gy.ravel() * square_mm, np.zeros(cols * rows)]).astype(np.float64)
-
-
-def _check_corners(corners: np.ndarray, board: tuple[int, int], what: str) -> np.ndarray:
-    c = np.asarray(corners, dtype=np.float64)
-    if c.ndim != 2 or c.shape[1] != 2 or len(c) != board[0] * board[1]:
-        raise InputError(
-            f"{what}: {c.shape} corners do not match the board {board[0]}x{board[1]} "
-            f"(expected ({board[0] * board[1]}, 2) pixel coordinates)"
-        )
-    return c
-
-
-def stretch_ir(ir: np.ndarray, lo: float = 1.0, hi: float = 99.0) -> np.ndarray:
-    """Percentile-stretch a dark 16-bit IR image to uint8 (for corner detection)."""
-    a = np.asarray(ir, dtype=np.float64)
-    p0, p1 = np.percentile(a, [lo, hi])
-    return np.clip((a - p0) * 255.0 / max(p1 - p0, 1e-9), 0, 255).astype(np.uint8)
-
-
-def detect_board_corners(ir: np.ndarray, board: tuple[int, int]) -> np.ndarray | None:
-    """Find chessboard inner corners in an IR image.
-
-    Parameters
-    ----------
-    ir : (H, W) uint16 or uint8 IR amplitude.
-    board : (cols, rows) inner corners.
-
-    Returns
-    -------
-    (cols*rows, 2) float64 pixels (sub-pixel), or None when the board is not found.
-    """
-    import cv2
-
-    img = stretch_ir(ir) if ir.dtype != np.uint8 else ir
-    ok, c = cv2.findChessboardCornersSB(img, tuple(board), flags=cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE)
-    if not ok:
-        ok, c = cv2.findChessboardCorners(img, tuple(board), flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
-        if not ok:
-            return None
-        c = cv2.cornerSubPix(img, c, (5, 5), (-1, -1), (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-3))
-    return c.reshape(-1, 2).astype(np.float64)
-
-
-def solve_board_pose(corners: np.ndarray, board: tuple[int, int], square_mm: float,
-                     intr: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray, float]:
-    """Board pose from its corners.
-
-    Returns
-    -------
-    R : (3, 3) board -> camera rotation; t : (3,) [mm]; rms : reprojection RMS [px].
-    """
-    import cv2
-
-    c = _check_corners(corners, board, "solve_board_pose")
-    obj = board_object_points(board, square_mm)
-    ok, rvec, tvec = cv2.solvePnP(obj, c, intr.K, intr.dist_array, flags=cv2.SOLVEPNP_IPPE)
-    if not ok:
-        raise EstimationError("solvePnP failed for this pose")
-    rvec, tvec = cv2.solvePnPRefineLM(obj, c, intr.K, intr.dist_array, rvec, tvec)
-    proj, _ = cv2.projectPoints(obj, rvec, tvec, intr.K, intr.dist_array)
-    rms = float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - c) ** 2, axis=1))))
-    R, _ = cv2.Rodrigues(rvec)
-    return R, tvec.ravel(), rms
-
-
-# ----------------------------------------------------------------------------- intrinsics
-@dataclass
-class IntrinsicsFit:
-    """Result of a chessboard intrinsic calibration.
-
-    Attributes
-    ----------
-    intrinsics : fitted camera.
-    rms_px : overall reprojection RMS [px] on the fitted views.
-    per_view_rms_px : (V,) RMS per view [px].
-    """
-
-    intrinsics: CameraIntrinsics
-    rms_px: float
-    per_view_rms_px: np.ndarray
-    rejected_views: list = field(default_factory=list)
-
-
-def calibrate_intrinsics(corners: list[np.ndarray], board: tuple[int, int], square_mm: float,
-                         image_size: tuple[int, int], flags: int = 0, reject_px: float | None = 1.0) -> IntrinsicsFit:
-    """``cv2.calibrateCamera`` on chessboard views (5-coefficient Brown model).
-
-    Parameters
-    ----------
-    corners : list of (cols*rows, 2) pixel arrays, one per view.
-    image_size : (width, height) [px].
-    reject_px : views whose RMS exceeds ``max(reject_px, 5 * median view RMS)`` are dropped
-        (mis-detected corners) and the fit repeated once; None keeps every view.
-        ``rms_px`` and ``per_view_rms_px`` then describe the kept views (rejected ones listed).
-    """
-    fit = _calibrate(corners, board, square_mm, image_size, flags)
-    if reject_px is None:
-        return fit
-    thr = max(reject_px, 5 * float(np.median(fit.per_view_rms_px)))
-    bad = [i for i, r in enumerate(fit.per_view_rms_px) if r > thr]
-    if not bad:
-        return fit
-    kept = [c for i, c in enumerate(corners) if i not in bad]
-    out = _calibrate(kept, board, square_mm, image_size, flags)
-    out.rejected_views = bad
-    return out
-
-
-def _calibrate(corners, board, square_mm, image_size, flags) -> IntrinsicsFit:
-    import cv2
-
-    if len(corners) < 3:
-        raise EstimationError(f"need at least 3 board views to calibrate intrinsics, found {len(corners)}")
-    obj = board_object_points(board, square_mm).astype(np.float32)
-    imgs = [_check_corners(c, board, f"view {i}").astype(np.float32) for i, c in enumerate(corners)]
-    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 200, 1e-12)
-    rms, K, dist, rvecs, tvecs = cv2.calibrateCamera([obj] * len(imgs), imgs, tuple(image_size), None, None,
-                                                     flags=flags, criteria=crit)
-    dist = np.asarray(dist).ravel()[:5]
-    intr = CameraIntrinsics(image_size[0], image_size[1], K[0, 0], K[1, 1], K[0, 2], K[1, 2], tuple(dist))
-    per_view = np.array([_view_rms(obj, c, r, t, intr) for c, r, t in zip(imgs, rvecs, tvecs)])
-    return IntrinsicsFit(intr, float(rms), per_view)
-
-
-def _view_rms(obj, c, rvec, tvec, intr) -> float:
-    import cv2
-
-    proj, _ = cv2.projectPoints(obj, rvec, tvec, intr.K, intr.dist_array)
-    return float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - c.reshape(-1, 2)) ** 2, axis=1))))
-
-
-def reprojection_rms_with(intr: CameraIntrinsics, corners: list[np.ndarray], board: tuple[int, int],
-                          square_mm: float) -> np.ndarray:
-    """Per-view reprojection RMS [px] with *fixed* intrinsics (pose solved per view)."""
-    return np.array([solve_board_pose(c, board, square_mm, intr)[2] for c in corners])
-
-
-def _folds(n: int, k: int, seed: int) -> list[np.ndarray]:
-    if n < 2:
-        raise EstimationError(f"cross-validation needs at least 2 poses, found {n}")
-    k = max(2, min(k, n))
-    perm = np.random.default_rng(seed).permutation(n)
-    return [np.sort(perm[i::k]) for i in range(k)]
-
-
-def cross_validate_intrinsics(corners: list[np.ndarray], board: tuple[int, int], square_mm: float,
-                              image_size: tuple[int, int], k: int = 5, seed: int = 0, flags: int = 0,
-                              exclude: list[int] | None = None) -> dict:
-    """k-fold over views: calibrate on k-1 folds, reprojection RMS [px] on the held-out views
-    (their pose solved with the fitted intrinsics; pose has 6 dof for 2*cols*rows values).
-
-    ``exclude``: view indices left out entirely (e.g. the views :func:`calibrate_intrinsics`
-    rejected for mis-detected corners)."""
-    keep = [i for i in range(len(corners)) if i not in set(exclude or [])]
-    cs = [corners[i] for i in keep]
-    held = np.full(len(cs), np.nan)
-    for test in _folds(len(cs), k, seed):
-        tset = set(test.tolist())
-        train = [c for i, c in enumerate(cs) if i not in tset]
-        fit = calibrate_intrinsics(train, board, square_mm, image_size, flags=flags, reject_px=None)
-        held[test] = reprojection_rms_with(fit.intrinsics, [cs[i] for i in test], board, square_mm)
-    return {"per_view_rms_px": held, "rms_px": float(np.sqrt(np.mean(held ** 2))),
-            "median_px": float(np.median(held)), "max_px": float(np.max(held)), "k": k, "views": keep}
 
 
 # ----------------------------------------------------------------------------- samples
@@ -441,7 +277,7 @@ def calibrate_depth_from_board(poses: list[tuple[np.ndarray, np.ndarray, np.ndar
     kept: list[int] = []
     for i, (depth, ir, corners) in enumerate(poses):
         if corners is None:
-            corners = detect_board_corners(ir, board)
+            corners = detect_corners(ir, board)
             if corners is None:
                 skipped.append((i, "board not found in IR"))
                 continue

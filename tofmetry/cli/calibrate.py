@@ -14,51 +14,6 @@ calibrate_app = typer.Typer(help="Calibrate the camera: IR intrinsics (checkerbo
 
 
 # ------------------------------------------------------------------ helpers
-def _save_fig(fig, path: Path) -> Path:
-    import matplotlib.pyplot as plt
-
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
-
-
-def _load_wall(wall_dir: Path, intrinsics: Optional[Path], min_stations: int = 2, what: str = "wall", given=None):
-    """Stream every station of a wall dataset into statistics.
-
-    ``given``: CameraIntrinsics to use instead of ``--intrinsics`` / the captures' (validation).
-    Returns (dataset, intrinsics, source, sensor, [StationStats]).
-    """
-    import numpy as np
-
-    from tofmetry.calibrate import station_statistics
-    from tofmetry.errors import SensorMismatchError
-    from tofmetry.io import WallDataset
-
-    ds = WallDataset(wall_dir, min_stations=min_stations)
-    override = given if given is not None else load_intrinsics_option(intrinsics)
-    caps = [st.open() for st in ds.stations]
-    intr, src = caps[0].intrinsics(override)
-    sensor = caps[0].sensor
-    for st, cap in zip(ds.stations, caps):
-        if cap.shape != intr.shape:
-            raise SensorMismatchError(f"{st.path}: depth is {cap.shape[1]}x{cap.shape[0]}, "
-                                      f"intrinsics ({src}) are {intr.width}x{intr.height}")
-        if cap.sensor != sensor:
-            raise SensorMismatchError(f"{st.path}: sensor {cap.sensor!r} differs from {caps[0].path} ({sensor!r})")
-    if override is None and caps[0].meta.intrinsics is None:
-        console.print(f"[yellow]note:[/] no --intrinsics and none in the captures: using the {src}")
-    stats = []
-    from concurrent.futures import ThreadPoolExecutor
-
-    with progress(f"reading {what} stations", sum(len(c) for c in caps)) as adv, ThreadPoolExecutor(2) as pool:
-        for cap in caps:
-            # PNG decoding releases the GIL: two reader threads, frames consumed in order
-            frames = pool.map(cap.depth, range(len(cap)))
-            stats.append(station_statistics(frames, cap.shape, intr.cx, intr.cy, advance=adv))
-    del np
-    return ds, intr, src, sensor, stats
-
-
 def _fit_config(surface: str, poly_degree: int, knots: str, iterations: int):
     from tofmetry.calibrate import DepthFitConfig, SurfaceSpec
     from tofmetry.errors import InputError
@@ -86,24 +41,15 @@ def _report_table(reports, title: str):
     return t
 
 
+def _notes(notes) -> None:
+    for n in notes:
+        console.print(f"[yellow]note:[/] {n}")
+
+
 # ------------------------------------------------------------------ intrinsics
-_IMG_SUFFIXES = (".png", ".tif", ".tiff", ".npy", ".jpg", ".jpeg")
-
-
 def _write_calib_yaml(path: Path, intr) -> Path:
-    try:
-        from tofmetry.io.iai_kinect2 import write_calib_ir
-    except ImportError:  # fallback: OpenCV's own !!opencv-matrix YAML
-        import cv2
-        import numpy as np
+    from tofmetry.io.iai_kinect2 import write_calib_ir
 
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
-        fs.write("cameraMatrix", intr.K)
-        fs.write("distortionCoefficients", np.asarray(intr.dist_array, float).reshape(1, 5))
-        fs.write("rotation", np.eye(3))
-        fs.write("projection", np.hstack([intr.K, np.zeros((3, 1))]))
-        fs.release()
-        return path
     return write_calib_ir(path, intr)
 
 
@@ -114,56 +60,31 @@ def intrinsics_cmd(
     output: Path = typer.Option(..., "-o", "--output", help="intrinsics.json to write."),
     yaml: Optional[Path] = typer.Option(None, "--yaml", help="OpenCV YAML export (default: calib_ir.yaml next to "
                                         "the output)."),
-    report: Optional[Path] = typer.Option(None, "--report", help="Folder for report JSON + coverage map "
+    report: Optional[Path] = typer.Option(None, "--report", help="Folder for report JSON + figures "
                                           "(default: <output stem>_report next to the output)."),
     fix_k3: bool = typer.Option(False, "--fix-k3", help="Keep k3 = 0."),
     no_loo: bool = typer.Option(False, "--no-loo", help="Skip the leave-one-out stability analysis."),
     force: bool = typer.Option(False, "--force", help="Overwrite outputs."),
 ) -> None:
-    """Estimate fx, fy, cx, cy, k1, k2, p1, p2, k3 from checkerboard images (with uncertainties and stability)."""
+    """Estimate fx, fy, cx, cy, k1, k2, p1, p2, k3 from checkerboard images (outlier views rejected,
+    uncertainties, leave-one-out stability, 5-fold held-out reprojection error)."""
     from rich.table import Table
 
-    from tofmetry.calibrate import _figures as F
-    from tofmetry.calibrate._intrinsics import PARAMS, calibrate_intrinsics, detect_corners, normalize_ir
+    from tofmetry.calibrate.pipelines import PARAMS, intrinsics_from_images, write_intrinsics_report
     from tofmetry.errors import InputError
-    from tofmetry.io import atomic_write_json, write_intrinsics
-    from tofmetry.io.images import read_color_image, read_ir_image
+    from tofmetry.io import write_intrinsics
+    from tofmetry.io.board_dataset import BoardSpec
 
-    try:
-        cols, rows = (int(x) for x in board.lower().split("x"))
-    except ValueError:
-        raise InputError(f"--board must be COLSxROWS (inner corners), e.g. 9x6; found {board!r}") from None
-    if cols < 2 or rows < 2 or not square_mm > 0:
-        raise InputError(f"--board needs >= 2x2 inner corners and --square-mm > 0; found {board}, {square_mm}")
+    spec = BoardSpec.parse(board, square_mm)
     if output.exists() and not force:
         raise InputError(f"output {output} exists; pass --force to overwrite it")
-    if not images_dir.is_dir():
-        raise InputError(f"images folder not found: {images_dir}")
-    files = sorted(p for p in images_dir.iterdir() if p.suffix.lower() in _IMG_SUFFIXES and not p.name.startswith("."))
-    if not files:
-        raise InputError(f"{images_dir}: no images ({', '.join(_IMG_SUFFIXES)})")
-    corners, names, rejected, size = [], [], [], None
-    with progress("detecting corners", len(files)) as adv:
-        for f in files:
-            img = read_color_image(f) if f.suffix.lower() in (".jpg", ".jpeg") else read_ir_image(f)
-            s = (img.shape[1], img.shape[0])
-            if size is None:
-                size = s
-            elif s != size:
-                raise InputError(f"{f}: size {s[0]}x{s[1]} differs from the first image's {size[0]}x{size[1]}")
-            c = detect_corners(normalize_ir(img), (cols, rows))
-            if c is None:
-                rejected.append(f.name)
-            else:
-                corners.append(c)
-                names.append(f.name)
-            adv()
-    if rejected:
-        console.print(f"[yellow]board not found in {len(rejected)} image(s), rejected:[/] {', '.join(rejected)}")
-    with progress("leave-one-out refits", 0 if no_loo else len(corners)) as adv:
-        res = calibrate_intrinsics(corners, names, (cols, rows), square_mm, size, leave_one_out=not no_loo,
-                                   fix_k3=fix_k3, advance=adv)
-    t = Table(title=f"intrinsics from {len(names)} images (RMS {res.rms_px:.3f} px)")
+    with progress("detect corners, calibrate, leave-one-out, cross-validate", None) as adv:
+        run = intrinsics_from_images(images_dir, spec.size, spec.square_mm, leave_one_out=not no_loo, fix_k3=fix_k3,
+                                     advance=adv)
+    res = run.result
+    if run.rejected:
+        console.print(f"[yellow]board not found in {len(run.rejected)} image(s), rejected:[/] {', '.join(run.rejected)}")
+    t = Table(title=f"intrinsics from {len(res.used)} images (RMS {res.rms_px:.3f} px)")
     for col in ("param", "value", "std. uncertainty", "leave-one-out std", "leave-one-out range"):
         t.add_column(col, justify="right")
     vals = dict(zip(PARAMS, [res.intrinsics.fx, res.intrinsics.fy, res.intrinsics.cx, res.intrinsics.cy,
@@ -173,98 +94,100 @@ def intrinsics_cmd(
                   f"{res.loo_range.get(p, float('nan')):.3g}")
     console.print(t)
     worst = sorted(res.per_image_rms_px.items(), key=lambda kv: -kv[1])[:3]
-    console.print("per-image RMS [px], worst: " + ", ".join(f"{k} {v:.3f}" for k, v in worst))
+    console.print("per-image RMS \\[px], worst kept: " + ", ".join(f"{k} {v:.3f}" for k, v in worst))
+    if run.cv:
+        console.print(f"{run.cv['k']}-fold held-out reprojection RMS: {run.cv['rms_px']:.3f} px "
+                      f"(max {run.cv['max_px']:.3f} px)")
     for w in res.warnings:
         console.print(f"[yellow]warning:[/] {w}")
-    write_intrinsics(output, res.intrinsics, rms_px=res.rms_px, std=res.std, n_images=len(names))
+    write_intrinsics(output, res.intrinsics, rms_px=res.rms_px, std=res.std, n_images=len(res.used))
     ypath = yaml or output.with_name("calib_ir.yaml")
     _write_calib_yaml(ypath, res.intrinsics)
     rdir = report or output.with_name(f"{output.stem}_report")
-    rdir.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(rdir / "intrinsics_report.json", {**res.to_dict(), "rejected": rejected,
-                                                        "board": [cols, rows], "square_mm": square_mm})
-    _save_fig(F.fig_coverage(corners, (size[1], size[0]),
-                             f"Corner coverage: {len(names)} images, {100 * res.coverage:.0f} % of the area, "
-                             f"{100 * res.cell_coverage:.0f} % of 8x8 cells"),
-              rdir / "coverage.png")
+    write_intrinsics_report(run, rdir)
     console.print(f"wrote {output}, {ypath} and {rdir}/")
 
 
 # ------------------------------------------------------------------ depth
 def depth(
-    wall_dir: Path = typer.Argument(..., help="Wall dataset (stations.csv + one capture per station)."),
+    dataset: Path = typer.Argument(..., help="Wall dataset (stations.csv + one capture per station) or board "
+                                   "dataset (board.json + poses/, e.g. from 'tofmetry import iai-kinect2')."),
     output: Path = typer.Option(..., "-o", "--output", help="Calibration file to write (.npz)."),
-    intrinsics: Optional[Path] = typer.Option(None, "--intrinsics", help="intrinsics.json (overrides the captures')."),
-    surface: str = typer.Option("spline", help="Per-pixel surface model: spline, poly or none."),
-    poly_degree: int = typer.Option(3, help="Total degree of the polynomial surface."),
-    knots: str = typer.Option("6x5", help="Interior knots (u x v) of the tensor-spline surface."),
-    iterations: int = typer.Option(4, help="Alternations between range curve and surfaces."),
-    tilted: bool = typer.Option(True, "--tilted/--frontal", help="Fit the wall orientation (tilt) per station, "
+    intrinsics: Optional[Path] = typer.Option(None, "--intrinsics", help="intrinsics.json (wall: overrides the "
+                                              "captures'; board: used instead of fitting them on the corners)."),
+    surface: str = typer.Option("spline", help="Wall: per-pixel surface model: spline, poly or none."),
+    poly_degree: int = typer.Option(3, help="Wall: total degree of the polynomial surface."),
+    knots: str = typer.Option("6x5", help="Wall: interior knots (u x v) of the tensor-spline surface."),
+    iterations: int = typer.Option(4, help="Wall: alternations between range curve and surfaces."),
+    tilted: bool = typer.Option(True, "--tilted/--frontal", help="Wall: fit the wall orientation (tilt) per station, "
                                 "or take the wall perpendicular to the optical axis."),
-    reference_offset_mm: float = typer.Option(0.0, help="Known distance [mm] from the stations' reference point "
+    reference_offset_mm: float = typer.Option(0.0, help="Wall: known distance [mm] from the stations' reference point "
                                               "forward to the optical centre (subtracted from the distances)."),
+    squares: str = typer.Option("white", "--squares", help="Board: squares used, white (dark squares read longer) or all."),
+    folds: int = typer.Option(5, "--folds", help="Board: k-fold cross-validation over poses."),
     report: Optional[Path] = typer.Option(None, "--report", help="Folder for the fit report (JSON + figures)."),
     force: bool = typer.Option(False, "--force", help="Overwrite the output."),
 ) -> None:
-    """Fit a depth calibration (range B-spline + per-pixel surfaces) on a wall dataset."""
+    """Fit a depth calibration on a wall dataset (range B-spline + per-pixel surfaces) or, when the
+    folder holds board.json, on a board dataset (board planes as reference, cross-validated over poses)."""
     import sys
-    import time
 
-    import numpy as np
+    from rich.table import Table
 
-    import tofmetry
-    from tofmetry.calibrate import fit_depth_model, save_calibration, wall_sample
+    from tofmetry.calibrate import save_calibration
+    from tofmetry.calibrate.pipelines import calibrate_depth_dataset, write_depth_report
     from tofmetry.errors import InputError
 
     if output.exists() and not force:
         raise InputError(f"output {output} exists; pass --force to overwrite it")
-    t0 = time.perf_counter()
     cfg = _fit_config(surface, poly_degree, knots, iterations)
-    ds, intr, src, sensor, stats = _load_wall(wall_dir, intrinsics)
-    samples = []
-    for st, s in zip(ds.stations, stats):
-        smp, _ = wall_sample(s.mean_mm, st.distance_mm - reference_offset_mm, intr, name=st.name, frontal=not tilted)
-        samples.append(smp)
-    prov = {"tool": f"tofmetry {tofmetry.__version__}", "command": " ".join(sys.argv),
-            "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "wall_dataset": str(wall_dir),
-            "intrinsics_source": src, "reference_offset_mm": reference_offset_mm, "tilted": tilted,
-            "stations": [{"name": st.name, "distance_mm": st.distance_mm, "n_frames": s.n_frames}
-                         for st, s in zip(ds.stations, stats)]}
-    res = fit_depth_model(samples, intr, cfg, sensor=sensor, provenance=prov)
-    cal = res.calibration
-    for row, s in zip(res.samples, stats):
-        sl_std = s.std_mm[~np.isnan(s.std_mm)]
-        row["center_std_mm"] = s.center_std_mm
-        row["pixel_std_median_mm"] = float(np.median(sl_std)) if len(sl_std) else float("nan")
-    cal.diagnostics["samples"] = res.samples
+    with progress(f"calibrating depth on {dataset.name}", None) as adv:
+        run = calibrate_depth_dataset(dataset, intrinsics=load_intrinsics_option(intrinsics), config=cfg, tilted=tilted,
+                                      reference_offset_mm=reference_offset_mm, advance=adv, squares=squares,
+                                      k_folds=folds, provenance={"command": " ".join(sys.argv)})
+    _notes(run.notes)
+    cal = run.calibration
     save_calibration(output, cal)
-    from rich.table import Table
-
-    t = Table(title=f"depth calibration fit ({cal.surface_model}; intrinsics: {src})")
-    for col in ("station", "D [mm]", "measured [mm]", "dev [mm]", "residual [mm]", "RMS before", "RMS after",
-                "frame std [mm]"):
-        t.add_column(col, justify="right")
-    for st, row in zip(ds.stations, res.samples):
-        t.add_row(st.name, f"{st.distance_mm:.0f}", f"{row['center_mm']:.1f}", f"{row['dev_before_mm']:+.2f}",
-                  f"{row['dev_after_mm']:+.3f}", f"{row['rms_before_mm']:.2f}", f"{row['rms_after_mm']:.2f}",
-                  f"{row['center_std_mm']:.2f}")
-    console.print(t)
-    console.print(f"offset (reference point -> optical centre + mean range bias): {cal.offset_mm:+.2f} mm; "
-                  f"valid range {cal.valid_range_mm[0]:.0f}-{cal.valid_range_mm[1]:.0f} mm")
+    if run.kind == "wall":
+        t = Table(title=f"depth calibration fit ({cal.surface_model}; intrinsics: {run.intrinsics_source})")
+        for col in ("station", "D [mm]", "measured [mm]", "dev [mm]", "residual [mm]", "RMS before", "RMS after",
+                    "frame std [mm]"):
+            t.add_column(col, justify="right")
+        for row in run.rows:
+            t.add_row(row["station"], f"{row['distance_mm']:.0f}", f"{row['center_mm']:.1f}",
+                      f"{row['dev_before_mm']:+.2f}", f"{row['dev_after_mm']:+.3f}", f"{row['rms_before_mm']:.2f}",
+                      f"{row['rms_after_mm']:.2f}", f"{row['center_std_mm']:.2f}")
+        console.print(t)
+        console.print(f"offset (reference point -> optical centre + mean range bias): {cal.offset_mm:+.2f} mm; "
+                      f"valid range {cal.valid_range_mm[0]:.0f}-{cal.valid_range_mm[1]:.0f} mm")
+    else:
+        fit = run.fit
+        ifit = fit["intrinsics_fit"]
+        console.print(f"board {fit['board']['cols']}x{fit['board']['rows']} inner corners, {fit['board']['square_mm']} mm; "
+                      f"{fit['n_poses']} poses used, squares: {fit['squares']}")
+        console.print(f"intrinsics from the corners: RMS {ifit['rms_px']:.3f} px, held-out ({ifit['k']}-fold) "
+                      f"{ifit['cv_rms_px']:.3f} px; used: {run.intrinsics_source}")
+        t = Table(title=f"board-plane error on held-out poses ({fit['k_folds']}-fold over poses), mm")
+        for col in ("case", "mean", "std", "RMS", "P95 |e|", "n"):
+            t.add_column(col, justify="right")
+        labels = {"none": "none", "iai_shift": "iai shift, our intrinsics", "constant_refit": "constant (refit)",
+                  "model": "tofmetry"}
+        cases = [(labels[c], fit["cv_held_out"].get(c)) for c in ("none", "iai_shift", "constant_refit", "model")]
+        if fit.get("iai_pipeline_held_out"):
+            ip = fit["iai_pipeline_held_out"]
+            cases = [("none, iai intrinsics", ip["none"]), ("iai_kinect2 (intr. + shift)", ip["iai_shift"]),
+                     *cases]
+        for label, st in cases:
+            if st is not None:
+                t.add_row(label, f"{st['mean_mm']:+.2f}", f"{st['std_mm']:.2f}", f"{st['rms_mm']:.2f}",
+                          f"{st['p95_abs_mm']:.2f}", str(st["n"]))
+        console.print(t)
+        console.print("(cases without a note use the intrinsics above; each case is judged against the board "
+                      "plane of its own intrinsics)")
     if report is not None:
-        from tofmetry.calibrate import _figures as F
-        from tofmetry.io import atomic_write_json
-
-        report.mkdir(parents=True, exist_ok=True)
-        fr = [(row["center_mm"], s.frame_center_mm - st.distance_mm + reference_offset_mm)
-              for row, s, st in zip(res.samples, stats, ds.stations)]
-        _save_fig(F.fig_range_curve(cal, res.range_points, fr), report / "range_curve.png")
-        _save_fig(F.fig_std_vs_range([st.distance_mm for st in ds.stations], [s.center_std_mm for s in stats],
-                                     [r["pixel_std_median_mm"] for r in res.samples]), report / "std_vs_range.png")
-        atomic_write_json(report / "fit.json", {"summary": cal.summary(), "samples": res.samples,
-                                                "history": res.history, "seconds": res.seconds})
+        write_depth_report(run, report)
         console.print(f"report written to {report}")
-    console.print(f"wrote {output} in {time.perf_counter() - t0:.1f} s")
+    console.print(f"wrote {output} in {run.seconds:.1f} s")
 
 
 # ------------------------------------------------------------------ validate
@@ -282,68 +205,24 @@ def validate(
     force: bool = typer.Option(False, "--force", help="Overwrite the output folder's files."),
 ) -> None:
     """Before/after metrics per station of a wall dataset (plus optional cross-validation)."""
-    import numpy as np
-
     from tofmetry.calibrate import load_calibration
-    from tofmetry.calibrate._validate import cross_validate, evaluate_wall_station, summarize, with_surface
+    from tofmetry.calibrate.pipelines import validate_depth, write_validation_report
     from tofmetry.errors import InputError
 
     if output is not None and (output / "validation.json").exists() and not force:
         raise InputError(f"{output / 'validation.json'} exists; pass --force to overwrite it")
     cal = load_calibration(calibration)
-    ov = load_intrinsics_option(intrinsics)
-    intr = ov or cal.intrinsics
-    ds, _, _, sensor, stats = _load_wall(wall_dir, None, min_stations=1, what="validation", given=intr)
-    cal.check_compatible(sensor=sensor, shape=stats[0].mean_mm.shape)
-    reports, maps = [], []
-    same_data = str(Path(cal.provenance.get("wall_dataset", "")).resolve()) == str(wall_dir.resolve())
-    fit_names = set(cal.provenance.get("samples", [])) if same_data else set()
-    if same_data:
-        console.print("[yellow]note:[/] validating on the calibration's own training data (not held out); "
-                      "use --cv for leave-one-station-out figures")
-    for st, s in zip(ds.stations, stats):
-        rep, mp = evaluate_wall_station(s.mean_mm, st.distance_mm - reference_offset_mm, cal, intr, name=st.name,
-                                        frontal=not tilted, held_out=st.name not in fit_names)
-        reports.append(rep)
-        maps.append(mp)
-    console.print(_report_table(reports, f"validation on {wall_dir} (before -> after, mm)"))
-    summ = summarize(reports)
-    console.print(summ)
-    result = {"calibration": str(calibration), "wall_dataset": str(wall_dir), "stations": [r.to_dict() for r in reports],
-              "summary": summ}
-    if cv:
-        from tofmetry.calibrate import DepthFitConfig, wall_sample
-
-        samples = [wall_sample(s.mean_mm, st.distance_mm - reference_offset_mm, intr, name=st.name)[0]
-                   for st, s in zip(ds.stations, stats)]
-        dists = [st.distance_mm - reference_offset_mm for st in ds.stations]
-        result["cross_validation"] = {}
-        base = DepthFitConfig()
-        for label, cfg in (("spline", with_surface(base, "spline")), ("poly3", with_surface(base, "poly", degree=3))):
-            with progress(f"leave-one-station-out ({label})", max(len(samples) - 2, 0)) as adv:
-                cvr = cross_validate(samples, dists, intr, cfg, frontal=not tilted, sensor=sensor, advance=adv)
-            console.print(_report_table(cvr, f"leave-one-station-out, {label} surfaces"))
-            result["cross_validation"][label] = {"stations": [r.to_dict() for r in cvr], "summary": summarize(cvr)}
-            console.print({label: summarize(cvr)})
+    with progress(f"validating on {wall_dir.name}", None) as adv:
+        run = validate_depth(wall_dir, cal, intrinsics=load_intrinsics_option(intrinsics), tilted=tilted,
+                             reference_offset_mm=reference_offset_mm, cross_validate=cv, advance=adv)
+    _notes(run.notes)
+    console.print(_report_table(run.stations, f"validation on {wall_dir} (before -> after, mm)"))
+    console.print(run.summary)
+    for label, r in (run.cross_validation or {}).items():
+        console.print(_report_table(r["stations"], f"leave-one-station-out, {label} surfaces"))
+        console.print({label: r["summary"]})
     if output is not None:
-        from tofmetry.calibrate import _figures as F
-        from tofmetry.io import atomic_write_json
-
-        output.mkdir(parents=True, exist_ok=True)
-        atomic_write_json(output / "validation.json", result)
-        _save_fig(F.fig_validation(reports), output / "validation.png")
-        # held-out stations at their measured central distance (the x axis of the curve)
-        held = [(r.distance_mm + r.dev_before_mm + cal.offset_mm, r.dev_before_mm) for r in reports]
-        pts = np.array([[r["center_mm"], r["dev_before_mm"]] for r in cal.diagnostics.get("samples", [])]) \
-            if cal.diagnostics.get("samples") else np.zeros((0, 2))
-        _save_fig(F.fig_range_curve(cal, pts, held_out=held),
-                  output / "range_curve.png")
-        _save_fig(F.fig_std_vs_range([st.distance_mm for st in ds.stations], [s.center_std_mm for s in stats]),
-                  output / "std_vs_range.png")
-        for st, mp in zip(ds.stations, maps):
-            _save_fig(F.fig_residual_maps(mp["residual_before"], mp["residual_after"],
-                                          f"Plane-fit residuals at {st.distance_mm / 1000:.3f} m ({st.name})"),
-                      output / f"residuals_{st.name}.png")
+        write_validation_report(run, output)
         console.print(f"validation written to {output}")
 
 

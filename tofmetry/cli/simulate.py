@@ -80,7 +80,7 @@ def wall_dataset(output: Path = _OUT,
 def checkerboard(output: Path = _OUT, images: int = typer.Option(20, "--images", help="Number of IR images."),
                  cols: int = typer.Option(9, "--cols", help="Inner corners along a row."),
                  rows: int = typer.Option(6, "--rows", help="Inner corners along a column."),
-                 square_mm: float = typer.Option(40.0, "--square-mm", help="Square size [mm]."),
+                 square_mm: float = typer.Option(50.0, "--square-mm", help="Square size [mm] (default: the simulated board's 50 mm)."),
                  seed: int = _SEED, force: bool = _FORCE) -> None:
     """IR images of a checkerboard for intrinsic calibration (+ board.json, truth.json)."""
     from tofmetry.simulate import datasets

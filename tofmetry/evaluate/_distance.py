@@ -159,6 +159,7 @@ def sharp_edge_samples(vertices: np.ndarray, faces: np.ndarray, angle_deg: float
     length = np.linalg.norm(b - a, axis=1)
     nseg = np.maximum(1, np.ceil(length / spacing_m).astype(np.int64))
     rep = np.repeat(np.arange(len(edges)), nseg + 1)
-    t = np.concatenate([np.linspace(0, 1, n + 1) for n in nseg]) if len(nseg) < 20000 else \
-        np.concatenate([np.arange(n + 1) / n for n in nseg])
+    # parameter t in [0, 1] along each edge, nseg + 1 samples per edge
+    start = np.repeat(np.cumsum(nseg + 1) - (nseg + 1), nseg + 1)
+    t = (np.arange(len(rep)) - start) / np.repeat(nseg, nseg + 1)
     return a[rep] + t[:, None] * (b - a)[rep]

@@ -185,14 +185,20 @@ class Capture:
             return PROFILES[self.meta.sensor].depth, f"typical {self.meta.sensor} profile (not calibrated)"
         raise InputError(f"{self.path}: no intrinsics in capture.json and unknown sensor {self.meta.sensor!r}; pass --intrinsics")
 
-    def depth(self, i: int) -> np.ndarray:
-        """Frame ``i``: (H, W) uint16 depth [mm] (``depth_unit_mm`` applied if != 1)."""
+    def depth(self, i: int, as_float: bool = False) -> np.ndarray:
+        """Frame ``i``: (H, W) uint16 depth [mm] (``depth_unit_mm`` applied if != 1).
+
+        ``as_float=True``: (H, W) float32 [mm], not rounded (keeps the precision of float
+        ``.npy`` frames such as ``tofmetry correct --float32`` output)."""
         f = self.depth_files[i]
-        d = images.read_depth_image(f)
+        d = images.read_depth_image(f, as_float=as_float)
         if d.shape != self._shape:
             raise FormatError(f"{f}: size {d.shape[1]}x{d.shape[0]} differs from the capture's {self._shape[1]}x{self._shape[0]}")
         if self.meta.depth_unit_mm != 1.0:
-            d = np.clip(np.rint(d.astype(np.float64) * self.meta.depth_unit_mm), 0, 65535).astype(np.uint16)
+            if as_float:
+                d = (d * np.float32(self.meta.depth_unit_mm)).astype(np.float32)
+            else:
+                d = np.clip(np.rint(d.astype(np.float64) * self.meta.depth_unit_mm), 0, 65535).astype(np.uint16)
         if not d.any():
             warnings.warn(f"{f}: all-zero depth frame (no valid measurement)", EmptyFrameWarning, stacklevel=2)
         return d

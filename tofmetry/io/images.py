@@ -31,16 +31,18 @@ def png_header(path: str | os.PathLike) -> tuple[int, int, int, int]:
     return w, h, bit, ctype
 
 
-def read_depth_image(path: str | os.PathLike) -> np.ndarray:
+def read_depth_image(path: str | os.PathLike, as_float: bool = False) -> np.ndarray:
     """Read one depth frame.
 
     Parameters
     ----------
     path : PNG (16-bit grey), TIFF (16-bit) or ``.npy`` (uint16, or float in mm).
+    as_float : return (H, W) float32 [mm] without rounding (keeps the precision of float
+        ``.npy`` frames, e.g. ``tofmetry correct --float32`` output).
 
     Returns
     -------
-    depth : (H, W) uint16 [mm], 0 = no measurement.
+    depth : (H, W) uint16 [mm] (float32 [mm] with ``as_float``), 0 = no measurement.
     """
     path = Path(path)
     if not path.is_file():
@@ -54,13 +56,13 @@ def read_depth_image(path: str | os.PathLike) -> np.ndarray:
         if arr.ndim != 2:
             raise FormatError(f"{path}: expected a 2-D depth array, found shape {arr.shape}")
         if arr.dtype == np.uint16:
-            return arr
+            return arr.astype(np.float32) if as_float else arr
         if np.issubdtype(arr.dtype, np.floating):
             if not np.all(np.isfinite(arr)):
                 raise FormatError(f"{path}: float depth contains NaN/inf; use 0 for invalid pixels")
             if arr.min() < 0 or arr.max() > 65535:
                 raise FormatError(f"{path}: float depth outside 0..65535 mm")
-            return np.rint(arr).astype(np.uint16)
+            return arr.astype(np.float32) if as_float else np.rint(arr).astype(np.uint16)
         raise FormatError(f"{path}: expected uint16 (mm) depth, found dtype {arr.dtype}")
     if suffix == ".png":
         w, h, bit, ctype = png_header(path)
@@ -77,7 +79,7 @@ def read_depth_image(path: str | os.PathLike) -> np.ndarray:
         raise FormatError(f"{path}: expected a single-channel depth image, found shape {img.shape}")
     if img.dtype != np.uint16:
         raise FormatError(f"{path}: expected 16-bit depth (uint16 mm), found {img.dtype}")
-    return img
+    return img.astype(np.float32) if as_float else img
 
 
 def read_ir_image(path: str | os.PathLike) -> np.ndarray:

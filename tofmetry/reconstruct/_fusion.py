@@ -110,21 +110,24 @@ class TSDFFusion:
         self.vbg.integrate(coords, img, self._K, ext, 1000.0, self.depth_max_m, self.trunc_mult)
         self.n_integrated += 1
 
-    def extract(self, weight_threshold: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def extract(self, weight_threshold: float = 1.0) -> tuple:
         """Zero-level surface.
 
         Returns
         -------
-        vertices (V, 3) [m], triangles (F, 3) int64, vertex normals (V, 3), cloud points (P, 3) [m]
-        with cloud normals (P, 3) appended as the 5th element of the tuple
+        vertices (V, 3) [m], triangles (F, 3) int64, vertex normals (V, 3), fused cloud points
+        (P, 3) [m] (zero crossings of the TSDF), cloud normals (P, 3)
         """
         if self.n_integrated == 0:
             raise EstimationError("TSDF fusion: no depth map was integrated")
         mesh = self.vbg.extract_triangle_mesh(weight_threshold).to_legacy()
         mesh.compute_vertex_normals()
-        pcd = self.vbg.extract_point_cloud(weight_threshold)
-        pts = pcd.point.positions.numpy().astype(np.float64) if "positions" in pcd.point else np.zeros((0, 3))
-        nrm = pcd.point.normals.numpy().astype(np.float64) if "normals" in pcd.point else np.zeros_like(pts)
+        try:
+            pcd = self.vbg.extract_point_cloud(weight_threshold)
+            pts = pcd.point.positions.numpy().astype(np.float64)
+            nrm = pcd.point.normals.numpy().astype(np.float64)
+        except (RuntimeError, KeyError):  # Open3D fails on some single-view volumes: use the mesh vertices
+            pts, nrm = np.asarray(mesh.vertices).copy(), np.asarray(mesh.vertex_normals).copy()
         return (np.asarray(mesh.vertices).copy(), np.asarray(mesh.triangles).astype(np.int64),
                 np.asarray(mesh.vertex_normals).copy(), pts, nrm)
 

@@ -87,10 +87,6 @@ class PoseGraphBuilder:
         comps = connected_components(self.n, [(p.source, p.target) for p in self.accepted()])
         if len(comps) > 1:
             groups = "; ".join("{" + ", ".join(self.names[k] for k in c) + "}" for c in comps)
-            best = {}
-            for p in self.pairs:
-                key = (p.source, p.target)
-                best[key] = p
             worst = ", ".join(f"{self.names[p.source]}->{self.names[p.target]} fitness {p.fitness:.2f} rmse "
                               f"{p.inlier_rmse_mm:.1f} mm" for p in self.pairs if not p.accepted)[:600]
             raise EstimationError(

@@ -27,6 +27,7 @@ class RegView:
     ----------
     icp_points, icp_normals : (M, 3) object (+ ground ring) at the ICP voxel
     obj_points : (K, 3) object only at the ICP voxel (fitness is measured on these)
+    coarse_points, coarse_normals : main cluster (+ ring) at the coarse voxel (quick ICP of hypotheses)
     feat_points, feat_normals : (F, 3) object at the feature voxel (FPFH)
     """
 
@@ -51,15 +52,17 @@ class RegView:
 def make_reg_view(view: ViewData, seg: Segmentation, cfg: RegistrationConfig) -> RegView:
     """Select reliable object (+ ring) points and downsample them for registration."""
     reliable = view.cos_incidence >= np.cos(np.radians(cfg.max_incidence_deg))
-    # the main cluster registers better than the whole object: the parts merged across a gap are
-    # the least reliable (seen around occlusions) and make the object more symmetric
-    objm = seg.core_mask if seg.core_mask is not None else seg.object_mask
-    obj = objm & reliable
-    sel = obj | (seg.ring_mask & reliable) if cfg.use_ground else obj
+    # coarse hypotheses and their scoring use the main cluster only (parts merged across a gap are
+    # the least reliable and make a nearly symmetric object more ambiguous); the fine ICP uses the
+    # whole object, whose ends constrain the slide along a prism-like middle part
+    core = seg.core_mask if seg.core_mask is not None else seg.object_mask
+    ring = seg.ring_mask & reliable if cfg.use_ground else np.zeros_like(reliable)
+    sel = (seg.object_mask & reliable) | ring
     p, n = voxel_down(view.points[sel], view.normals[sel], cfg.icp_voxel_mm * 1e-3)
-    po, _ = voxel_down(view.points[obj], None, cfg.icp_voxel_mm * 1e-3)
-    pf, nf = voxel_down(view.points[objm], view.normals[objm], cfg.feature_voxel_mm * 1e-3)
-    pc, nc = voxel_down(view.points[sel], view.normals[sel], cfg.coarse_voxel_mm * 1e-3)
+    po, _ = voxel_down(view.points[seg.object_mask & reliable], None, cfg.icp_voxel_mm * 1e-3)
+    pf, nf = voxel_down(view.points[core], view.normals[core], cfg.feature_voxel_mm * 1e-3)
+    csel = (core & reliable) | ring
+    pc, nc = voxel_down(view.points[csel], view.normals[csel], cfg.coarse_voxel_mm * 1e-3)
     return RegView(view.name, p, n, po, pf, nf, pc, nc, seg.plane)
 
 
@@ -147,6 +150,14 @@ def object_fitness(src: RegView, tgt: RegView, T: np.ndarray, radius_m: float) -
     return float(ok.sum() / max(inside.sum(), 1)), float(np.sqrt(np.mean(d[ok] ** 2)))
 
 
+def _coarse_fitness(src: RegView, tgt: RegView, T: np.ndarray, radius_m: float) -> tuple[float, float]:
+    """Share of the source coarse points within ``radius_m`` of the target coarse points, and their RMS [m]."""
+    p = src.coarse_points @ T[:3, :3].T + T[:3, 3]
+    d, _ = cKDTree(tgt.coarse_points).query(p, distance_upper_bound=radius_m, workers=-1)
+    ok = np.isfinite(d)
+    return (float(ok.mean()), float(np.sqrt(np.mean(d[ok] ** 2)))) if ok.any() else (0.0, np.inf)
+
+
 def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationConfig,
                   init: np.ndarray | None = None, global_search: bool = True) -> PairResult:
     """Register view ``i`` (source) onto view ``j`` (target).
@@ -165,7 +176,7 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
             cands.append((*object_fitness(src, tgt, T, r_final), T, "init+icp"))
     if global_search and (not cands or not _passes(cands[0][0], cands[0][1], cfg) or not plane_consistent(src, tgt, cands[0][2])):
         coarse = []
-        use_plane = src.plane is not None and tgt.plane is not None and cfg.use_ground
+        use_plane = src.plane is not None and tgt.plane is not None
         for s in range(0 if use_plane else cfg.ransac_seeds):
             g = global_register(src.feat_points, src.feat_normals, tgt.feat_points, tgt.feat_normals,
                                 cfg.feature_voxel_mm * 1e-3, seed=cfg.seed + s)
@@ -180,7 +191,7 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
                 T = icp(src.coarse_points, tgt.coarse_points, tgt.coarse_normals, T, r * 1e-3, kernel=cfg.kernel,
                         max_iter=12).transform
             if plane_consistent(src, tgt, T, 5.0, 15.0):
-                quick.append((*object_fitness(src, tgt, T, 1.25 * cfg.coarse_voxel_mm * 1e-3), T, how))
+                quick.append((*_coarse_fitness(src, tgt, T, 1.25 * cfg.coarse_voxel_mm * 1e-3), T, how))
         quick.sort(key=lambda c: (-c[0], c[1]))
         distinct: list = []  # several yaw seeds converge to the same pose: refine distinct ones only
         for c in quick:

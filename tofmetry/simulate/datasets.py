@@ -137,12 +137,15 @@ def wall_dataset(out: str | os.PathLike, distances_mm: Sequence[float] = DEFAULT
 
 
 def checkerboard_images(out: str | os.PathLike, n_images: int = 20, board: tuple[int, int] = (9, 6),
-                        square_mm: float = 40.0, seed: int = 0, errors: ErrorModel | None = None,
+                        square_mm: float = 50.0, seed: int = 0, errors: ErrorModel | None = None,
                         supersample: int = 4, force: bool = False, progress: Progress = None) -> Path:
     """IR images (16-bit PNG) of a checkerboard for intrinsic calibration (paper §4.1).
 
-    Board at 0.6-1.6 m, tilted up to 40 deg, aimed at a 3 x 3 grid of image positions so that
-    the corners of the image are covered. IR amplitude is anti-aliased (``supersample`` x
+    A 50 cm x 35 cm board (9 x 6 inner corners, 50 mm squares) at 0.55-1.0 m, tilted by
+    16-45 deg, pushed in turn against the image centre, each image corner and each edge
+    (``tofmetry.simulate.poses.board_poses``) so that the corners of the image are covered, as
+    a careful photogrammetrist shoots a calibration set. The sensor's noise, vignetting and
+    quantisation stay on (``errors``). IR amplitude is anti-aliased (``supersample`` x
     ``supersample`` sub-rays per pixel). Writes ``out/ir_000.png ...``, ``out/board.json``
     ``{"cols","rows","square_mm"}`` (inner corners) and ``out/truth.json`` (true intrinsics,
     board-to-camera poses; board frame: origin at the first inner corner, x along the

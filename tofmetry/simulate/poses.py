@@ -49,42 +49,81 @@ def orbit_poses(n_views: int, radius_m: float, elevation_deg: float, target: np.
     return out
 
 
-def board_poses(n: int, intr: CameraIntrinsics, cols: int, rows: int, square_m: float, rng: np.random.Generator,
-                dist_range: tuple = (0.6, 1.6), max_tilt_deg: float = 40.0, margin_px: float = 12.0,
-                board_margin_m: float = 0.05) -> list[np.ndarray]:
-    """Board-to-camera poses covering the whole image (incl. corners), distances and tilts.
+#: Planned board placements of a calibration set: where the board's image bounding box is pushed
+#: (0 = left/top edge, 0.5 = centred, 1 = right/bottom edge). Centre, the four image corners, the
+#: four edge midpoints, then the corners again (with other tilts), as a photogrammetrist shoots them.
+BOARD_ANCHORS = ((0.5, 0.5), (0, 0), (1, 0), (0, 1), (1, 1), (0.5, 0), (1, 0.5), (0.5, 1), (0, 0.5))
 
-    Board centres aim at a 3 x 3 grid of image positions (cycled, jittered); tilts up to
-    ``max_tilt_deg``; a pose is kept only if the whole board (with margin) projects inside
-    the image by ``margin_px``.
+
+def board_poses(n: int, intr: CameraIntrinsics, cols: int, rows: int, square_m: float, rng: np.random.Generator,
+                dist_range: tuple = (0.55, 1.0), max_tilt_deg: float = 45.0, margin_px: float = 8.0,
+                board_margin_m: float = 0.05) -> list[np.ndarray]:
+    """Board-to-camera poses planned to cover the whole image, including its corners.
+
+    Pose ``k`` pushes the board's projected outline (with its white margin) against the image
+    region ``BOARD_ANCHORS[k % 9]`` (corners and edges to within ``margin_px``), at a distance
+    drawn in ``dist_range`` [m] (pushed back when the board would not fit) and tilted by
+    ``max_tilt_deg`` x (0.35..1) about a direction that turns over the set (half the poses
+    tilted toward the image centre, half away), plus up to 15 deg of in-plane rotation.
+    A pose is kept only if the whole board projects inside the image by ``margin_px``.
+
+    Returns
+    -------
+    list of (4, 4) board-to-camera [m] (board frame: origin at the first inner corner).
     """
     w = (cols + 1) * square_m + 2 * board_margin_m
     h = (rows + 1) * square_m + 2 * board_margin_m
-    outline = np.array([[x, y, 0.0] for x in (-w / 2, w / 2) for y in (-h / 2, h / 2)])
-    outline = np.vstack([outline, [[0, -h / 2, 0], [0, h / 2, 0], [-w / 2, 0, 0], [w / 2, 0, 0]]])
+    xs, ys = np.linspace(-w / 2, w / 2, 7), np.linspace(-h / 2, h / 2, 7)
+    outline = np.array([[x, y, 0.0] for x in xs for y in ys if x in (xs[0], xs[-1]) or y in (ys[0], ys[-1])])
     centre_off = np.array([(cols - 1) * square_m / 2, (rows - 1) * square_m / 2, 0.0])
-    targets = [(0.5, 0.5)] + [(fx, fy) for fy in (0.12, 0.5, 0.88) for fx in (0.12, 0.5, 0.88) if (fx, fy) != (0.5, 0.5)]
-    poses = []
+    W, H = intr.width, intr.height
+    poses: list[np.ndarray] = []
     tries = 0
     while len(poses) < n:
         tries += 1
-        if tries > 2000 * max(n, 1):
+        if tries > 200 * max(n, 1):
             raise InputError("board_poses: could not place the board inside the image; use a smaller board")
-        fx, fy = targets[len(poses) % len(targets)]
-        u = fx * (intr.width - 1) + rng.normal(0, 10)
-        v = fy * (intr.height - 1) + rng.normal(0, 10)
-        xy = intr.pixel_to_normalized(np.array([[u, v]]))[0]
+        k = len(poses)
+        ax, ay = BOARD_ANCHORS[k % len(BOARD_ANCHORS)]
+        rnd = k // len(BOARD_ANCHORS)
+        tilt = max_tilt_deg * rng.uniform(0.35, 1.0)
+        # tilt direction: toward / away from the image centre alternately (plus jitter); centre: random
+        if (ax, ay) == (0.5, 0.5):
+            ang = rng.uniform(0, 2 * np.pi)
+        else:
+            ang = np.arctan2(ay - 0.5, ax - 0.5) + (np.pi if (k + rnd) % 2 else 0.0) + rng.normal(0, 0.3)
+        # rotation about the axis perpendicular to ``ang`` in the image plane
+        R = rotation_xyz(tilt * np.sin(ang), -tilt * np.cos(ang), rng.uniform(-15, 15))
         d = rng.uniform(*dist_range)
-        c = d * np.array([xy[0], xy[1], 1.0])
-        tilt = rng.uniform(0, max_tilt_deg)
-        ang = rng.uniform(0, 2 * np.pi)
-        R = rotation_xyz(tilt * np.sin(ang), tilt * np.cos(ang), rng.uniform(-15, 15))
-        pts = outline @ R.T + c
-        if np.any(pts[:, 2] < 0.3):
-            continue
-        uv = intr.project(pts)
-        if (uv[:, 0].min() < margin_px or uv[:, 1].min() < margin_px or uv[:, 0].max() > intr.width - 1 - margin_px
-                or uv[:, 1].max() > intr.height - 1 - margin_px):
+        ok = False
+        for _grow in range(12):
+            target = np.array([W / 2.0, H / 2.0])
+            for _it in range(8):
+                xy = intr.pixel_to_normalized(target[None])[0]
+                c = d * np.array([xy[0], xy[1], 1.0])
+                pts = outline @ R.T + c
+                if np.any(pts[:, 2] < 0.3):
+                    break
+                uv = intr.project(pts)
+                lo, hi = uv.min(0), uv.max(0)
+                want = []
+                for a, lo_, hi_, size in ((ax, lo[0], hi[0], W), (ay, lo[1], hi[1], H)):
+                    if a == 0:
+                        want.append(margin_px + 1 - lo_)
+                    elif a == 1:
+                        want.append(size - 1 - margin_px - 1 - hi_)
+                    else:
+                        want.append((size - 1) / 2 - (lo_ + hi_) / 2)
+                target = target + np.array(want)
+            else:
+                pts = outline @ R.T + c
+                uv = intr.project(pts)
+                if (np.all(pts[:, 2] > 0.3) and uv[:, 0].min() >= margin_px and uv[:, 1].min() >= margin_px
+                        and uv[:, 0].max() <= W - 1 - margin_px and uv[:, 1].max() <= H - 1 - margin_px):
+                    ok = True
+                    break
+            d *= 1.08
+        if not ok:
             continue
         T = np.eye(4)
         T[:3, :3] = R

@@ -58,7 +58,7 @@ class IntrinsicsConfig(_Cfg):
     """IR-camera geometric calibration (study section 4.1)."""
 
     board: str = Field("9x6", description="Inner corners COLSxROWS of the checkerboard.")
-    square_mm: float = Field(40.0, gt=0, description="Checkerboard square size [mm].")
+    square_mm: float = Field(50.0, gt=0, description="Checkerboard square size [mm] (a board.json beside the images overrides it).")
 
     @field_validator("board")
     @classmethod

@@ -170,10 +170,16 @@ def stage_outdoor(ctx: StudyContext, out: StageOutcome) -> None:
                        ]))
 
 
+from tofmetry.study.stages_cal import stage_depth, stage_intrinsics  # noqa: E402
+from tofmetry.study.stages_model import stage_model  # noqa: E402
+
 STAGES = [
     ("sensor", "Sensor summary", stage_sensor),
     ("warmup", "Warm-up (pre-heating) drift", stage_warmup),
     ("noise", "Temporal noise and frame averaging", stage_noise),
     ("materials", "Materials and intensity", stage_materials),
     ("outdoor", "Strong light and flying pixels", stage_outdoor),
+    ("intrinsics", "IR camera intrinsics (Brown model) and stability", stage_intrinsics),
+    ("depth", "Depth calibration and validation on held-out stations", stage_depth),
+    ("model", "3D model of the object and its accuracy", stage_model),
 ]

@@ -1,0 +1,51 @@
+"""``tofmetry evaluate`` on files: outputs and clear errors."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from tofmetry.cli import app
+from tofmetry.errors import InputError
+from tofmetry.evaluate import sample_mesh
+from tofmetry.io import write_ply
+
+
+@pytest.fixture()
+def files(tmp_path):
+    import open3d as o3d
+
+    m = o3d.geometry.TriangleMesh.create_box(0.2, 0.1, 0.08).subdivide_midpoint(2)
+    V, F = np.asarray(m.vertices), np.asarray(m.triangles)
+    write_ply(tmp_path / "ref.ply", V, faces=F)
+    write_ply(tmp_path / "ref_mm.ply", V * 1000, faces=F)
+    pts, nrm, _ = sample_mesh(V, F, 0.003, seed=0)
+    write_ply(tmp_path / "model.ply", pts + 0.0005 * nrm)
+    return tmp_path
+
+
+def test_cli_evaluate_writes_outputs(files):
+    r = CliRunner().invoke(app, ["evaluate", str(files / "model.ply"), "--reference", str(files / "ref.ply"),
+                                 "-o", str(files / "ev"), "--thresholds-mm", "0.5,1,2"])
+    assert r.exit_code == 0, r.output
+    m = json.loads((files / "ev" / "metrics.json").read_text())
+    assert set(m["stats"]["share_within"]) == {"0.5", "1", "2"}
+    assert m["stats"]["mean_abs_mm"] < 0.6  # 0.5 mm offset; ICP may take up to ~0.1 mm of it
+    for f in ("histogram.png", "deviation_render.png", "deviation.ply"):
+        assert (files / "ev" / f).is_file()
+
+
+def test_cli_evaluate_reference_in_mm(files):
+    r = CliRunner().invoke(app, ["evaluate", str(files / "model.ply"), "--reference", str(files / "ref_mm.ply"),
+                                 "-o", str(files / "ev2")])
+    assert isinstance(r.exception, InputError) and "millimetres" in str(r.exception)
+
+
+def test_cli_evaluate_empty_reference(files):
+    write_ply(files / "empty.ply", np.zeros((0, 3)))
+    r = CliRunner().invoke(app, ["evaluate", str(files / "model.ply"), "--reference", str(files / "empty.ply"),
+                                 "-o", str(files / "ev3")])
+    assert isinstance(r.exception, InputError) and "empty" in str(r.exception)

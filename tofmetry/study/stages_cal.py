@@ -1,0 +1,134 @@
+"""Study stages of section 4: IR intrinsics, depth calibration, validation on held-out data.
+
+They call :mod:`tofmetry.calibrate.pipelines` — the same functions as ``tofmetry calibrate ...``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from tofmetry.io import atomic_write_json, write_intrinsics
+from tofmetry.study.pipeline import StageOutcome, StudyContext
+
+
+def _figs(paths, prefix: str = "") -> list[tuple[str, Path]]:
+    return [(prefix + Path(p).stem.replace("_", " "), Path(p)) for p in paths if str(p).endswith(".png")]
+
+
+def stage_intrinsics(ctx: StudyContext, out: StageOutcome) -> None:
+    """Brown model of the IR camera from checkerboard images, with stability analysis (§4.1)."""
+    from tofmetry.calibrate.pipelines import intrinsics_from_images, write_intrinsics_report
+
+    folder = ctx.input("checkerboard", "IR images of a planar checkerboard")
+    c = ctx.config.intrinsics
+    board = tuple(int(x) for x in c.board.lower().split("x"))
+    square = c.square_mm
+    bj = folder / "board.json"
+    if bj.is_file():  # the board's own description wins over the config default
+        from tofmetry.io import read_json
+
+        b = read_json(bj, "board.json")
+        board, square = (int(b["cols"]), int(b["rows"])), float(b["square_mm"])
+    run = intrinsics_from_images(folder, board, square, leave_one_out=True)
+    res = run.result
+    d = ctx.stage_dir("intrinsics")
+    write_intrinsics(d / "intrinsics.json", res.intrinsics, rms_px=res.rms_px, std=res.std)
+    out.figures = _figs(write_intrinsics_report(run, d))
+    ctx.intrinsics = res.intrinsics
+    ctx.intrinsics_source = f"calibrated from {len(res.used)} checkerboard images"
+    i = res.intrinsics
+    vals = {"fx": i.fx, "fy": i.fy, "cx": i.cx, "cy": i.cy, "k1": i.distortion[0], "k2": i.distortion[1],
+            "p1": i.distortion[2], "p2": i.distortion[3], "k3": i.distortion[4]}
+    spread = [res.loo_range.get(p, float("nan")) for p in ("fx", "fy", "cx", "cy")]
+    out.data = {"intrinsics": i.to_dict(), "rms_px": res.rms_px, "std": res.std, "loo_std": res.loo,
+                "loo_range": res.loo_range, "loo_max_spread_px": float(np.nanmax(spread)) if res.loo_range else None,
+                "n_images_used": len(res.used), "rejected": list(run.rejected) + list(getattr(run, "rejected_views", [])),
+                "flagged": res.flagged, "coverage": res.coverage, "warnings": res.warnings,
+                "cross_validation": getattr(run, "cv", None)}
+    out.tables.append((f"Brown model of the IR camera ({len(res.used)} images, reprojection RMS {res.rms_px:.3f} px)",
+                       ["parameter", "value", "std. uncertainty", "leave-one-out std", "leave-one-out range"],
+                       [[p, v, res.std.get(p, float("nan")), res.loo.get(p, float("nan")), res.loo_range.get(p, float("nan"))]
+                        for p, v in vals.items()]))
+    if out.data["rejected"]:
+        out.paragraphs.append(f"Images rejected: {', '.join(map(str, out.data['rejected']))}.")
+    if res.flagged:
+        out.paragraphs.append(f"Images whose removal moves a parameter beyond its uncertainty: {', '.join(res.flagged)}.")
+    out.paragraphs += res.warnings
+    cv = out.data["cross_validation"]
+    if cv:
+        out.paragraphs.append("Pose-wise cross-validation (reprojection error on images left out of the fit): "
+                              + ", ".join(f"{k} {v:.3f}" if isinstance(v, float) else f"{k} {v}" for k, v in cv.items()
+                                          if not isinstance(v, (list, dict))) + ".")
+
+
+def _dev_range(rows: list[dict], key: str, max_mm: float) -> list[float] | None:
+    vals = [r[key] for r in rows if key in r and r.get("distance_mm", 0) <= max_mm and np.isfinite(r[key])]
+    return [float(min(vals)), float(max(vals))] if vals else None
+
+
+def stage_depth(ctx: StudyContext, out: StageOutcome) -> None:
+    """Range-error B-spline + per-pixel deformation surfaces from the wall stations (§4.2),
+    validated on held-out stations never used for fitting (beyond §4.3)."""
+    from tofmetry.calibrate import save_calibration
+    from tofmetry.calibrate.pipelines import calibrate_depth_dataset, validate_depth, write_depth_report, write_validation_report
+
+    wall = ctx.input("wall", "a wall dataset: stations.csv + one capture per station")
+    d = ctx.stage_dir("depth")
+    run = calibrate_depth_dataset(wall, intrinsics=ctx.intrinsics)
+    cal = run.calibration
+    save_calibration(d / "calibration.npz", cal)
+    ctx.calibration_path = d / "calibration.npz"
+    out.figures = _figs(write_depth_report(run, d / "fit"), "fit: ")
+    rows = run.stations
+    out.data = {"kind": run.kind, "intrinsics_source": run.intrinsics_source, "offset_mm": cal.offset_mm,
+                "valid_range_mm": list(cal.valid_range_mm), "surface_model": cal.surface_model,
+                "fit_seconds": run.seconds, "notes": list(run.notes), "stations": rows}
+    out.paragraphs.append(
+        f"Fitted on {len(rows)} stations ({run.kind}); intrinsics: {run.intrinsics_source}. Offset between the "
+        f"stations' reference point and the optical centre, absorbed by the range curve: {cal.offset_mm:+.1f} mm. "
+        f"Corrected range {cal.valid_range_mm[0]:.0f}–{cal.valid_range_mm[1]:.0f} mm; surfaces: {cal.surface_model}.")
+    out.paragraphs += list(run.notes)
+    # training stations (in-sample, the study's own validation)
+    tr = validate_depth(wall, cal, intrinsics=ctx.intrinsics, cross_validate=ctx.config.depth.cross_validate)
+    out.data["training"] = tr.summary
+    before = [r.dev_before_mm for r in tr.stations if r.distance_mm <= ctx.config.depth.max_fit_distance_mm]
+    if before:
+        out.data["central_dev_before_mm"] = [float(min(before)), float(max(before))]
+    write_validation_report(tr, d / "training")
+    if tr.cross_validation:
+        out.data["cross_validation"] = {k: v.get("summary", v) if isinstance(v, dict) else v
+                                        for k, v in tr.cross_validation.items()}
+    # held-out stations
+    held = ctx.data_dir / "wall-validation"
+    if held.exists():
+        va = validate_depth(held, cal, intrinsics=ctx.intrinsics)
+        figs = write_validation_report(va, d / "validation")
+        out.figures += _figs(figs, "held-out: ")
+        s = va.summary
+        out.data["heldout"] = s
+        sel = [r for r in va.stations if r.distance_mm <= 4000]
+        out.data["heldout_central_after_max_mm"] = float(max(abs(r.dev_after_mm) for r in sel)) if sel else None
+        out.data["plane_std_before_mm"] = [float(min(r.plane_std_before_mm for r in va.stations)),
+                                           float(max(r.plane_std_before_mm for r in va.stations))]
+        out.data["plane_std_after_mm"] = [float(min(r.plane_std_after_mm for r in va.stations)),
+                                          float(max(r.plane_std_after_mm for r in va.stations))]
+        out.tables.append(("Held-out stations (never fitted): before → after correction [mm]",
+                           ["station", "distance [m]", "central dev before", "after", "plane std before", "after",
+                            "per-pixel RMS (central 90 %) before", "after", "reduction"],
+                           [[r.name, r.distance_mm / 1000, r.dev_before_mm, r.dev_after_mm, r.plane_std_before_mm,
+                             r.plane_std_after_mm, r.rms_before_mm, r.rms_after_mm,
+                             r.rms_before_mm / r.rms_after_mm if r.rms_after_mm > 0 else float("nan")]
+                            for r in va.stations]))
+    else:
+        out.paragraphs.append("No wall-validation/ folder: only leave-one-station-out cross-validation is reported.")
+    if tr.cross_validation:
+        rows_cv = []
+        for label, v in tr.cross_validation.items():
+            s = v.get("summary", {}) if isinstance(v, dict) else {}
+            rows_cv.append([label, s.get("max_abs_dev_after_mm", float("nan")), s.get("median_rms_reduction", float("nan")),
+                            s.get("min_rms_reduction", float("nan"))])
+        out.tables.append(("Leave-one-station-out cross-validation (surface model comparison)",
+                           ["surfaces", "max |central dev| after [mm]", "median RMS reduction", "min RMS reduction"], rows_cv))
+    atomic_write_json(d / "result.json", out.data)

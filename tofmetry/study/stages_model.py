@@ -1,0 +1,104 @@
+"""Study stage of section 5: automatic 3D model of the object and its accuracy against a reference."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from tofmetry.study.pipeline import StageOutcome, StudyContext
+
+
+def _reference_path(ctx: StudyContext) -> Path | None:
+    for p in (ctx.data_dir / "reference.ply", ctx.data_dir / "scan" / "reference.ply"):
+        if p.is_file():
+            return p
+    return None
+
+
+def _stats_row(label: str, s: dict, comp: dict | None) -> list:
+    c5 = (comp or {}).get("5") or (comp or {}).get("5.0") or {}
+    sw = s["share_within"]
+    within5 = sw.get("5", sw.get("5.0", float("nan")))
+    return [label, s["mean_abs_mm"], s["mean_signed_mm"], s["std_signed_mm"], s["rms_mm"],
+            s["percentiles_abs_mm"]["p95"], s["max_abs_mm"], 100 * within5,
+            100 * c5.get("completeness", float("nan"))]
+
+
+def stage_model(ctx: StudyContext, out: StageOutcome) -> None:
+    """Reconstruct the scan with and without the depth calibration and assess both against the reference."""
+    from tofmetry.calibrate import load_calibration
+    from tofmetry.evaluate import EvaluationConfig, evaluate_model, write_evaluation
+    from tofmetry.io import ScanDataset
+    from tofmetry.io.mesh import read_geometry
+    from tofmetry.reconstruct import ReconstructionConfig, ReconstructionPipeline, write_reconstruction
+
+    scan = ctx.input("scan", "views/<name>/ captures around the object")
+    ds = ScanDataset(scan)
+    mc = ctx.config.model
+    ref_path = _reference_path(ctx)
+    runs = [("calibrated", ctx.calibration_path)] if ctx.calibration_path is not None else []
+    if mc.compare_uncalibrated or not runs:
+        runs.append(("uncalibrated", None))
+    if ctx.calibration_path is None:
+        out.paragraphs.append("No depth calibration available (the depth stage did not run): raw depth only.")
+    d = ctx.stage_dir("model")
+    table = []
+    for label, cal_path in runs:
+        cal = load_calibration(cal_path) if cal_path is not None else None
+        cfg = ReconstructionConfig()
+        if mc.voxel_mm is not None:
+            cfg.fusion.voxel_mm = mc.voxel_mm
+        res = ReconstructionPipeline(ds, cal, cfg).run()
+        rdir = d / label
+        write_reconstruction(rdir, res, force=True)
+        tm = res.diagnostics.get("timings_s", {})
+        edges = [e for e in res.edges if e.get("accepted")]
+        entry = {"views": len(res.names), "edges_accepted": len(edges), "edges_total": len(res.edges),
+                 "edge_fitness_min": float(min(e["fitness"] for e in edges)) if edges else None,
+                 "edge_rmse_mm_max": float(max(e["inlier_rmse_mm"] for e in edges)) if edges else None,
+                 "mesh_vertices": int(len(res.mesh_vertices)), "points": int(len(res.points)),
+                 "fusion": res.diagnostics.get("fusion", {}), "timings_s": tm}
+        out.data[label] = entry
+        if label == runs[0][0]:
+            out.tables.append((f"Registration edges ({label}; no manual input: coarse + robust ICP + pose graph)",
+                               ["source", "target", "method", "fitness", "inlier RMSE [mm]", "kept"],
+                               [[e["source"], e["target"], e["method"], e["fitness"], e["inlier_rmse_mm"],
+                                 "yes" if e["kept"] else "pruned"] for e in edges]))
+            out.data["registration_summary"] = (
+                f"automatic, {len(edges)} pairs (all overlapping, loop closed); inlier RMSE ≤ {entry['edge_rmse_mm_max']:.1f} mm")
+        if ref_path is None:
+            continue
+        ecfg = EvaluationConfig(align=True, thresholds_mm=tuple(mc.thresholds_mm),
+                                exclude_normal=(0.0, 0.0, -1.0) if ctx.simulated else None)
+        model = read_geometry(rdir / "mesh.ply", "model")
+        ref = read_geometry(ref_path, "reference")
+        ev = evaluate_model(model, ref, ecfg)
+        files = write_evaluation(d / f"evaluation-{label}", ev, title=f"model ({label}) vs reference")
+        ed = ev.to_dict()
+        st = ed["stats_trimmed"]
+        sw = st["share_within"]
+        entry.update({"mean_abs_mm": st["mean_abs_mm"], "mean_signed_mm": st["mean_signed_mm"],
+                      "std_mm": st["std_signed_mm"], "rms_mm": st["rms_mm"], "max_mm": st["max_abs_mm"],
+                      "p95_mm": st["percentiles_abs_mm"]["p95"], "share_within_5mm": sw.get("5", sw.get("5.0")),
+                      "completeness": ed["completeness"], "stats_untrimmed": ed["stats"],
+                      "edge_trimming": ed["edge_trimming"]})
+        table.append(_stats_row(f"{label}, edge-trimmed", st, ed["completeness"]))
+        table.append(_stats_row(f"{label}, all points", ed["stats"], ed["completeness"]))
+        out.figures += [(f"{label}: {Path(p).stem.replace('_', ' ')}", Path(p)) for p in files.values()
+                        if str(p).endswith(".png")]
+        if label == runs[0][0]:
+            sel = ~ev.on_edge if ev.on_edge.size else slice(None)
+            out.data["viewer"] = {"points": np.asarray(ev.points)[sel], "values": np.asarray(ev.deviation_m)[sel] * 1e3,
+                                  "range_mm": ecfg.color_scale_mm}
+    if ref_path is None:
+        out.paragraphs.append("No reference.ply in DATA_DIR: the model was built but not assessed.")
+    else:
+        out.tables.insert(0, ("Model vs reference mesh (study §5.3: mean ≈ 2 mm, std ≈ 2.5 mm, max ≈ 15 mm, 90 % < 5 mm; "
+                              "Kinect Fusion §5.4: 1.1 / 1.4 mm)",
+                              ["model", "mean |d| [mm]", "mean d [mm]", "std [mm]", "RMS [mm]", "p95 |d| [mm]",
+                               "max |d| [mm]", "|d| ≤ 5 mm [%]", "completeness @ 5 mm [%]"], table))
+        out.paragraphs.append(
+            "Edge trimming (documented in `tofmetry evaluate`): model points whose closest reference point lies within "
+            "3 mm of a sharp or boundary reference edge are excluded from the trimmed statistics — one Kinect v2 pixel "
+            "covers ≈ 2.7 mm at 1 m, so no ToF model holds a sharp edge closer. Untrimmed figures are given too.")
