@@ -76,9 +76,11 @@ def test_end_to_end_full_errors(tmp_path):
     """All error terms on, calibration fitted by the calibration pipeline on a simulated wall
     dataset (not the truth); then reconstruct + evaluate through the CLI.
 
-    Asserted: the issue's rotation bound (< 0.5 deg); for the model, the levels this version
-    reaches (see the report), not the issue's targets: mean |d| < 4.5 mm, completeness at
-    5 mm > 30 %. The remaining error is the uncorrected amplitude-dependent range bias.
+    With the amplitude-bias correction referenced on the same wall. Asserted: the issue's
+    bounds on rotation (< 0.5 deg) and on the model (mean |d| <= 1.0 mm, std <= 1.2 mm,
+    p95 <= 3 mm, max <= 8 mm after edge trimming). Not asserted (not reached, see the
+    report): translation < 3 mm (5-6 mm measured) and completeness >= 90 % (66 % measured:
+    the necks under the turned ends are not seen from 30 deg elevation).
     """
     from typer.testing import CliRunner
 
@@ -90,7 +92,8 @@ def test_end_to_end_full_errors(tmp_path):
     run = CliRunner()
     r = run.invoke(app, ["calibrate", "depth", str(wall), "-o", str(tmp_path / "cal.npz"), "--reference-offset-mm", "20"])
     assert r.exit_code == 0, r.output
-    r = run.invoke(app, ["reconstruct", str(scan), "--calibration", str(tmp_path / "cal.npz"), "-o", str(tmp_path / "rec")])
+    r = run.invoke(app, ["reconstruct", str(scan), "--calibration", str(tmp_path / "cal.npz"), "-o", str(tmp_path / "rec"),
+                         "--amplitude-reference", str(wall)])
     assert r.exit_code == 0, r.output
     poses = np.array([v["camera_to_world"] for v in read_json(tmp_path / "rec" / "poses.json")["views"]])
     err = _rel_errors(poses, read_json(scan / "truth.json"))
@@ -102,5 +105,7 @@ def test_end_to_end_full_errors(tmp_path):
                          "--exclude-normal", "0,0,-1"])
     assert r.exit_code == 0, r.output
     m = read_json(tmp_path / "ev" / "metrics.json")
-    assert m["stats_trimmed"]["mean_abs_mm"] < 4.5
-    assert m["completeness"]["5"]["completeness"] > 0.30
+    st = m["stats_trimmed"]
+    assert st["mean_abs_mm"] <= 1.0 and st["std_signed_mm"] <= 1.2, st
+    assert st["percentiles_abs_mm"]["p95"] <= 3.0 and st["max_abs_mm"] <= 8.0, st
+    assert m["completeness"]["5"]["completeness"] > 0.5

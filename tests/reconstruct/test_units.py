@@ -126,3 +126,25 @@ def test_pose_graph_identity_chain():
     res = pg.optimize(0.003)
     np.testing.assert_allclose(res.poses[2][:3, 3], [0.2, 0, 0], atol=1e-6)
     assert all(e["kept"] for e in res.edges)
+
+
+def test_amplitude_bias_model():
+    """Synthetic white frontal wall A = a0 * cos / range^2 at two distances -> a(u, v) = a0;
+    a surface at 1/6 of the white amplitude then reads k ln 6 = 12 mm long (study §3.3.1)."""
+    from tofmetry.reconstruct import PAPER_K_MM_PER_LN, amplitude_bias_mm, white_amplitude_map
+
+    intr = KINECT_V2.depth
+    rays = intr.ray_table(True)
+    norm = np.sqrt(rays[..., 0] ** 2 + rays[..., 1] ** 2 + 1.0)
+    a0 = 12000.0
+    irs, zs = [], []
+    for z_m in (1.0, 2.0):
+        zs.append(np.full(intr.shape, z_m * 1e3))
+        irs.append(a0 * (1 / norm) / (z_m * norm) ** 2)
+    wm = white_amplitude_map(irs, zs, intr)
+    np.testing.assert_allclose(wm, a0, rtol=1e-9)
+    z = np.full(intr.shape, 900.0)
+    white = a0 / (0.9 * norm) ** 2
+    b = amplitude_bias_mm(z, white / 6.0, wm, intr)
+    np.testing.assert_allclose(b, 12.0, atol=1e-9)
+    assert PAPER_K_MM_PER_LN == pytest.approx(6.697, abs=1e-3)

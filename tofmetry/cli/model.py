@@ -15,6 +15,10 @@ def reconstruct(
     output: Path = typer.Option(..., "-o", "--output", help="Output folder (points.ply, mesh.ply, poses.json)."),
     calibration: Optional[Path] = typer.Option(None, "--calibration", help="Depth calibration file (tofmetry calibrate depth)."),
     no_calibration: bool = typer.Option(False, "--no-calibration", help="Run on raw depth (no calibration)."),
+    amplitude_reference: Optional[Path] = typer.Option(
+        None, "--amplitude-reference", help="Wall dataset (white, frontal; e.g. the one of the depth calibration) "
+        "giving the white amplitude per pixel: enables the amplitude-dependent bias correction (needs IR)."),
+    amplitude_max_mm: float = typer.Option(2500.0, help="Use wall stations up to this distance for the amplitude reference [mm]."),
     keep_all: bool = typer.Option(False, "--keep-all", help="Skip object segmentation: keep the whole working range."),
     poisson: bool = typer.Option(False, "--poisson", help="Also write a density-trimmed Poisson mesh (mesh_poisson.ply)."),
     voxel_mm: Optional[float] = typer.Option(None, help="TSDF voxel [mm] (default: 0.6 * range / focal)."),
@@ -41,8 +45,11 @@ def reconstruct(
     cfg.fusion.voxel_mm = voxel_mm
     cfg.preprocess.max_mm = max_mm
     ds = ScanDataset(scan_dir)
+    white_map = None
+    if amplitude_reference is not None:
+        white_map = _white_map(amplitude_reference, cal, ds, amplitude_max_mm)
     console.print(f"{len(ds)} views: {', '.join(ds.names)}; calibration: {calibration or 'none (raw depth)'}")
-    res = ReconstructionPipeline(ds, cal, cfg, progress=progress).run()
+    res = ReconstructionPipeline(ds, cal, cfg, progress=progress, white_map=white_map).run()
     write_reconstruction(output, res, force=force)
     from rich.table import Table
 
@@ -63,6 +70,35 @@ def reconstruct(
     tm = res.diagnostics["timings_s"]
     console.print(f"wrote {output} in {tm['total_s']:.1f} s (views {tm['views_s']:.1f}, registration "
                   f"{tm['registration_s']:.1f}, fusion {tm['fusion_s']:.1f}, meshing {tm['meshing_s']:.1f})")
+
+
+def _white_map(wall_dir: Path, cal, ds, max_mm: float):
+    """White-frontal amplitude per pixel from a wall dataset (mean IR and calibrated mean depth per station)."""
+    from tofmetry.errors import InputError
+    from tofmetry.io import WallDataset
+    from tofmetry.reconstruct import white_amplitude_map
+    from tofmetry.reconstruct._preprocess import robust_mean_fast
+
+    wall = WallDataset(wall_dir)
+    stations = [st for st in wall.stations if st.distance_mm <= max_mm] or wall.stations[:1]
+    intr = cal.intrinsics if cal is not None else ds[0].intrinsics()[0]
+    irs, depths = [], []
+    with progress("amplitude reference (wall)", len(stations)) as adv:
+        for st in stations:
+            cap = st.open()
+            if not cap.has_ir:
+                raise InputError(f"--amplitude-reference: station {st.path} has no IR frames")
+            if cap.shape != intr.shape:
+                raise InputError(f"--amplitude-reference: station {st.path} is {cap.shape}, the scan is {intr.shape}")
+            d = robust_mean_fast(cap.depth_stack(range(min(10, len(cap)))), 3.0, 1)
+            if cal is not None:
+                from tofmetry.calibrate import apply_depth_calibration
+
+                d = apply_depth_calibration(d, cal)
+            irs.append(cap.ir_mean())
+            depths.append(d)
+            adv()
+    return white_amplitude_map(irs, depths, intr)
 
 
 def _parse_floats(text: str, what: str, n: int | None = None) -> tuple[float, ...]:

@@ -60,6 +60,7 @@ def render_figure(points: np.ndarray, deviation_m: np.ndarray, scale_mm: float, 
     q = (p - c) @ vt.T * 1e3  # principal frame [mm]
     views = [(0, 1, 2, "view along 3rd axis"), (0, 2, 1, "view along 2nd axis"), (1, 2, 0, "view along 1st axis")]
     fig, axes = plt.subplots(1, 3, figsize=(15, 5))
+    fig.subplots_adjust(wspace=0.4)
     sc = None
     for ax, (i, j, k, name) in zip(axes, views):
         order = np.argsort(q[:, k])  # painter's order: far first

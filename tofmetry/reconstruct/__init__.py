@@ -7,6 +7,7 @@ optimisation) -> :mod:`._fusion` (TSDF VoxelBlockGrid on undistorted depth, mesh
 :class:`ReconstructionPipeline` runs them; :func:`write_reconstruction` writes the outputs.
 """
 
+from tofmetry.reconstruct._amplitude import PAPER_K_MM_PER_LN, amplitude_bias_mm, white_amplitude_map
 from tofmetry.reconstruct._config import (
     FusionConfig,
     PreprocessConfig,
@@ -23,6 +24,7 @@ from tofmetry.reconstruct._register import PairResult, RegView, make_reg_view, p
 from tofmetry.reconstruct._segment import Segmentation, fit_support_plane, segment_object
 
 __all__ = [
+    "PAPER_K_MM_PER_LN", "amplitude_bias_mm", "white_amplitude_map",
     "FusionConfig", "PreprocessConfig", "ReconstructionConfig", "RegistrationConfig", "SegmentConfig",
     "TSDFFusion", "crop_mesh", "poisson_mesh", "undistort_depth", "undistort_maps",
     "poses_document", "write_reconstruction", "ReconstructionPipeline", "ReconstructionResult",

@@ -14,6 +14,9 @@ class PreprocessConfig(BaseModel):
     min_mm: float = Field(500.0, description="working range: nearest depth kept [mm] (Kinect v2 spec: 500)")
     max_mm: float = Field(2500.0, description="working range: farthest depth kept [mm]; small-object scans are at ~1 m")
     remove_flying: bool = Field(True, description="remove flying (mixed) pixels with tofmetry.assess.remove_flying_pixels")
+    amplitude_k_mm_per_ln: float = Field(6.7, description="amplitude bias k ln(A_white / A) [mm]; 12 mm for 1/6 of the "
+                                         "white amplitude (study §3.3.1) -> 12 / ln 6 = 6.7; used with an amplitude reference")
+    amplitude_max_mm: float = Field(20.0, gt=0, description="clip of the amplitude correction [mm]")
     max_incidence_deg: float = Field(80.0, gt=0, le=90, description="drop grazing points (incidence angle above this) [deg]")
 
 
@@ -43,6 +46,8 @@ class RegistrationConfig(BaseModel):
                         "with k = 1 mm on ~1 mm noise biases the pose by ~0.1 deg / 2 mm, Huber does not")
     max_incidence_deg: float = Field(70.0, gt=0, le=90, description="registration uses points seen at incidence below this [deg] "
                                      "(§6.3 reliability: grazing points are noisy and biased)")
+    fine_max_incidence_deg: float = Field(90.0, gt=0, le=90, description="the fine ICP clouds keep points seen "
+                                          "at incidence below this [deg] (stricter reliability weighting)")
     use_ground: bool = Field(True, description="fine ICP on object + a ring of the support plane (ground constrains tilt/height)")
     min_fitness: float = Field(0.35, ge=0, le=1, description="an edge needs this share of object points matched")
     max_rmse_mm: float = Field(3.0, gt=0, description="...and an inlier RMSE below this [mm]")

@@ -65,15 +65,18 @@ class ReconstructionPipeline:
     calibration : tofmetry.calibrate.DepthCalibration or None (raw data)
     config : ReconstructionConfig
     progress : callable(description, total) -> context manager yielding ``advance(n=1)``
+    white_map : (H, W) white-frontal amplitude reference (enables the amplitude-bias correction)
     """
 
-    def __init__(self, dataset, calibration=None, config: ReconstructionConfig | None = None, progress=None):
+    def __init__(self, dataset, calibration=None, config: ReconstructionConfig | None = None, progress=None,
+                 white_map: np.ndarray | None = None):
         if len(dataset) < 2:
             raise InputError(f"{getattr(dataset, 'path', 'scan')}: {len(dataset)} view(s); at least 2 are needed")
         self.ds = dataset
         self.cal = calibration
         self.cfg = config or ReconstructionConfig()
         self.progress = progress or _no_progress
+        self.white_map = white_map
         self.timings: dict[str, float] = {}
 
     # -- stages -----------------------------------------------------------------------------
@@ -99,7 +102,12 @@ class ReconstructionPipeline:
                 elif intr.shape != intr0.shape:
                     raise SensorMismatchError(f"view {name}: depth {intr.shape} differs from the first view's {intr0.shape}")
                 ir = cap.ir_mean() if cap.has_ir else None
-                v = prepare_view(cap.depth_stack(), intr, self.cal, self.cfg.preprocess, name=name, ir=ir)
+                if self.white_map is not None and ir is None:
+                    raise InputError(f"view {name}: the amplitude correction needs IR frames, {cap.path} has none")
+                if self.white_map is not None and self.white_map.shape != intr.shape:
+                    raise SensorMismatchError(f"amplitude reference is {self.white_map.shape}, view {name} is {intr.shape}")
+                v = prepare_view(cap.depth_stack(), intr, self.cal, self.cfg.preprocess, name=name, ir=ir,
+                                 white_map=self.white_map)
                 try:
                     s = segment_object(v.points, self.cfg.segment, seed=self.cfg.registration.seed)
                 except EstimationError as exc:
@@ -211,6 +219,6 @@ class ReconstructionPipeline:
         self.timings = {"views_s": t1 - t0, "registration_s": t2 - t1, "fusion_s": t3 - t2, "meshing_s": t4 - t3,
                         "total_s": t4 - t0}
         diag = {"views": {v.name: v.stats for v in views}, "fusion": fusion_info, "timings_s": self.timings,
-                "calibrated": self.cal is not None, "intrinsics": intr.to_dict(),
+                "calibrated": self.cal is not None, "amplitude_corrected": self.white_map is not None, "intrinsics": intr.to_dict(),
                 "config": self.cfg.model_dump()}
         return ReconstructionResult(list(self.ds.names), poses, graph.edges, V, F, N, P, PN, poisson, plane_w, diag)

@@ -80,7 +80,7 @@ def _flying_filter(depth: np.ndarray, intr: CameraIntrinsics) -> np.ndarray:
 
 
 def prepare_view(stack: np.ndarray, intr: CameraIntrinsics, calibration=None, config: PreprocessConfig | None = None,
-                 name: str = "view", ir: np.ndarray | None = None) -> ViewData:
+                 name: str = "view", ir: np.ndarray | None = None, white_map: np.ndarray | None = None) -> ViewData:
     """Average, calibrate and clean one view.
 
     Parameters
@@ -88,7 +88,9 @@ def prepare_view(stack: np.ndarray, intr: CameraIntrinsics, calibration=None, co
     stack : (T, H, W) uint16 [mm] depth frames of one pose
     intr : CameraIntrinsics of the depth camera (the calibration's when calibrated)
     calibration : tofmetry.calibrate.DepthCalibration or None
-    ir : (H, W) mean amplitude (optional, kept for colouring)
+    ir : (H, W) mean amplitude (optional; kept for colouring, used by the amplitude correction)
+    white_map : (H, W) white-frontal amplitude at 1 m (:func:`tofmetry.reconstruct.white_amplitude_map`);
+        with ``ir``, the amplitude-dependent bias ``k ln(A_white / A)`` is subtracted
 
     Returns
     -------
@@ -106,6 +108,14 @@ def prepare_view(stack: np.ndarray, intr: CameraIntrinsics, calibration=None, co
 
         depth = np.asarray(apply_depth_calibration(depth, calibration), dtype=np.float64)
         depth[~np.isfinite(depth)] = 0.0
+    amp_mean = 0.0
+    if white_map is not None and ir is not None:
+        from tofmetry.reconstruct._amplitude import amplitude_bias_mm
+
+        b = amplitude_bias_mm(depth, ir, white_map, intr, cfg.amplitude_k_mm_per_ln)
+        b = np.clip(b, -cfg.amplitude_max_mm, cfg.amplitude_max_mm)
+        depth = np.where(depth > 0, depth - b, 0.0)
+        amp_mean = float(np.median(b[depth > 0])) if (depth > 0).any() else 0.0
     n_flying = 0
     if cfg.remove_flying:
         cleaned = np.asarray(_flying_filter(depth, intr), dtype=np.float64)
@@ -125,7 +135,8 @@ def prepare_view(stack: np.ndarray, intr: CameraIntrinsics, calibration=None, co
     keep = ~grazing
     depth.ravel()[idx[grazing]] = 0.0
     stats = {"valid_after_averaging": n_valid0, "flying_removed": n_flying, "out_of_range": int(out_range.sum()),
-             "grazing_removed": int(grazing.sum()), "points": int(keep.sum())}
+             "grazing_removed": int(grazing.sum()), "points": int(keep.sum()),
+             "amplitude_bias_median_mm": amp_mean}
     return ViewData(name, depth, pts[keep], idx[keep], normals[keep], cos_inc[keep], ir, stats)
 
 

@@ -57,7 +57,8 @@ def make_reg_view(view: ViewData, seg: Segmentation, cfg: RegistrationConfig) ->
     # whole object, whose ends constrain the slide along a prism-like middle part
     core = seg.core_mask if seg.core_mask is not None else seg.object_mask
     ring = seg.ring_mask & reliable if cfg.use_ground else np.zeros_like(reliable)
-    sel = (seg.object_mask & reliable) | ring
+    fine = view.cos_incidence >= np.cos(np.radians(cfg.fine_max_incidence_deg))
+    sel = (seg.object_mask & reliable & fine) | (ring & fine)
     p, n = voxel_down(view.points[sel], view.normals[sel], cfg.icp_voxel_mm * 1e-3)
     po, _ = voxel_down(view.points[seg.object_mask & reliable], None, cfg.icp_voxel_mm * 1e-3)
     pf, nf = voxel_down(view.points[core], view.normals[core], cfg.feature_voxel_mm * 1e-3)

@@ -82,11 +82,12 @@ def stage_depth(ctx: StudyContext, out: StageOutcome) -> None:
     ctx.calibration_path = d / "calibration.npz"
     out.figures = _figs(write_depth_report(run, d / "fit"), "fit: ")
     rows = run.stations
-    out.data = {"kind": run.kind, "intrinsics_source": run.intrinsics_source, "offset_mm": cal.offset_mm,
+    src = ctx.intrinsics_source if ctx.intrinsics is not None else run.intrinsics_source
+    out.data = {"kind": run.kind, "intrinsics_source": src, "offset_mm": cal.offset_mm,
                 "valid_range_mm": list(cal.valid_range_mm), "surface_model": cal.surface_model,
                 "fit_seconds": run.seconds, "notes": list(run.notes), "stations": rows}
     out.paragraphs.append(
-        f"Fitted on {len(rows)} stations ({run.kind}); intrinsics: {run.intrinsics_source}. Offset between the "
+        f"Fitted on {len(rows)} stations ({run.kind}); intrinsics: {src}. Offset between the "
         f"stations' reference point and the optical centre, absorbed by the range curve: {cal.offset_mm:+.1f} mm. "
         f"Corrected range {cal.valid_range_mm[0]:.0f}–{cal.valid_range_mm[1]:.0f} mm; surfaces: {cal.surface_model}.")
     out.paragraphs += list(run.notes)
