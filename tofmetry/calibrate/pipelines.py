@@ -451,10 +451,13 @@ class ValidationRun:
 
 
 def validate_depth(path: Path, cal: DepthCalibration, *, intrinsics: CameraIntrinsics | None = None, tilted: bool = False,
-                   reference_offset_mm: float = 0.0, cross_validate: bool = False, advance=None) -> ValidationRun:
+                   reference_offset_mm: float = 0.0, cross_validate: bool = False,
+                   cv_surfaces: tuple[str, ...] = ("spline", "poly3"), advance=None) -> ValidationRun:
     """Per-station before/after metrics of ``cal`` on the wall dataset ``path`` (stations the
     calibration was fitted on are marked not held out), plus optional leave-one-station-out
-    cross-validation of the wall fit on ``path`` (spline and cubic polynomial surfaces)."""
+    cross-validation of the wall fit on ``path`` for the surface models ``cv_surfaces``
+    ("spline": tensor-product spline, "poly3": the study's cubic polynomial). Each model costs one
+    refit per station."""
     from tofmetry.calibrate._fit import DepthFitConfig
     from tofmetry.calibrate._validate import cross_validate as _cv
     from tofmetry.calibrate._validate import evaluate_wall_station, summarize, with_surface
@@ -488,7 +491,12 @@ def validate_depth(path: Path, cal: DepthCalibration, *, intrinsics: CameraIntri
         dists = [st.distance_mm - reference_offset_mm for st in stations]
         cvres = {}
         base = DepthFitConfig()
-        for label, cfg in (("spline", with_surface(base, "spline")), ("poly3", with_surface(base, "poly", degree=3))):
+        models = {"spline": with_surface(base, "spline"), "poly3": with_surface(base, "poly", degree=3)}
+        unknown = [m for m in cv_surfaces if m not in models]
+        if unknown:
+            raise InputError(f"cv_surfaces: unknown surface model(s) {unknown}; choose from {sorted(models)}")
+        for label in cv_surfaces:
+            cfg = models[label]
             r = _cv(samples, dists, intr, cfg, frontal=not tilted, sensor=sensor, advance=adv)
             cvres[label] = {"stations": r, "summary": summarize(r)}
     return ValidationRun(reports, summarize(reports), maps, cvres, cal, str(path), [s.center_std_mm for s in stats], notes)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Optional
 
@@ -19,15 +20,22 @@ def reconstruct(
         None, "--amplitude-reference", help="Wall dataset (white, frontal; e.g. the one of the depth calibration) "
         "giving the white amplitude per pixel: enables the amplitude-dependent bias correction (needs IR)."),
     amplitude_max_mm: float = typer.Option(2500.0, help="Use wall stations up to this distance for the amplitude reference [mm]."),
+    amplitude_k: float = typer.Option(
+        12.0 / math.log(6.0), "--amplitude-k",
+        help="Slope k of the amplitude bias k ln(A_white / A) [mm per unit ln]; default the paper's 12 / ln 6 = 6.70 "
+        "(pass the slope measured by 'tofmetry assess materials')."),
     keep_all: bool = typer.Option(False, "--keep-all", help="Skip object segmentation: keep the whole working range."),
     poisson: bool = typer.Option(False, "--poisson", help="Also write a density-trimmed Poisson mesh (mesh_poisson.ply)."),
     voxel_mm: Optional[float] = typer.Option(None, help="TSDF voxel [mm] (default: 0.6 * range / focal)."),
     max_mm: float = typer.Option(2500.0, help="Farthest depth kept [mm]."),
     force: bool = typer.Option(False, "--force", help="Replace an existing output folder."),
+    allow_unreliable: bool = typer.Option(
+        False, "--allow-unreliable", help="Exit 0 even when the pose-graph consistency gate flags the registration "
+        "unreliable (the outputs are written and flagged in poses.json either way; without this option the exit code is 3)."),
 ) -> None:
     """Automatic 3D model of an object from several views: segment, register (pose graph), fuse (TSDF), mesh."""
     from tofmetry.errors import InputError
-    from tofmetry.io import ScanDataset
+    from tofmetry.io import ScanDataset, WallDataset
     from tofmetry.reconstruct import ReconstructionConfig, ReconstructionPipeline, write_reconstruction
 
     if (calibration is None) == (not no_calibration):
@@ -44,10 +52,16 @@ def reconstruct(
     cfg.fusion.poisson = poisson
     cfg.fusion.voxel_mm = voxel_mm
     cfg.preprocess.max_mm = max_mm
+    cfg.preprocess.amplitude_k_mm_per_ln = amplitude_k
     ds = ScanDataset(scan_dir)
     white_map = None
     if amplitude_reference is not None:
-        white_map = _white_map(amplitude_reference, cal, ds, amplitude_max_mm)
+        from tofmetry.reconstruct import white_map_from_wall
+
+        n_st = sum(st.distance_mm <= amplitude_max_mm for st in WallDataset(amplitude_reference).stations) or 1
+        with progress("amplitude reference (wall)", n_st) as adv:
+            white_map = white_map_from_wall(amplitude_reference, cal, None if cal is not None else ds[0].intrinsics()[0],
+                                            amplitude_max_mm, advance=adv)
     console.print(f"{len(ds)} views: {', '.join(ds.names)}; calibration: {calibration or 'none (raw depth)'}")
     res = ReconstructionPipeline(ds, cal, cfg, progress=progress, white_map=white_map).run()
     write_reconstruction(output, res, force=force)
@@ -70,35 +84,18 @@ def reconstruct(
     tm = res.diagnostics["timings_s"]
     console.print(f"wrote {output} in {tm['total_s']:.1f} s (views {tm['views_s']:.1f}, registration "
                   f"{tm['registration_s']:.1f}, fusion {tm['fusion_s']:.1f}, meshing {tm['meshing_s']:.1f})")
-
-
-def _white_map(wall_dir: Path, cal, ds, max_mm: float):
-    """White-frontal amplitude per pixel from a wall dataset (mean IR and calibrated mean depth per station)."""
-    from tofmetry.errors import InputError
-    from tofmetry.io import WallDataset
-    from tofmetry.reconstruct import white_amplitude_map
-    from tofmetry.reconstruct._preprocess import robust_mean_fast
-
-    wall = WallDataset(wall_dir)
-    stations = [st for st in wall.stations if st.distance_mm <= max_mm] or wall.stations[:1]
-    intr = cal.intrinsics if cal is not None else ds[0].intrinsics()[0]
-    irs, depths = [], []
-    with progress("amplitude reference (wall)", len(stations)) as adv:
-        for st in stations:
-            cap = st.open()
-            if not cap.has_ir:
-                raise InputError(f"--amplitude-reference: station {st.path} has no IR frames")
-            if cap.shape != intr.shape:
-                raise InputError(f"--amplitude-reference: station {st.path} is {cap.shape}, the scan is {intr.shape}")
-            d = robust_mean_fast(cap.depth_stack(range(min(10, len(cap)))), 3.0, 1)
-            if cal is not None:
-                from tofmetry.calibrate import apply_depth_calibration
-
-                d = apply_depth_calibration(d, cal)
-            irs.append(cap.ir_mean())
-            depths.append(d)
-            adv()
-    return white_amplitude_map(irs, depths, intr)
+    cons = res.diagnostics.get("consistency") or {}
+    if cons.get("cycle_closure_mm") is not None:
+        console.print(f"consistency: view circle closes to {cons['cycle_closure_deg']:.2f} deg / {cons['cycle_closure_mm']:.1f} mm "
+                      f"({cons['cycle_per_edge_deg']:.2f} deg / {cons['cycle_per_edge_mm']:.1f} mm per edge), worst kept edge "
+                      f"residual {cons['max_kept_residual_deg']:.2f} deg / {cons['max_kept_residual_mm']:.1f} mm")
+    if not res.diagnostics.get("reliable", True):
+        console.print("[bold red]WARNING: registration UNRELIABLE[/bold red] (flagged in poses.json): "
+                      + "; ".join(cons.get("reasons", [])))
+        console.print("The model was written for inspection; do not use it as a measurement. Typical causes: raw "
+                      "(uncalibrated) depth, a nearly symmetric object registered flipped, too little overlap.")
+        if not allow_unreliable:
+            raise typer.Exit(3)
 
 
 def _parse_floats(text: str, what: str, n: int | None = None) -> tuple[float, ...]:
@@ -141,6 +138,9 @@ def evaluate(
     exclude_normal: Optional[str] = typer.Option(None, help="x,y,z: leave reference surface facing this way (e.g. the face on "
                                                  "the ground: 0,0,-1) out of completeness."),
     color_scale_mm: float = typer.Option(5.0, help="Deviation colour scale +-[mm] (diverging, saturating)."),
+    poses: Optional[Path] = typer.Option(None, "--poses", help="The reconstruction's poses.json: also report completeness "
+                                         "over the reference surface the registered cameras could see (frustum, working "
+                                         "range, incidence, occlusion)."),
 ) -> None:
     """Accuracy of a model against a reference: align, signed distances, statistics, completeness, figures."""
     from tofmetry.evaluate import EvaluationConfig, evaluate_model, write_evaluation
@@ -153,8 +153,14 @@ def evaluate(
     m = read_geometry(model, "model")
     r = read_geometry(reference, "reference")
     init = _read_transform(init_transform) if init_transform is not None else None
+    cams = None
+    if poses is not None:
+        from tofmetry.evaluate import CameraViews
+        from tofmetry.io import read_json
+
+        cams = CameraViews.from_document(read_json(poses, "poses"), str(poses))
     with progress("evaluating", None):
-        res = evaluate_model(m, r, cfg, init=init)
+        res = evaluate_model(m, r, cfg, init=init, poses=cams)
     write_evaluation(output, res, title=model.name)
     s, st = res.stats_all, res.stats_trimmed
     from rich.table import Table
@@ -169,6 +175,9 @@ def evaluate(
     c5 = res.completeness.get("5")
     if c5:
         console.print(f"completeness at 5 mm {c5['completeness']:.1%}, F-score {c5['fscore']:.3f}")
+    if res.completeness_observed is not None and res.completeness_observed.get("5"):
+        console.print(f"observed-surface completeness at 5 mm {res.completeness_observed['5']['completeness']:.1%} "
+                      f"({res.observed['observed_share']:.1%} of the reference surface seen by a registered camera)")
     if res.alignment is not None:
         console.print(f"alignment: fitness {res.alignment.fitness:.3f}, inlier RMSE {res.alignment.inlier_rmse_mm:.2f} mm")
     console.print(f"wrote {output}")

@@ -18,6 +18,7 @@ from tofmetry.evaluate._evaluate import EvaluationConfig, EvaluationResult, eval
 from tofmetry.evaluate._figures import deviation_colors, histogram_figure, render_figure
 from tofmetry.evaluate._output import write_evaluation
 from tofmetry.evaluate._stats import DeviationStats, check_units, completeness_fscore, deviation_stats
+from tofmetry.evaluate._visibility import CameraViews, observed_mask
 
 __all__ = [
     "AlignmentResult", "align_to_reference", "apply_transform",
@@ -25,4 +26,5 @@ __all__ = [
     "EvaluationConfig", "EvaluationResult", "evaluate_model",
     "deviation_colors", "histogram_figure", "render_figure", "write_evaluation",
     "DeviationStats", "check_units", "completeness_fscore", "deviation_stats",
+    "CameraViews", "observed_mask",
 ]

@@ -16,6 +16,7 @@ from tofmetry.evaluate._distance import (
     sharp_edge_samples,
 )
 from tofmetry.evaluate._stats import DeviationStats, check_units, completeness_fscore, deviation_stats
+from tofmetry.evaluate._visibility import CameraViews, observed_mask
 from tofmetry.io.mesh import Geometry
 
 
@@ -43,6 +44,11 @@ class EvaluationConfig(BaseModel):
         "reference surface whose normal is within exclude_angle_deg of it is left out of completeness")
     exclude_angle_deg: float = Field(30.0, description="cone half-angle for exclude_normal [deg]")
     color_scale_mm: float = Field(5.0, gt=0, description="deviation colour scale: diverging, +-this value, saturating [mm]")
+    observed_max_incidence_deg: float = Field(80.0, gt=0, le=90, description="observed-surface completeness (needs the "
+                                              "reconstruction's poses): a camera sees reference surface facing it at an "
+                                              "incidence below this [deg] (the reconstruction drops grazing pixels at 80)")
+    observed_occlusion_tol_mm: float = Field(3.0, ge=0, description="a reference sample is occluded for a camera when "
+                                             "the reference mesh is hit more than this before it along the ray [mm]")
     seed: int = 0
 
 
@@ -56,7 +62,10 @@ class EvaluationResult:
     deviation_m : (N,) signed distances to the reference [m]
     on_edge : (N,) bool, excluded by edge trimming
     stats_all, stats_trimmed : DeviationStats
-    completeness : dict from :func:`completeness_fscore`
+    completeness : dict from :func:`completeness_fscore` (whole reference surface, minus ``exclude_normal``)
+    completeness_observed : same structure over the reference surface seen by at least one
+        camera of the reconstruction (None without poses)
+    observed : diagnostics of the visibility test (share seen, cameras, rule) or None
     alignment : AlignmentResult or None
     """
 
@@ -70,6 +79,8 @@ class EvaluationResult:
     comparison: str
     config: EvaluationConfig
     info: dict = field(default_factory=dict)
+    completeness_observed: dict | None = None
+    observed: dict | None = None
 
     def to_dict(self) -> dict:
         c = self.config
@@ -87,6 +98,8 @@ class EvaluationResult:
             },
             "completeness": self.completeness,
             "completeness_excluded": {"normal": c.exclude_normal, "angle_deg": c.exclude_angle_deg},
+            "completeness_observed": self.completeness_observed,
+            "observed_surface": self.observed,
             "alignment": None if self.alignment is None else self.alignment.to_dict(),
             "color_scale": {"map": "RdBu_r (diverging)", "min_mm": -c.color_scale_mm, "max_mm": c.color_scale_mm,
                             "saturating": True},
@@ -108,13 +121,16 @@ def _surface_samples(g: Geometry, spacing_m: float, seed: int, what: str):
 
 
 def evaluate_model(model: Geometry, reference: Geometry, config: EvaluationConfig | None = None,
-                   init: np.ndarray | None = None) -> EvaluationResult:
+                   init: np.ndarray | None = None, poses: CameraViews | dict | None = None) -> EvaluationResult:
     """Align ``model`` to ``reference`` and measure its deviations.
 
     Parameters
     ----------
     model, reference : Geometry in metres (cloud or mesh)
     init : optional (4, 4) initial model->reference transform
+    poses : the reconstruction's cameras in the model frame: a :class:`CameraViews` or the
+        poses.json document (dict). When given, completeness is also reported over the
+        reference surface that at least one camera could see (``completeness_observed``).
 
     Raises
     ------
@@ -163,6 +179,21 @@ def evaluate_model(model: Geometry, reference: Geometry, config: EvaluationConfi
     else:
         rd = distances_to_cloud(ref_q, mod_pts).distance
     comp = completeness_fscore(cp.distance, rd, cfg.thresholds_mm)
+    comp_obs = obs_info = None
+    if poses is not None:
+        cams = poses if isinstance(poses, CameraViews) else CameraViews.from_document(poses)
+        seen, count = observed_mask(ref_q, ref_n[ref_keep], cams, T,
+                                    (reference.points, reference.faces) if reference.is_mesh else None,
+                                    cfg.observed_max_incidence_deg, cfg.observed_occlusion_tol_mm * 1e-3)
+        comp_obs = completeness_fscore(cp.distance, rd[seen], cfg.thresholds_mm)
+        obs_info = {"observed_share": float(seen.mean()) if seen.size else 0.0, "n_cameras": int(len(cams.poses)),
+                    "mean_cameras_per_observed_sample": float(count[seen].mean()) if seen.any() else 0.0,
+                    "occlusion_tested": bool(reference.is_mesh),
+                    "rule": "reference samples (after exclude_normal) in front of at least one registered camera, "
+                            "inside its image and working range, facing it at incidence <= observed_max_incidence_deg "
+                            "and not occluded by the reference mesh; cameras from the reconstruction's poses.json "
+                            "carried into the reference frame by the alignment (no truth used)"}
     info = {"n_model_samples": int(len(mod_pts)), "n_reference_samples": int(len(ref_q)),
             "model": model.source, "reference": reference.source}
-    return EvaluationResult(mod_pts, cp.distance, on_edge, stats_all, stats_trim, comp, alignment, comparison, cfg, info)
+    return EvaluationResult(mod_pts, cp.distance, on_edge, stats_all, stats_trim, comp, alignment, comparison, cfg, info,
+                            comp_obs, obs_info)

@@ -121,14 +121,25 @@ def temporal_stats(frames, median: bool = False) -> TemporalStats:
     return res
 
 
+def _nan_median(a: np.ndarray, cnt: np.ndarray) -> np.ndarray:
+    """Median over axis 0 of an array whose invalid samples are NaN, by sorting (NaN sorts last)."""
+    srt = np.sort(a, axis=0)
+    lo = np.clip((cnt - 1) // 2, 0, None)[None]
+    hi = np.clip(cnt // 2, 0, None)[None]
+    return 0.5 * (np.take_along_axis(srt, lo, 0)[0] + np.take_along_axis(srt, hi, 0)[0])
+
+
 def robust_mean_depth(stack: np.ndarray, k: float = 3.0, min_count: int = 1) -> np.ndarray:
-    """Temporal mean with outlier rejection (median +- k * 1.4826 MAD, zeros ignored).
+    """Temporal mean with outlier rejection: the mean of the samples within
+    median +- k * max(1.4826 MAD, 0.5 mm), zeros ignored (0.5 mm: the quantisation floor of integer mm).
 
     Parameters
     ----------
     stack : (T, H, W) uint16/float [mm]
     k : float
         Rejection threshold in robust standard deviations.
+    min_count : int
+        Pixels with fewer surviving samples are 0.
 
     Returns
     -------
@@ -138,15 +149,11 @@ def robust_mean_depth(stack: np.ndarray, k: float = 3.0, min_count: int = 1) -> 
     if st.ndim != 3 or st.shape[0] == 0:
         raise InputError(f"robust_mean_depth: expected (T, H, W) with T >= 1, found {st.shape}")
     st = np.where(st > 0, st, np.nan)
-    import warnings
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        med = np.nanmedian(st, axis=0)
-        mad = np.nanmedian(np.abs(st - med), axis=0) * 1.4826
-        mad = np.maximum(mad, 0.5)  # 1 mm quantisation floor
+    cnt = np.sum(~np.isnan(st), axis=0)
+    med = _nan_median(st, cnt)
+    mad = np.maximum(_nan_median(np.abs(st - med), cnt) * 1.4826, 0.5)
+    with np.errstate(invalid="ignore"):
         keep = np.abs(st - med) <= k * mad
-        cnt = keep.sum(axis=0)
-        s = np.where(keep, st, 0.0).sum(axis=0)
-        out = np.where(cnt >= min_count, s / np.maximum(cnt, 1), 0.0)
-    return out
+    n = keep.sum(axis=0)
+    s = np.where(keep, st, 0.0).sum(axis=0)
+    return np.where((n >= min_count) & (cnt > 0), s / np.maximum(n, 1), 0.0)

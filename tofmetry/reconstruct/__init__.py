@@ -7,7 +7,12 @@ optimisation) -> :mod:`._fusion` (TSDF VoxelBlockGrid on undistorted depth, mesh
 :class:`ReconstructionPipeline` runs them; :func:`write_reconstruction` writes the outputs.
 """
 
-from tofmetry.reconstruct._amplitude import PAPER_K_MM_PER_LN, amplitude_bias_mm, white_amplitude_map
+from tofmetry.reconstruct._amplitude import (
+    PAPER_K_MM_PER_LN,
+    amplitude_bias_mm,
+    white_amplitude_map,
+    white_map_from_wall,
+)
 from tofmetry.reconstruct._config import (
     FusionConfig,
     PreprocessConfig,
@@ -18,17 +23,23 @@ from tofmetry.reconstruct._config import (
 from tofmetry.reconstruct._fusion import TSDFFusion, crop_mesh, poisson_mesh, undistort_depth, undistort_maps
 from tofmetry.reconstruct._output import poses_document, write_reconstruction
 from tofmetry.reconstruct._pipeline import ReconstructionPipeline, ReconstructionResult
-from tofmetry.reconstruct._posegraph import PoseGraphBuilder, PoseGraphResult, connected_components, rotation_angle_deg
+from tofmetry.reconstruct._posegraph import (
+    PoseGraphBuilder,
+    PoseGraphResult,
+    connected_components,
+    consistency_gate,
+    rotation_angle_deg,
+)
 from tofmetry.reconstruct._preprocess import ViewData, image_normals, prepare_view
 from tofmetry.reconstruct._register import PairResult, RegView, make_reg_view, plane_consistent, register_pair
 from tofmetry.reconstruct._segment import Segmentation, fit_support_plane, segment_object
 
 __all__ = [
-    "PAPER_K_MM_PER_LN", "amplitude_bias_mm", "white_amplitude_map",
+    "PAPER_K_MM_PER_LN", "amplitude_bias_mm", "white_amplitude_map", "white_map_from_wall",
     "FusionConfig", "PreprocessConfig", "ReconstructionConfig", "RegistrationConfig", "SegmentConfig",
     "TSDFFusion", "crop_mesh", "poisson_mesh", "undistort_depth", "undistort_maps",
     "poses_document", "write_reconstruction", "ReconstructionPipeline", "ReconstructionResult",
-    "PoseGraphBuilder", "PoseGraphResult", "connected_components", "rotation_angle_deg",
+    "PoseGraphBuilder", "PoseGraphResult", "connected_components", "consistency_gate", "rotation_angle_deg",
     "ViewData", "image_normals", "prepare_view",
     "PairResult", "RegView", "make_reg_view", "plane_consistent", "register_pair",
     "Segmentation", "fit_support_plane", "segment_object",

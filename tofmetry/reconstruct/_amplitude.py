@@ -67,3 +67,55 @@ def amplitude_bias_mm(depth_mm: np.ndarray, ir: np.ndarray, white_map: np.ndarra
     a_white = white_map[ok] / r[ok] ** 2
     out[ok] = k_mm_per_ln * np.log(a_white / np.asarray(ir, np.float64)[ok])
     return out
+
+
+def white_map_from_wall(wall_dir, calibration=None, intrinsics: CameraIntrinsics | None = None, max_mm: float = 2500.0,
+                        advance=None, max_frames: int = 10) -> np.ndarray:
+    """White-frontal amplitude per pixel from a wall dataset (the amplitude reference of the scan).
+
+    Per station: mean IR and robust mean depth of the first ``max_frames`` frames, calibrated with
+    ``calibration`` when given, then :func:`white_amplitude_map`.
+
+    Parameters
+    ----------
+    wall_dir : path of a wall dataset (stations.csv + captures with IR; white, frontal wall)
+    calibration : tofmetry.calibrate.DepthCalibration or None; its intrinsics are used when present
+    intrinsics : CameraIntrinsics used without calibration (None: the first station's own)
+    max_mm : stations farther than this [mm] are not used (the nearest one is kept if none remains)
+    advance : optional callable, called once per station processed (progress)
+
+    Returns
+    -------
+    (H, W) float64 white amplitude at 1 m [amplitude * m^2], NaN where unknown.
+
+    Raises
+    ------
+    InputError when a station has no IR frames or its size differs from the intrinsics.
+    """
+    from tofmetry.io import WallDataset
+    from tofmetry.reconstruct._preprocess import robust_mean_fast
+
+    wall = WallDataset(wall_dir)
+    stations = [st for st in wall.stations if st.distance_mm <= max_mm] or wall.stations[:1]
+    intr = calibration.intrinsics if calibration is not None else intrinsics
+    irs, depths = [], []
+    for st in stations:
+        cap = st.open()
+        if intr is None:
+            intr = cap.intrinsics()[0]
+        if not cap.has_ir:
+            raise InputError(f"amplitude reference {wall_dir}: station {st.path} has no IR frames (IR is needed)")
+        if cap.shape != intr.shape:
+            raise InputError(f"amplitude reference {wall_dir}: station {st.path} is {cap.shape}, "
+                             f"expected {intr.shape} (the scan's depth size)")
+        d = robust_mean_fast(cap.depth_stack(range(min(max_frames, len(cap)))), 3.0, 1)
+        if calibration is not None:
+            from tofmetry.calibrate import apply_depth_calibration
+
+            d = np.asarray(apply_depth_calibration(d, calibration), np.float64)
+            d[~np.isfinite(d)] = 0.0
+        irs.append(cap.ir_mean())
+        depths.append(d)
+        if advance is not None:
+            advance()
+    return white_amplitude_map(irs, depths, intr)

@@ -14,8 +14,12 @@ def poses_document(res: ReconstructionResult) -> dict:
     return {
         "world": "camera frame of the first view in name order (x right, y down, z forward), metres",
         "convention": "camera_to_world 4x4",
+        "reliable": res.diagnostics.get("reliable", True),
+        "consistency": res.diagnostics.get("consistency"),
         "views": [{"name": n, "camera_to_world": T.tolist()} for n, T in zip(res.names, res.poses)],
         "edges": res.edges,
+        "intrinsics": res.diagnostics.get("intrinsics"),
+        "working_range_mm": res.diagnostics.get("working_range_mm"),
         "support_plane_world": None if res.support_plane is None else res.support_plane.tolist(),
         "diagnostics": res.diagnostics,
     }

@@ -40,7 +40,8 @@ class ReconstructionResult:
     points, normals : cropped fused cloud
     poisson : (vertices, triangles) or None
     support_plane : (4,) world-frame plane (unit normal up, offset) or None
-    diagnostics : per-view stats, fusion parameters, timings [s]
+    diagnostics : per-view stats, fusion parameters, timings [s], "reliable" (bool) and
+        "consistency" (the pose-graph consistency gate: reasons when unreliable)
     """
 
     names: list
@@ -151,7 +152,7 @@ class ReconstructionPipeline:
                         init = np.linalg.inv(chain[j]) @ chain[i]
                         pg.add(register_pair(regs[i], regs[j], i, j, rc, init=init, global_search=False))
                     adv()
-        return pg.optimize(rc.icp_radii_mm[-1] * 1e-3, rc.edge_prune)
+        return pg.optimize(rc.icp_radii_mm[-1] * 1e-3, rc.edge_prune, rc.gate_max_deg, rc.gate_max_mm)
 
     def fuse(self, views, segs, poses, intr):
         fc = self.cfg.fusion
@@ -184,6 +185,13 @@ class ReconstructionPipeline:
         if plane_w is not None:
             keep &= pts @ plane_w[:3] + plane_w[3] > 0.5 * self.cfg.segment.min_height_mm * 1e-3
         return keep
+
+    def working_range_mm(self) -> list[float]:
+        """Depth range [mm] kept by the preprocessing (working range within the calibrated span)."""
+        lo, hi = self.cfg.preprocess.min_mm, self.cfg.preprocess.max_mm
+        if self.cal is not None:
+            lo, hi = max(lo, float(self.cal.valid_range_mm[0])), min(hi, float(self.cal.valid_range_mm[1]))
+        return [float(lo), float(hi)]
 
     # -- driver -------------------------------------------------------------------------------
     def run(self) -> ReconstructionResult:
@@ -218,7 +226,8 @@ class ReconstructionPipeline:
         t4 = time.perf_counter()
         self.timings = {"views_s": t1 - t0, "registration_s": t2 - t1, "fusion_s": t3 - t2, "meshing_s": t4 - t3,
                         "total_s": t4 - t0}
-        diag = {"views": {v.name: v.stats for v in views}, "fusion": fusion_info, "timings_s": self.timings,
+        diag = {"consistency": graph.consistency, "reliable": bool(graph.consistency["reliable"]),
+                "views": {v.name: v.stats for v in views}, "fusion": fusion_info, "timings_s": self.timings,
                 "calibrated": self.cal is not None, "amplitude_corrected": self.white_map is not None, "intrinsics": intr.to_dict(),
-                "config": self.cfg.model_dump()}
+                "working_range_mm": self.working_range_mm(), "config": self.cfg.model_dump()}
         return ReconstructionResult(list(self.ds.names), poses, graph.edges, V, F, N, P, PN, poisson, plane_w, diag)

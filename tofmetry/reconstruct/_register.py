@@ -28,6 +28,7 @@ class RegView:
     icp_points, icp_normals : (M, 3) object (+ ground ring) at the ICP voxel
     obj_points : (K, 3) object only at the ICP voxel (fitness is measured on these)
     coarse_points, coarse_normals : main cluster (+ ring) at the coarse voxel (quick ICP of hypotheses)
+    mid_points, mid_normals : the ICP selection at the mid voxel (all ICP stages but the last run on these)
     feat_points, feat_normals : (F, 3) object at the feature voxel (FPFH)
     """
 
@@ -40,6 +41,8 @@ class RegView:
     coarse_points: np.ndarray | None = None
     coarse_normals: np.ndarray | None = None
     plane: np.ndarray | None = None
+    mid_points: np.ndarray | None = None
+    mid_normals: np.ndarray | None = None
     _tree: cKDTree | None = field(default=None, repr=False)
 
     @property
@@ -64,7 +67,8 @@ def make_reg_view(view: ViewData, seg: Segmentation, cfg: RegistrationConfig) ->
     pf, nf = voxel_down(view.points[core], view.normals[core], cfg.feature_voxel_mm * 1e-3)
     csel = (core & reliable) | ring
     pc, nc = voxel_down(view.points[csel], view.normals[csel], cfg.coarse_voxel_mm * 1e-3)
-    return RegView(view.name, p, n, po, pf, nf, pc, nc, seg.plane)
+    pm, nm = voxel_down(view.points[sel], view.normals[sel], cfg.mid_voxel_mm * 1e-3)
+    return RegView(view.name, p, n, po, pf, nf, pc, nc, seg.plane, pm, nm)
 
 
 def _plane_frame(plane: np.ndarray, obj: np.ndarray) -> np.ndarray:
@@ -131,11 +135,24 @@ class PairResult:
                 "inlier_rmse_mm": round(self.inlier_rmse_mm, 3), "method": self.method, "accepted": self.accepted}
 
 
-def _refine(src: RegView, tgt: RegView, init: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:
+def _refine_mid(src: RegView, tgt: RegView, init: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:
+    """All ICP stages but the last, on the mid-voxel clouds (cheap; within ~1 mm of the fine result)."""
     T = init
-    for r in cfg.icp_radii_mm:
-        T = icp(src.icp_points, tgt.icp_points, tgt.icp_normals, T, r * 1e-3, kernel=cfg.kernel).transform
+    sp, tp, tn = ((src.mid_points, tgt.mid_points, tgt.mid_normals) if src.mid_points is not None
+                  else (src.icp_points, tgt.icp_points, tgt.icp_normals))
+    for r in cfg.icp_radii_mm[:-1]:
+        T = icp(sp, tp, tn, T, r * 1e-3, kernel=cfg.kernel, max_iter=cfg.icp_max_iter).transform
     return T
+
+
+def _refine_fine(src: RegView, tgt: RegView, init: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:
+    """The last (narrowest) ICP stage on the full ICP clouds."""
+    return icp(src.icp_points, tgt.icp_points, tgt.icp_normals, init, cfg.icp_radii_mm[-1] * 1e-3, kernel=cfg.kernel,
+               max_iter=cfg.icp_max_iter).transform
+
+
+def _refine(src: RegView, tgt: RegView, init: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:
+    return _refine_fine(src, tgt, _refine_mid(src, tgt, init, cfg), cfg)
 
 
 def object_fitness(src: RegView, tgt: RegView, T: np.ndarray, radius_m: float) -> tuple[float, float]:
@@ -170,10 +187,11 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
     r_final = cfg.icp_radii_mm[-1] * 1e-3
     cands = []
     if init is not None:
-        T = _refine(src, tgt, init, cfg)
+        T = _refine_mid(src, tgt, init, cfg)
         E = np.linalg.inv(init) @ T
         jump_deg = np.degrees(np.arccos(np.clip((np.trace(E[:3, :3]) - 1) / 2, -1, 1)))
         if global_search or (jump_deg <= cfg.max_loop_jump_deg and np.linalg.norm(E[:3, 3]) * 1e3 <= cfg.max_loop_jump_mm):
+            T = _refine_fine(src, tgt, T, cfg)
             cands.append((*object_fitness(src, tgt, T, r_final), T, "init+icp"))
     if global_search and (not cands or not _passes(cands[0][0], cands[0][1], cfg) or not plane_consistent(src, tgt, cands[0][2])):
         coarse = []
@@ -198,8 +216,16 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
         for c in quick:
             if all(not _same_pose(c[2], d[2]) for d in distinct):
                 distinct.append(c)
+        # coarse-to-fine: the distinct hypotheses are refined on the mid-voxel clouds and ranked;
+        # only the winner gets the last ICP stage on the full clouds
+        mids = []
         for fit0, rm0, T0, how in distinct[:cfg.refine_candidates]:
-            T = _refine(src, tgt, T0, cfg)
+            T = _refine_mid(src, tgt, T0, cfg)
+            if plane_consistent(src, tgt, T):
+                mids.append((*object_fitness(src, tgt, T, r_final), T, how))
+        if mids:
+            fit, rm, T, how = max(mids, key=lambda c: (c[0], -c[1]))
+            T = _refine_fine(src, tgt, T, cfg)
             if plane_consistent(src, tgt, T):
                 cands.append((*object_fitness(src, tgt, T, r_final), T, how))
     if not cands:

@@ -38,7 +38,7 @@ class SimulationConfig(_Cfg):
         default_factory=lambda: [1125.0, 1625.0, 2375.0, 3125.0, 3875.0],
         description="Held-out wall stations never used for fitting [mm].",
     )
-    validation_frames: int = Field(20, ge=1, description="Frames per held-out validation station.")
+    validation_frames: int = Field(50, ge=1, description="Frames per held-out validation station (as the training stations).")
     scan_views: int = Field(8, ge=2, description="Viewpoints around the object (study: 8).")
     scan_frames: int = Field(10, ge=1, description="Frames per viewpoint (study: 10).")
     scan_radius_m: float = Field(1.0, gt=0, description="Distance camera-object [m] (study: about 1 m).")
@@ -74,7 +74,15 @@ class DepthConfig(_Cfg):
 
     central_patch_px: int = Field(10, ge=1, description="Central patch for the range-error curve [px] (study: 10x10).")
     max_fit_distance_mm: float = Field(4500.0, gt=0, description="Stations beyond this are reported but not fitted (sensor range).")
-    cross_validate: bool = Field(True, description="Leave-one-station-out cross-validation.")
+    cross_validate: bool = Field(True, description="Leave-one-station-out cross-validation on the training stations.")
+    cv_surfaces: list[str] = Field(default_factory=lambda: ["spline"],
+                                   description="Surface models cross-validated (spline, poly3); each costs one refit per station.")
+    compare_polynomial: bool = Field(True, description="Also fit the study's cubic-polynomial surfaces and compare them "
+                                     "with the tensor-spline surfaces on the held-out stations.")
+    reference_offset_mm: float = Field(
+        20.0, description="Distance from the stations' reference point (tripod fixing screw) forward to the optical "
+        "centre, known from the mount; it is taken out of the station distances so that corrected depth is measured "
+        "from the optical centre (study §4.2.2: about 2 cm). Any remaining constant is absorbed and reported.")
 
 
 class ModelConfig(_Cfg):
@@ -84,6 +92,12 @@ class ModelConfig(_Cfg):
     thresholds_mm: list[float] = Field(default_factory=lambda: [1.0, 2.0, 5.0, 10.0],
                                        description="Deviation thresholds for the 'share within' statistics [mm].")
     compare_uncalibrated: bool = Field(True, description="Also reconstruct without depth calibration, to show what it buys.")
+    amplitude_correction: bool = Field(
+        True, description="Correct the amplitude-related range bias (study §3.3.1) of the object's views, using the "
+        "white wall's IR amplitude as reference (needs IR in wall/ and scan/).")
+    amplitude_k_mm_per_ln: float | None = Field(
+        None, description="Slope of the amplitude bias [mm per ln(A_white/A)]; unset: the slope measured by the "
+        "materials stage, else the study's figure (+12 mm at 1/6 amplitude, i.e. 12/ln 6).")
 
 
 class StudyConfig(_Cfg):

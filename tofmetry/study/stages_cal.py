@@ -76,7 +76,8 @@ def stage_depth(ctx: StudyContext, out: StageOutcome) -> None:
 
     wall = ctx.input("wall", "a wall dataset: stations.csv + one capture per station")
     d = ctx.stage_dir("depth")
-    run = calibrate_depth_dataset(wall, intrinsics=ctx.intrinsics)
+    dc = ctx.config.depth
+    run = calibrate_depth_dataset(wall, intrinsics=ctx.intrinsics, reference_offset_mm=dc.reference_offset_mm)
     cal = run.calibration
     save_calibration(d / "calibration.npz", cal)
     ctx.calibration_path = d / "calibration.npz"
@@ -87,14 +88,16 @@ def stage_depth(ctx: StudyContext, out: StageOutcome) -> None:
                 "valid_range_mm": list(cal.valid_range_mm), "surface_model": cal.surface_model,
                 "fit_seconds": run.seconds, "notes": list(run.notes), "stations": rows}
     out.paragraphs.append(
-        f"Fitted on {len(rows)} stations ({run.kind}); intrinsics: {src}. Offset between the "
-        f"stations' reference point and the optical centre, absorbed by the range curve: {cal.offset_mm:+.1f} mm. "
+        f"Fitted on {len(rows)} stations ({run.kind}); intrinsics: {src}. The stations' distances were reduced by "
+        f"the mount's known {dc.reference_offset_mm:g} mm (reference point → optical centre); the remaining constant, "
+        f"absorbed by the range curve, is {cal.offset_mm:+.1f} mm. "
         f"Corrected range {cal.valid_range_mm[0]:.0f}–{cal.valid_range_mm[1]:.0f} mm; surfaces: {cal.surface_model}.")
     out.paragraphs += list(run.notes)
     # training stations (in-sample, the study's own validation)
-    tr = validate_depth(wall, cal, intrinsics=ctx.intrinsics, cross_validate=ctx.config.depth.cross_validate)
+    tr = validate_depth(wall, cal, intrinsics=ctx.intrinsics, cross_validate=dc.cross_validate,
+                        cv_surfaces=tuple(dc.cv_surfaces), reference_offset_mm=dc.reference_offset_mm)
     out.data["training"] = tr.summary
-    before = [r.dev_before_mm for r in tr.stations if r.distance_mm <= ctx.config.depth.max_fit_distance_mm]
+    before = [r.dev_before_mm for r in tr.stations if r.distance_mm <= dc.max_fit_distance_mm]
     if before:
         out.data["central_dev_before_mm"] = [float(min(before)), float(max(before))]
     write_validation_report(tr, d / "training")
@@ -104,7 +107,7 @@ def stage_depth(ctx: StudyContext, out: StageOutcome) -> None:
     # held-out stations
     held = ctx.data_dir / "wall-validation"
     if held.exists():
-        va = validate_depth(held, cal, intrinsics=ctx.intrinsics)
+        va = validate_depth(held, cal, intrinsics=ctx.intrinsics, reference_offset_mm=dc.reference_offset_mm)
         figs = write_validation_report(va, d / "validation")
         out.figures += _figs(figs, "held-out: ")
         s = va.summary
@@ -122,6 +125,21 @@ def stage_depth(ctx: StudyContext, out: StageOutcome) -> None:
                              r.plane_std_after_mm, r.rms_before_mm, r.rms_after_mm,
                              r.rms_before_mm / r.rms_after_mm if r.rms_after_mm > 0 else float("nan")]
                             for r in va.stations]))
+        if dc.compare_polynomial and run.kind == "wall":
+            from tofmetry.calibrate import DepthFitConfig, SurfaceSpec
+
+            poly = calibrate_depth_dataset(wall, intrinsics=ctx.intrinsics, reference_offset_mm=dc.reference_offset_mm,
+                                           config=DepthFitConfig(surface=SurfaceSpec(model="poly", degree=3)))
+            vp = validate_depth(held, poly.calibration, intrinsics=ctx.intrinsics, reference_offset_mm=dc.reference_offset_mm)
+            out.data["heldout_poly3"] = vp.summary
+            rows = []
+            for label, v in (("tensor-product spline (default)", va), ("cubic polynomial (the study's choice)", vp)):
+                after = [r.rms_after_mm for r in v.stations]
+                rows.append([label, float(np.median(after)), float(max(after)), v.summary["median_rms_reduction"],
+                             v.summary["min_rms_reduction"], v.summary["max_abs_dev_after_mm"]])
+            out.tables.append(("Per-pixel surfaces: spline vs polynomial on the held-out stations",
+                               ["surface model", "median RMS after [mm]", "max RMS after [mm]", "median reduction",
+                                "min reduction", "max |central dev| after [mm]"], rows))
     else:
         out.paragraphs.append("No wall-validation/ folder: only leave-one-station-out cross-validation is reported.")
     if tr.cross_validation:

@@ -25,6 +25,34 @@ def _stats_row(label: str, s: dict, comp: dict | None) -> list:
             100 * c5.get("completeness", float("nan"))]
 
 
+def _amplitude_slope(ctx: StudyContext) -> tuple[float, str]:
+    """Slope of the amplitude bias: config > this run's materials assessment > the study's figure."""
+    import math
+
+    mc = ctx.config.model
+    if mc.amplitude_k_mm_per_ln is not None:
+        return mc.amplitude_k_mm_per_ln, "configured"
+    m = ctx.outcomes.get("materials")
+    if m is not None and m.status == "ok" and "materials" in m.data:
+        return float(m.data["materials"]["fit"]["slope_mm_per_ln"]), "measured on the grey-level board in this run"
+    return 12.0 / math.log(6.0), "the study's +12 mm at 1/6 amplitude (§3.3.1)"
+
+
+def _white_map(ctx: StudyContext, cal, out: StageOutcome):
+    """White-wall amplitude reference per pixel from the wall stations (None, with a note, if impossible)."""
+    from tofmetry.reconstruct import white_map_from_wall
+
+    wall = ctx.data_dir / "wall"
+    if not wall.exists():
+        out.paragraphs.append("Amplitude correction skipped: no wall/ dataset to take the white amplitude from.")
+        return None
+    try:
+        return white_map_from_wall(wall, calibration=cal, intrinsics=cal.intrinsics)
+    except Exception as exc:  # noqa: BLE001 - reported; the model is still built without it
+        out.paragraphs.append(f"Amplitude correction skipped: {exc}")
+        return None
+
+
 def stage_model(ctx: StudyContext, out: StageOutcome) -> None:
     """Reconstruct the scan with and without the depth calibration and assess both against the reference."""
     from tofmetry.calibrate import load_calibration
@@ -44,12 +72,18 @@ def stage_model(ctx: StudyContext, out: StageOutcome) -> None:
         out.paragraphs.append("No depth calibration available (the depth stage did not run): raw depth only.")
     d = ctx.stage_dir("model")
     table = []
+    k_amp, k_src = _amplitude_slope(ctx)
     for label, cal_path in runs:
         cal = load_calibration(cal_path) if cal_path is not None else None
         cfg = ReconstructionConfig()
         if mc.voxel_mm is not None:
             cfg.fusion.voxel_mm = mc.voxel_mm
-        res = ReconstructionPipeline(ds, cal, cfg).run()
+        white = None
+        if cal is not None and mc.amplitude_correction:
+            white = _white_map(ctx, cal, out)
+            if white is not None:
+                cfg.preprocess.amplitude_k_mm_per_ln = k_amp
+        res = ReconstructionPipeline(ds, cal, cfg, white_map=white).run()
         rdir = d / label
         write_reconstruction(rdir, res, force=True)
         tm = res.diagnostics.get("timings_s", {})
@@ -91,6 +125,8 @@ def stage_model(ctx: StudyContext, out: StageOutcome) -> None:
             sel = ~ev.on_edge if ev.on_edge.size else slice(None)
             out.data["viewer"] = {"points": np.asarray(ev.points)[sel], "values": np.asarray(ev.deviation_m)[sel] * 1e3,
                                   "range_mm": ecfg.color_scale_mm}
+    if mc.amplitude_correction and ctx.calibration_path is not None:
+        out.paragraphs.append(f"Amplitude-related bias corrected with slope {k_amp:.2f} mm per ln(A_white/A) ({k_src}).")
     if ref_path is None:
         out.paragraphs.append("No reference.ply in DATA_DIR: the model was built but not assessed.")
     else:
