@@ -39,7 +39,7 @@ class AlignmentResult:
 
 def align_to_reference(model_pts: np.ndarray, ref_pts: np.ndarray, ref_nrm: np.ndarray, coarse: bool,
                        init: np.ndarray | None = None, icp_radii_mm=(10.0, 4.0, 2.0),
-                       seeds: int = 3) -> AlignmentResult:
+                       seeds: int = 3, ransac_max_iter: int = 20_000) -> AlignmentResult:
     """Rigid alignment of model samples onto reference samples.
 
     Parameters
@@ -51,6 +51,8 @@ def align_to_reference(model_pts: np.ndarray, ref_pts: np.ndarray, ref_nrm: np.n
     init : optional (4, 4) initial transform (used when ``coarse`` is False)
     icp_radii_mm : correspondence radii of the successive point-to-plane ICP stages (Tukey
         kernel, k = radius / 3)
+    ransac_max_iter : RANSAC iterations per seed (measured on the simulated balustrade: 20k gives
+        the same alignment as 100k in a third of the time)
 
     Raises
     ------
@@ -70,7 +72,7 @@ def align_to_reference(model_pts: np.ndarray, ref_pts: np.ndarray, ref_nrm: np.n
         mn = estimate_normals(ms, 2.5 * v)
         rs, rn = voxel_down(ref_pts, ref_nrm, v)
         for s in range(seeds):
-            candidates.append(global_register(ms, mn, rs, rn, v, seed=s).transform)
+            candidates.append(global_register(ms, mn, rs, rn, v, seed=s, max_iter=ransac_max_iter).transform)
         # also try the plain centroid match (helps nearly symmetric objects)
         T0 = np.eye(4)
         T0[:3, 3] = ref_pts.mean(0) - model_pts.mean(0)

@@ -34,6 +34,7 @@ class EvaluationConfig(BaseModel):
 
     align: bool = Field(False, description="coarse FPFH/RANSAC alignment before ICP")
     icp: bool = Field(True, description="fine ICP of the model onto the reference")
+    align_ransac_iter: int = Field(20_000, ge=100, description="RANSAC iterations per seed of the coarse alignment")
     icp_radii_mm: tuple[float, ...] = Field((10.0, 4.0, 2.0), description="ICP correspondence radii per stage [mm]")
     thresholds_mm: tuple[float, ...] = Field((1.0, 2.0, 5.0, 10.0), description="'share within' / F-score thresholds [mm]")
     sample_spacing_mm: float = Field(1.0, gt=0, description="spacing of surface samples on meshes [mm]")
@@ -147,7 +148,8 @@ def evaluate_model(model: Geometry, reference: Geometry, config: EvaluationConfi
     alignment = None
     T = np.eye(4) if init is None else np.asarray(init, np.float64)
     if cfg.align or cfg.icp:
-        alignment = align_to_reference(mod_s, ref_s, ref_n, coarse=cfg.align, init=T, icp_radii_mm=cfg.icp_radii_mm)
+        alignment = align_to_reference(mod_s, ref_s, ref_n, coarse=cfg.align, init=T, icp_radii_mm=cfg.icp_radii_mm,
+                                       ransac_max_iter=cfg.align_ransac_iter)
         T = alignment.transform
     mod_pts = apply_transform(mod_s, T)
     if reference.is_mesh:

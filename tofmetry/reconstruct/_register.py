@@ -148,7 +148,7 @@ def _refine_mid(src: RegView, tgt: RegView, init: np.ndarray, cfg: RegistrationC
 def _refine_fine(src: RegView, tgt: RegView, init: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:
     """The last (narrowest) ICP stage on the full ICP clouds."""
     return icp(src.icp_points, tgt.icp_points, tgt.icp_normals, init, cfg.icp_radii_mm[-1] * 1e-3, kernel=cfg.kernel,
-               max_iter=cfg.icp_max_iter).transform
+               max_iter=cfg.fine_max_iter).transform
 
 
 def _refine(src: RegView, tgt: RegView, init: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:

@@ -60,6 +60,16 @@ def write_frames(path: Path, frames_iter, meta: CaptureMeta, force: bool = False
     return Path(path), flying
 
 
+def _write_static_capture(path: Path, vk: VirtualKinect, scene, rd, n_frames: int, progress: Progress,
+                          t0_s: float = 3600.0, pose: np.ndarray | None = None):
+    """Frames of a static scene (rendered once as ``rd``), one per second from ``t0_s`` (warm sensor).
+    Returns what :func:`write_frames` returns (path, per-frame flying labels)."""
+    ts = t0_s + np.arange(n_frames, dtype=float)
+    meta = CaptureMeta(sensor="kinect_v2", timestamps_s=ts.tolist())
+    return write_frames(path, vk.iter_frames(scene, n_frames, pose, rendering=rd, timestamps_s=ts), meta,
+                        progress=progress)
+
+
 def wall_capture(out: str | os.PathLike, distance_mm: float = 1000.0, n_frames: int = 50,
                  errors: ErrorModel | None = None, seed: int = 0, tilt_deg: tuple = (0.0, 0.0),
                  t0_s: float = 3600.0, force: bool = False, progress: Progress = None) -> Path:
@@ -73,10 +83,7 @@ def wall_capture(out: str | os.PathLike, distance_mm: float = 1000.0, n_frames: 
     scene = scenes.wall(distance_mm / 1000.0, tilt_deg)
     rd = vk.render(scene)
     with atomic_dir(out, force=force) as tmp:
-        ts = t0_s + np.arange(n_frames, dtype=float)
-        meta = CaptureMeta(sensor="kinect_v2", timestamps_s=[float(t) for t in ts])
-        write_frames(tmp / "capture", vk.iter_frames(scene, n_frames, rendering=rd, timestamps_s=ts), meta,
-                     progress=progress)
+        _write_static_capture(tmp / "capture", vk, scene, rd, n_frames, progress, t0_s=t0_s)
         truth = _truth_common(vk, seed) | {"dataset": "wall", "scene": scene.info,
                                            "optical_centre_distance_mm": float(distance_mm)}
         atomic_write_json(tmp / "truth.json", truth)
@@ -277,10 +284,7 @@ def noise(out: str | os.PathLike, n_frames: int = 100, distance_m: float = 1.15,
     rd = vk.render(scene)
     out = Path(out)
     with atomic_dir(out, force=force) as tmp:
-        ts = 3600.0 + np.arange(n_frames, dtype=float)
-        meta = CaptureMeta(sensor="kinect_v2", timestamps_s=ts.tolist())
-        write_frames(tmp / "capture", vk.iter_frames(scene, n_frames, rendering=rd, timestamps_s=ts), meta,
-                     progress=progress)
+        _write_static_capture(tmp / "capture", vk, scene, rd, n_frames, progress)
         sig = noise_sigma_mm(rd.amplitude, rd.depth0, em) if em.on("noise") else np.zeros_like(rd.depth0)
         atomic_write_json(tmp / "truth.json", _truth_common(vk, seed) | {"dataset": "noise", "scene": scene.info})
         _write_npz(tmp / "truth.npz", noise_sigma_mm=sig.astype(np.float32), true_depth_mm=rd.true_depth)
@@ -323,10 +327,7 @@ def materials(out: str | os.PathLike, board: str = "grey", n_frames: int = 20, d
         samples.append(s | {"rect_px_full": r[0], "rect_px": r[1]})
     out = Path(out)
     with atomic_dir(out, force=force) as tmp:
-        ts = 3600.0 + np.arange(n_frames, dtype=float)
-        meta = CaptureMeta(sensor="kinect_v2", timestamps_s=ts.tolist())
-        write_frames(tmp / "capture", vk.iter_frames(scene, n_frames, rendering=rd, timestamps_s=ts), meta,
-                     progress=progress)
+        _write_static_capture(tmp / "capture", vk, scene, rd, n_frames, progress)
         atomic_write_json(tmp / "regions.json", {"rect_convention": "[u0, v0, u1, v1] pixels, u1 and v1 exclusive",
                                                  "regions": regions})
         atomic_write_json(tmp / "truth.json", _truth_common(vk, seed) | {
@@ -356,10 +357,7 @@ def outdoor(out: str | os.PathLike, n_frames: int = 10, ambient: float = 1.0, er
     rd = vk.render(scene, T)
     out = Path(out)
     with atomic_dir(out, force=force) as tmp:
-        ts = 3600.0 + np.arange(n_frames, dtype=float)
-        meta = CaptureMeta(sensor="kinect_v2", timestamps_s=ts.tolist())
-        _, fly = write_frames(tmp / "capture", vk.iter_frames(scene, n_frames, T, rendering=rd, timestamps_s=ts),
-                              meta, progress=progress)
+        _, fly = _write_static_capture(tmp / "capture", vk, scene, rd, n_frames, progress, pose=T)
         atomic_write_json(tmp / "truth.json", _truth_common(vk, seed) | {
             "dataset": "outdoor", "ambient": ambient, "camera_to_world": T, "scene": scene.info,
             "labels": {int(k): v for k, v in scene.labels.items()}})
