@@ -7,7 +7,13 @@ import json
 import numpy as np
 import pytest
 
-from tofmetry.evaluate import CameraViews, EvaluationConfig, evaluate_model, observed_mask, sample_mesh
+from tofmetry.evaluate import (
+    CameraViews,
+    EvaluationConfig,
+    evaluate_model,
+    observed_mask,
+    sample_mesh,
+)
 from tofmetry.io.mesh import Geometry
 from tofmetry.sensor import KINECT_V2
 
@@ -40,7 +46,7 @@ def test_visibility_rules():
                     [2.0, 0.05, 0.0],     # outside the field of view (x/z = 1.9)
                     [0.1, 0.05, -0.7]])   # 0.3 m from the camera: inside the 0.5 m minimum range
     nrm = np.array([[0, 0, -1.0], [0, 0, 1], [0, 0, -1], [0, 0, -1], [0, 0, -1], [0, 0, -1]])
-    seen, count = observed_mask(pts, nrm, CAM, mesh=mesh)
+    seen, _ = observed_mask(pts, nrm, CAM, mesh=mesh)
     assert seen.tolist() == [True, False, False, True, False, False]
     # without the mesh there is no occlusion test: the board point behind the box counts as seen
     assert observed_mask(pts, nrm, CAM)[0].tolist() == [True, False, True, True, False, False]
@@ -96,3 +102,29 @@ def test_cli_evaluate_with_poses(tmp_path):
     assert r.exit_code == 0, r.output
     m = json.loads((tmp_path / "ev" / "metrics.json").read_text())
     assert m["completeness_observed"]["5"]["completeness"] > 0.97 and "observed-surface" in r.output
+
+
+def test_ground_prior_fixes_the_roll_of_a_symmetric_object():
+    """A cylinder lying on the ground matches itself at any roll about its axis; with the
+    reconstruction's support plane and the reference's down direction, the alignment must put
+    the model's support plane on the reference ground (normal within 10 deg, height within 15 mm)."""
+    import open3d as o3d
+
+    c = o3d.geometry.TriangleMesh.create_cylinder(radius=0.04, height=0.3, resolution=40, split=4)
+    V = np.asarray(c.vertices) @ np.array([[0, 0, 1.0], [0, 1, 0], [-1, 0, 0]]).T + [0, 0, 0.04]  # axis x, on z = 0
+    F = np.asarray(c.triangles)
+    # model frame = a camera 1 m away looking at it from 30 deg elevation (rotation about x by 120 deg)
+    a = np.radians(120.0)
+    M = np.eye(4)
+    M[:3, :3] = [[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]]
+    M[:3, 3] = [0.0, 0.3, 0.9]
+    Vm = V @ M[:3, :3].T + M[:3, 3]
+    n = M[:3, :3] @ [0, 0, 1.0]
+    plane = np.r_[n, -n @ M[:3, 3]]
+    cams = CameraViews(np.stack([np.eye(4)]), KINECT_V2.depth, 500.0, 4500.0, ("00",), plane)
+    ev = evaluate_model(Geometry(Vm, F), Geometry(V, F), EvaluationConfig(align=True, exclude_normal=(0, 0, -1), sample_spacing_mm=2.0),
+                       poses=cams)
+    T = ev.alignment.transform
+    assert np.degrees(np.arccos(np.clip((T[:3, :3] @ n)[2], -1, 1))) < 10.0
+    assert abs((T[:3, :3] @ (-plane[3] * n) + T[:3, 3])[2]) < 0.015
+    assert ev.info["alignment_prior"] is not None and ev.stats_all.mean_abs_mm < 0.5

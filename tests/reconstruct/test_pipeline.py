@@ -9,7 +9,11 @@ import pytest
 
 from tofmetry.errors import InputError, SensorMismatchError
 from tofmetry.io import ScanDataset, read_json, read_ply
-from tofmetry.reconstruct import ReconstructionPipeline, rotation_angle_deg, write_reconstruction
+from tofmetry.reconstruct import (
+    ReconstructionPipeline,
+    rotation_angle_deg,
+    write_reconstruction,
+)
 
 
 def _rel_errors(poses, truth):

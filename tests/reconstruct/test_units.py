@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from tofmetry.errors import EstimationError
+from tofmetry.pointcloud import robust_mean_depth
 from tofmetry.reconstruct import (
     PairResult,
     PoseGraphBuilder,
@@ -17,7 +18,6 @@ from tofmetry.reconstruct import (
     undistort_depth,
 )
 from tofmetry.reconstruct._preprocess import robust_mean_fast
-from tofmetry.pointcloud import robust_mean_depth
 from tofmetry.sensor import KINECT_V2
 
 
@@ -63,7 +63,7 @@ def test_tsdf_plane_at_one_metre():
     z = plane_depth(intr, np.array([0, 0, 1.0]), 1.0)
     f = TSDFFusion(intr, voxel_mm=4.0, trunc_mm=16.0)
     f.integrate(z, np.eye(4))
-    V, F, N, P, PN = f.extract(0.5)
+    V, F, _, _, _ = f.extract(0.5)
     assert len(F) > 1000
     assert np.abs(V[:, 2] - 1.0).max() < 4e-4
 
@@ -131,7 +131,11 @@ def test_pose_graph_identity_chain():
 def test_amplitude_bias_model():
     """Synthetic white frontal wall A = a0 * cos / range^2 at two distances -> a(u, v) = a0;
     a surface at 1/6 of the white amplitude then reads k ln 6 = 12 mm long (study §3.3.1)."""
-    from tofmetry.reconstruct import PAPER_K_MM_PER_LN, amplitude_bias_mm, white_amplitude_map
+    from tofmetry.reconstruct import (
+        PAPER_K_MM_PER_LN,
+        amplitude_bias_mm,
+        white_amplitude_map,
+    )
 
     intr = KINECT_V2.depth
     rays = intr.ray_table(True)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -14,9 +13,9 @@ from tofmetry.cli._common import console, progress
 def reconstruct(
     scan_dir: Path = typer.Argument(..., help="Scan dataset (views/<name>/ captures, processed in name order)."),
     output: Path = typer.Option(..., "-o", "--output", help="Output folder (points.ply, mesh.ply, poses.json)."),
-    calibration: Optional[Path] = typer.Option(None, "--calibration", help="Depth calibration file (tofmetry calibrate depth)."),
+    calibration: Path | None = typer.Option(None, "--calibration", help="Depth calibration file (tofmetry calibrate depth)."),
     no_calibration: bool = typer.Option(False, "--no-calibration", help="Run on raw depth (no calibration)."),
-    amplitude_reference: Optional[Path] = typer.Option(
+    amplitude_reference: Path | None = typer.Option(
         None, "--amplitude-reference", help="Wall dataset (white, frontal; e.g. the one of the depth calibration) "
         "giving the white amplitude per pixel: enables the amplitude-dependent bias correction (needs IR)."),
     amplitude_max_mm: float = typer.Option(2500.0, help="Use wall stations up to this distance for the amplitude reference [mm]."),
@@ -26,7 +25,7 @@ def reconstruct(
         "(pass the slope measured by 'tofmetry assess materials')."),
     keep_all: bool = typer.Option(False, "--keep-all", help="Skip object segmentation: keep the whole working range."),
     poisson: bool = typer.Option(False, "--poisson", help="Also write a density-trimmed Poisson mesh (mesh_poisson.ply)."),
-    voxel_mm: Optional[float] = typer.Option(None, help="TSDF voxel [mm] (default: 0.6 * range / focal)."),
+    voxel_mm: float | None = typer.Option(None, help="TSDF voxel [mm] (default: 0.6 * range / focal)."),
     max_mm: float = typer.Option(2500.0, help="Farthest depth kept [mm]."),
     force: bool = typer.Option(False, "--force", help="Replace an existing output folder."),
     allow_unreliable: bool = typer.Option(
@@ -36,7 +35,11 @@ def reconstruct(
     """Automatic 3D model of an object from several views: segment, register (pose graph), fuse (TSDF), mesh."""
     from tofmetry.errors import InputError
     from tofmetry.io import ScanDataset, WallDataset
-    from tofmetry.reconstruct import ReconstructionConfig, ReconstructionPipeline, write_reconstruction
+    from tofmetry.reconstruct import (
+        ReconstructionConfig,
+        ReconstructionPipeline,
+        write_reconstruction,
+    )
 
     if (calibration is None) == (not no_calibration):
         raise InputError("pass either --calibration FILE or --no-calibration (raw depth), not both / not neither")
@@ -132,13 +135,13 @@ def evaluate(
     output: Path = typer.Option(..., "-o", "--output", help="Output folder (metrics.json, PNGs, deviation.ply)."),
     align: bool = typer.Option(False, "--align", help="Coarse FPFH/RANSAC alignment before the fine ICP."),
     no_icp: bool = typer.Option(False, "--no-icp", help="Compare as given (no ICP)."),
-    init_transform: Optional[Path] = typer.Option(None, "--init-transform", help="JSON 4x4 model->reference initial transform."),
+    init_transform: Path | None = typer.Option(None, "--init-transform", help="JSON 4x4 model->reference initial transform."),
     thresholds_mm: str = typer.Option("1,2,5,10", "--thresholds-mm", help="Thresholds for 'share within', completeness, F-score [mm]."),
     edge_trim_mm: float = typer.Option(3.0, help="Exclude model points within this of a sharp/boundary reference edge [mm] (0 = off)."),
-    exclude_normal: Optional[str] = typer.Option(None, help="x,y,z: leave reference surface facing this way (e.g. the face on "
+    exclude_normal: str | None = typer.Option(None, help="x,y,z: leave reference surface facing this way (e.g. the face on "
                                                  "the ground: 0,0,-1) out of completeness."),
     color_scale_mm: float = typer.Option(5.0, help="Deviation colour scale +-[mm] (diverging, saturating)."),
-    poses: Optional[Path] = typer.Option(None, "--poses", help="The reconstruction's poses.json: also report completeness "
+    poses: Path | None = typer.Option(None, "--poses", help="The reconstruction's poses.json: also report completeness "
                                          "over the reference surface the registered cameras could see (frustum, working "
                                          "range, incidence, occlusion)."),
 ) -> None:

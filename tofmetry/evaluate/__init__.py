@@ -5,7 +5,11 @@ cloud-to-mesh / mesh-to-mesh (sampled) / cloud-to-cloud deviations, statistics, 
 and F-score; :func:`write_evaluation` writes metrics.json and the figures.
 """
 
-from tofmetry.evaluate._align import AlignmentResult, align_to_reference, apply_transform
+from tofmetry.evaluate._align import (
+    AlignmentResult,
+    align_to_reference,
+    apply_transform,
+)
 from tofmetry.evaluate._distance import (
     ClosestPoints,
     distances_to_cloud,
@@ -14,17 +18,42 @@ from tofmetry.evaluate._distance import (
     sample_mesh,
     sharp_edge_samples,
 )
-from tofmetry.evaluate._evaluate import EvaluationConfig, EvaluationResult, evaluate_model
+from tofmetry.evaluate._evaluate import (
+    EvaluationConfig,
+    EvaluationResult,
+    evaluate_model,
+)
 from tofmetry.evaluate._figures import deviation_colors, histogram_figure, render_figure
 from tofmetry.evaluate._output import write_evaluation
-from tofmetry.evaluate._stats import DeviationStats, check_units, completeness_fscore, deviation_stats
+from tofmetry.evaluate._stats import (
+    DeviationStats,
+    check_units,
+    completeness_fscore,
+    deviation_stats,
+)
 from tofmetry.evaluate._visibility import CameraViews, observed_mask
 
 __all__ = [
-    "AlignmentResult", "align_to_reference", "apply_transform",
-    "ClosestPoints", "distances_to_cloud", "distances_to_mesh", "face_normals", "sample_mesh", "sharp_edge_samples",
-    "EvaluationConfig", "EvaluationResult", "evaluate_model",
-    "deviation_colors", "histogram_figure", "render_figure", "write_evaluation",
-    "DeviationStats", "check_units", "completeness_fscore", "deviation_stats",
-    "CameraViews", "observed_mask",
+    "AlignmentResult",
+    "CameraViews",
+    "ClosestPoints",
+    "DeviationStats",
+    "EvaluationConfig",
+    "EvaluationResult",
+    "align_to_reference",
+    "apply_transform",
+    "check_units",
+    "completeness_fscore",
+    "deviation_colors",
+    "deviation_stats",
+    "distances_to_cloud",
+    "distances_to_mesh",
+    "evaluate_model",
+    "face_normals",
+    "histogram_figure",
+    "observed_mask",
+    "render_figure",
+    "sample_mesh",
+    "sharp_edge_samples",
+    "write_evaluation",
 ]

@@ -138,7 +138,7 @@ def sharp_edge_samples(vertices: np.ndarray, faces: np.ndarray, angle_deg: float
     key = es[:, 0] * (len(vertices) + 1) + es[:, 1]
     order = np.argsort(key, kind="stable")
     key_s = key[order]
-    uniq, start, counts = np.unique(key_s, return_index=True, return_counts=True)
+    _, start, counts = np.unique(key_s, return_index=True, return_counts=True)
     cos_lim = np.cos(np.radians(angle_deg))
     keep_edges = []
     for c_val, mask_sel in ((1, counts == 1), (2, counts == 2)):

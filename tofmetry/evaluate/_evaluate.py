@@ -8,14 +8,23 @@ import numpy as np
 from pydantic import BaseModel, Field
 
 from tofmetry.errors import InputError
-from tofmetry.evaluate._align import AlignmentResult, align_to_reference, apply_transform
+from tofmetry.evaluate._align import (
+    AlignmentResult,
+    align_to_reference,
+    apply_transform,
+)
 from tofmetry.evaluate._distance import (
     distances_to_cloud,
     distances_to_mesh,
     sample_mesh,
     sharp_edge_samples,
 )
-from tofmetry.evaluate._stats import DeviationStats, check_units, completeness_fscore, deviation_stats
+from tofmetry.evaluate._stats import (
+    DeviationStats,
+    check_units,
+    completeness_fscore,
+    deviation_stats,
+)
 from tofmetry.evaluate._visibility import CameraViews, observed_mask
 from tofmetry.io.mesh import Geometry
 
@@ -121,6 +130,35 @@ def _surface_samples(g: Geometry, spacing_m: float, seed: int, what: str):
     return g.points, g.normals
 
 
+def _ground_prior(plane: np.ndarray, mod_s: np.ndarray, ref_s: np.ndarray, up: np.ndarray, yaw_step_deg: float = 30.0,
+                  max_deg: float = 10.0, max_mm: float = 15.0):
+    """Coarse candidates and an acceptance test from the support plane: the model's support plane
+    (poses.json, model frame, normal up) maps onto the reference ground (normal ``up``, through the
+    lowest reference point), at yaw steps about ``up``, centroids matched in the plane."""
+    up = up / max(np.linalg.norm(up), 1e-12)
+    n, d = plane[:3] / np.linalg.norm(plane[:3]), plane[3]
+    v, c = np.cross(n, up), float(n @ up)
+    K = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    R0 = np.eye(3) + K + K @ K / (1 + c) if c > -0.999 else -np.eye(3)  # Rodrigues: n -> up
+    h_ground = float((ref_s @ up).min())
+    cm, cr, p0 = mod_s.mean(0), ref_s.mean(0), -d * n
+    out = []
+    for a in np.radians(np.arange(0.0, 360.0, yaw_step_deg)):
+        Ku = np.array([[0, -up[2], up[1]], [up[2], 0, -up[0]], [-up[1], up[0], 0]])
+        R = (np.eye(3) + np.sin(a) * Ku + (1 - np.cos(a)) * Ku @ Ku) @ R0
+        t = cr - R @ cm
+        t += (h_ground - (R @ p0 + t) @ up) * up
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R, t
+        out.append(T)
+
+    def accept(T: np.ndarray) -> bool:
+        ang = np.degrees(np.arccos(np.clip((T[:3, :3] @ n) @ up, -1, 1)))
+        return bool(ang <= max_deg and abs((T[:3, :3] @ p0 + T[:3, 3]) @ up - h_ground) * 1e3 <= max_mm)
+
+    return out, accept
+
+
 def evaluate_model(model: Geometry, reference: Geometry, config: EvaluationConfig | None = None,
                    init: np.ndarray | None = None, poses: CameraViews | dict | None = None) -> EvaluationResult:
     """Align ``model`` to ``reference`` and measure its deviations.
@@ -147,9 +185,16 @@ def evaluate_model(model: Geometry, reference: Geometry, config: EvaluationConfi
     mod_s, _ = _surface_samples(model, sp, cfg.seed + 1, "model")
     alignment = None
     T = np.eye(4) if init is None else np.asarray(init, np.float64)
+    cams = None
+    if poses is not None:
+        cams = poses if isinstance(poses, CameraViews) else CameraViews.from_document(poses)
+    extra, accept, prior = (), None, None
+    if cfg.align and cams is not None and cams.support_plane is not None and cfg.exclude_normal is not None:
+        extra, accept = _ground_prior(cams.support_plane, mod_s, ref_s, -np.asarray(cfg.exclude_normal, np.float64))
+        prior = "model support plane -> reference ground (normal -exclude_normal, at the lowest reference point)"
     if cfg.align or cfg.icp:
         alignment = align_to_reference(mod_s, ref_s, ref_n, coarse=cfg.align, init=T, icp_radii_mm=cfg.icp_radii_mm,
-                                       ransac_max_iter=cfg.align_ransac_iter)
+                                       ransac_max_iter=cfg.align_ransac_iter, extra_candidates=extra, accept=accept)
         T = alignment.transform
     mod_pts = apply_transform(mod_s, T)
     if reference.is_mesh:
@@ -182,20 +227,19 @@ def evaluate_model(model: Geometry, reference: Geometry, config: EvaluationConfi
         rd = distances_to_cloud(ref_q, mod_pts).distance
     comp = completeness_fscore(cp.distance, rd, cfg.thresholds_mm)
     comp_obs = obs_info = None
-    if poses is not None:
-        cams = poses if isinstance(poses, CameraViews) else CameraViews.from_document(poses)
+    if cams is not None:
         seen, count = observed_mask(ref_q, ref_n[ref_keep], cams, T,
                                     (reference.points, reference.faces) if reference.is_mesh else None,
                                     cfg.observed_max_incidence_deg, cfg.observed_occlusion_tol_mm * 1e-3)
         comp_obs = completeness_fscore(cp.distance, rd[seen], cfg.thresholds_mm)
-        obs_info = {"observed_share": float(seen.mean()) if seen.size else 0.0, "n_cameras": int(len(cams.poses)),
+        obs_info = {"observed_share": float(seen.mean()) if seen.size else 0.0, "n_cameras": len(cams.poses),
                     "mean_cameras_per_observed_sample": float(count[seen].mean()) if seen.any() else 0.0,
                     "occlusion_tested": bool(reference.is_mesh),
                     "rule": "reference samples (after exclude_normal) in front of at least one registered camera, "
                             "inside its image and working range, facing it at incidence <= observed_max_incidence_deg "
                             "and not occluded by the reference mesh; cameras from the reconstruction's poses.json "
                             "carried into the reference frame by the alignment (no truth used)"}
-    info = {"n_model_samples": int(len(mod_pts)), "n_reference_samples": int(len(ref_q)),
+    info = {"alignment_prior": prior, "n_model_samples": len(mod_pts), "n_reference_samples": len(ref_q),
             "model": model.source, "reference": reference.source}
     return EvaluationResult(mod_pts, cp.distance, on_edge, stats_all, stats_trim, comp, alignment, comparison, cfg, info,
                             comp_obs, obs_info)

@@ -37,7 +37,7 @@ def histogram_figure(deviation_m: np.ndarray, on_edge: np.ndarray, stats: dict, 
     txt = (f"mean |d| {stats['mean_abs_mm']:.2f} mm, std {stats['std_signed_mm']:.2f} mm\n"
            f"p95 |d| {stats['percentiles_abs_mm']['p95']:.2f} mm, max {stats['max_abs_mm']:.2f} mm (trimmed)")
     ax.text(0.02, 0.97, txt, transform=ax.transAxes, va="top", fontsize=8,
-            bbox=dict(facecolor="white", alpha=0.8, edgecolor="0.8"))
+            bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "0.8"})
     ax.legend(fontsize=8, loc="upper right")
     fig.tight_layout()
     return fig

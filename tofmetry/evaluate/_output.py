@@ -6,7 +6,12 @@ import os
 from pathlib import Path
 
 from tofmetry.evaluate._evaluate import EvaluationResult
-from tofmetry.evaluate._figures import deviation_colors, figure_png_bytes, histogram_figure, render_figure
+from tofmetry.evaluate._figures import (
+    deviation_colors,
+    figure_png_bytes,
+    histogram_figure,
+    render_figure,
+)
 from tofmetry.io import atomic_write_bytes, atomic_write_json, write_ply
 
 

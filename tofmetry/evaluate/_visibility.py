@@ -29,6 +29,7 @@ class CameraViews:
     intrinsics : CameraIntrinsics of the depth camera
     min_mm, max_mm : working range used by the reconstruction (depth Z) [mm]
     names : view names (for diagnostics)
+    support_plane : (4,) model-frame support plane (unit normal up, offset [m]) or None
     """
 
     poses: np.ndarray
@@ -36,9 +37,10 @@ class CameraViews:
     min_mm: float = 500.0
     max_mm: float = 4500.0
     names: tuple = ()
+    support_plane: np.ndarray | None = None
 
     @classmethod
-    def from_document(cls, doc: dict, source: str = "poses.json") -> "CameraViews":
+    def from_document(cls, doc: dict, source: str = "poses.json") -> CameraViews:
         """Build from the content of a reconstruction's poses.json.
 
         Raises
@@ -59,7 +61,10 @@ class CameraViews:
                              "completeness was added); re-run reconstruct")
         intr = CameraIntrinsics.from_dict(intr_d)
         rng = doc.get("working_range_mm") or [500.0, 4500.0]
-        return cls(poses, intr, float(rng[0]), float(rng[1]), tuple(v.get("name", str(k)) for k, v in enumerate(doc["views"])))
+        sp = doc.get("support_plane_world")
+        sp = None if sp is None else np.asarray(sp, np.float64).reshape(4)
+        return cls(poses, intr, float(rng[0]), float(rng[1]), tuple(v.get("name", str(k)) for k, v in enumerate(doc["views"])),
+                   sp)
 
 
 def observed_mask(points: np.ndarray, normals: np.ndarray, cameras: CameraViews,

@@ -21,7 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
-from tofmetry.calibrate._model import FORMAT_NAME, FORMAT_VERSION, DepthCalibration
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # the model lives in tofmetry.calibrate, which itself re-exports this module's functions
+    from tofmetry.calibrate._model import DepthCalibration
 from tofmetry.errors import FormatError, InputError
 from tofmetry.io._atomic import atomic_write_bytes, to_json
 from tofmetry.sensor import CameraIntrinsics
@@ -31,6 +34,8 @@ _ARRAYS = ("range_knots", "range_coeffs", "node_mm", "surfaces")
 
 def save_calibration(path: str | os.PathLike, cal: DepthCalibration) -> Path:
     """Write ``cal`` to ``path`` (``.npz``) atomically."""
+    from tofmetry.calibrate._model import FORMAT_NAME, FORMAT_VERSION
+
     header = {
         "format": FORMAT_NAME, "version": FORMAT_VERSION, "sensor": cal.sensor,
         "intrinsics": cal.intrinsics.to_dict(), "offset_mm": cal.offset_mm,
@@ -53,6 +58,8 @@ def read_calibration_header(path: str | os.PathLike) -> dict:
 
 
 def _open(path: Path):
+    from tofmetry.calibrate._model import FORMAT_NAME, FORMAT_VERSION
+
     if not path.is_file():
         raise InputError(f"calibration file not found: {path}")
     try:
@@ -93,6 +100,8 @@ def load_calibration(path: str | os.PathLike, sensor: str | None = None,
     SensorMismatchError
         Made for another sensor or resolution than ``sensor`` / ``shape``.
     """
+    from tofmetry.calibrate._model import DepthCalibration
+
     path = Path(path)
     header, a = _open(path)
     try:

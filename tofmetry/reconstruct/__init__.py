@@ -20,7 +20,13 @@ from tofmetry.reconstruct._config import (
     RegistrationConfig,
     SegmentConfig,
 )
-from tofmetry.reconstruct._fusion import TSDFFusion, crop_mesh, poisson_mesh, undistort_depth, undistort_maps
+from tofmetry.reconstruct._fusion import (
+    TSDFFusion,
+    crop_mesh,
+    poisson_mesh,
+    undistort_depth,
+    undistort_maps,
+)
 from tofmetry.reconstruct._output import poses_document, write_reconstruction
 from tofmetry.reconstruct._pipeline import ReconstructionPipeline, ReconstructionResult
 from tofmetry.reconstruct._posegraph import (
@@ -31,16 +37,52 @@ from tofmetry.reconstruct._posegraph import (
     rotation_angle_deg,
 )
 from tofmetry.reconstruct._preprocess import ViewData, image_normals, prepare_view
-from tofmetry.reconstruct._register import PairResult, RegView, make_reg_view, plane_consistent, register_pair
-from tofmetry.reconstruct._segment import Segmentation, fit_support_plane, segment_object
+from tofmetry.reconstruct._register import (
+    PairResult,
+    RegView,
+    make_reg_view,
+    plane_consistent,
+    register_pair,
+)
+from tofmetry.reconstruct._segment import (
+    Segmentation,
+    fit_support_plane,
+    segment_object,
+)
 
 __all__ = [
-    "PAPER_K_MM_PER_LN", "amplitude_bias_mm", "white_amplitude_map", "white_map_from_wall",
-    "FusionConfig", "PreprocessConfig", "ReconstructionConfig", "RegistrationConfig", "SegmentConfig",
-    "TSDFFusion", "crop_mesh", "poisson_mesh", "undistort_depth", "undistort_maps",
-    "poses_document", "write_reconstruction", "ReconstructionPipeline", "ReconstructionResult",
-    "PoseGraphBuilder", "PoseGraphResult", "connected_components", "consistency_gate", "rotation_angle_deg",
-    "ViewData", "image_normals", "prepare_view",
-    "PairResult", "RegView", "make_reg_view", "plane_consistent", "register_pair",
-    "Segmentation", "fit_support_plane", "segment_object",
+    "PAPER_K_MM_PER_LN",
+    "FusionConfig",
+    "PairResult",
+    "PoseGraphBuilder",
+    "PoseGraphResult",
+    "PreprocessConfig",
+    "ReconstructionConfig",
+    "ReconstructionPipeline",
+    "ReconstructionResult",
+    "RegView",
+    "RegistrationConfig",
+    "SegmentConfig",
+    "Segmentation",
+    "TSDFFusion",
+    "ViewData",
+    "amplitude_bias_mm",
+    "connected_components",
+    "consistency_gate",
+    "crop_mesh",
+    "fit_support_plane",
+    "image_normals",
+    "make_reg_view",
+    "plane_consistent",
+    "poisson_mesh",
+    "poses_document",
+    "prepare_view",
+    "register_pair",
+    "rotation_angle_deg",
+    "segment_object",
+    "undistort_depth",
+    "undistort_maps",
+    "white_amplitude_map",
+    "white_map_from_wall",
+    "write_reconstruction",
 ]

@@ -124,7 +124,7 @@ class PoseGraphBuilder:
         acc = self.accepted()
         for p in acc:
             # successive views (and the loop closure of the circle) are "certain" odometry-like edges
-            uncertain = not (abs(p.source - p.target) == 1)
+            uncertain = abs(p.source - p.target) != 1
             pg.edges.append(reg.PoseGraphEdge(p.source, p.target, p.transform, p.information, uncertain=uncertain))
         if len(acc) > self.n - 1:
             opt = reg.GlobalOptimizationOption(max_correspondence_distance=max_corr_m, edge_prune_threshold=edge_prune,

@@ -14,7 +14,12 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from tofmetry.reconstruct._config import RegistrationConfig
-from tofmetry.reconstruct._o3d import global_register, icp, information_matrix, voxel_down
+from tofmetry.reconstruct._o3d import (
+    global_register,
+    icp,
+    information_matrix,
+    voxel_down,
+)
 from tofmetry.reconstruct._preprocess import ViewData
 from tofmetry.reconstruct._segment import Segmentation
 
@@ -224,7 +229,7 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
             if plane_consistent(src, tgt, T):
                 mids.append((*object_fitness(src, tgt, T, r_final), T, how))
         if mids:
-            fit, rm, T, how = max(mids, key=lambda c: (c[0], -c[1]))
+            _, _, T, how = max(mids, key=lambda c: (c[0], -c[1]))
             T = _refine_fine(src, tgt, T, cfg)
             if plane_consistent(src, tgt, T):
                 cands.append((*object_fitness(src, tgt, T, r_final), T, how))

@@ -46,7 +46,7 @@ def fit_support_plane(points: np.ndarray, threshold_m: float, seed: int = 0) -> 
     quiet()
     o3d.utility.random.seed(seed)
     pcd = to_pcd(points).voxel_down_sample(0.005)
-    model, inl = pcd.segment_plane(threshold_m, 3, 1000)
+    model, _ = pcd.segment_plane(threshold_m, 3, 1000)
     plane = np.asarray(model, np.float64)
     plane /= np.linalg.norm(plane[:3])
     # least-squares refinement on all points within the threshold
