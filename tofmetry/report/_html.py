@@ -83,8 +83,13 @@ def _figure(caption: str, path: Path) -> str:
     path = Path(path)
     if not path.is_file():
         return f'<p class="missing">figure missing: {html.escape(str(path.name))}</p>'
-    b64 = base64.b64encode(path.read_bytes()).decode()
-    return (f'<figure><img alt="{html.escape(caption)}" src="data:image/png;base64,{b64}">'
+    data = path.read_bytes()
+    b64 = base64.b64encode(data).decode()
+    wide = ""
+    if data[:8] == b"\x89PNG\r\n\x1a\n":  # PNG IHDR: width, height at bytes 16..24
+        w, h = int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+        wide = ' class="wide"' if h and w / h > 2.2 else ""
+    return (f'<figure{wide}><img alt="{html.escape(caption)}" src="data:image/png;base64,{b64}">'
             f"<figcaption>{html.escape(caption)}</figcaption></figure>")
 
 
@@ -143,7 +148,7 @@ h2{border-bottom:1px solid #d0d7de;padding-bottom:.2em;margin-top:2em}
 table{border-collapse:collapse;margin:1em 0;font-size:.92em}caption{text-align:left;font-weight:600;padding:.3em 0}
 th,td{border:1px solid #d0d7de;padding:.3em .6em;text-align:right}th{background:#f6f8fa}td:first-child,th:first-child{text-align:left}
 .figs{display:flex;flex-wrap:wrap;gap:1em}figure{margin:0;flex:1 1 480px;max-width:100%}
-figure img{max-width:100%;border:1px solid #d0d7de}figcaption{font-size:.85em;color:#57606a}
+figure img{max-width:100%;border:1px solid #d0d7de}figure.wide{flex-basis:100%}figcaption{font-size:.85em;color:#57606a}
 .note{background:#fff8c5;border:1px solid #d4a72c;padding:.5em;border-radius:4px;white-space:pre-wrap}
 .verdict-better{color:#1a7f37;font-weight:600}.verdict-worse{color:#cf222e;font-weight:600}.verdict-comparable{color:#57606a}.verdict-consistent{color:#0969da}.verdict-differs{color:#9a6700;font-weight:600}
 nav a{margin-right:1em}
