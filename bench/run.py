@@ -47,7 +47,8 @@ def table(res: dict) -> str:
     if "depth_fit" in res:
         d = res["depth_fit"]
         rows.append(("3. depth calibration fit, 15 stations × 50 frames", f"{d['seconds']:.1f} s", "≤ 20 s",
-                     f"peak RSS {d['peak_rss_mb']:.0f} MiB (streaming), simulate+write {d['simulate_seconds']:.0f} s (not counted)"))
+                     f"peak RSS of the fitting process {d['peak_rss_mb']:.0f} MiB (frames streamed; all frames would be "
+                     f"{d['frames_in_memory_would_be_mb']:.0f} MiB), simulate+write {d['simulate_seconds']:.0f} s (not counted)"))
     if "reconstruction" in res:
         r = res["reconstruction"]
         rows.append(("4. reconstruction, 8-view scan, end to end", f"{r['seconds']:.1f} s", "≤ 30 s",

@@ -61,3 +61,17 @@ def test_sample_colors_occlusion_and_out_of_view():
     cols, ok = sample_colors(pts, img, cam, Extrinsics.identity())
     assert ok.tolist() == [True, False, False]
     assert cols[0, 0] == 200 and cols[1].sum() == 0
+
+
+def test_robust_mean_matches_a_nanmedian_reference():
+    rng = np.random.default_rng(0)
+    st = rng.normal(1000, 2, (7, 30, 40)).round().astype(np.uint16)
+    st[rng.random(st.shape) < 0.1] = 0
+    st[0, :5] = 3000  # outliers
+    x = np.where(st > 0, st.astype(float), np.nan)
+    med = np.nanmedian(x, axis=0)
+    mad = np.maximum(np.nanmedian(np.abs(x - med), axis=0) * 1.4826, 0.5)
+    keep = np.abs(x - med) <= 3.0 * mad
+    n = keep.sum(axis=0)
+    ref = np.where(n >= 2, np.where(keep, x, 0).sum(axis=0) / np.maximum(n, 1), 0.0)
+    np.testing.assert_allclose(robust_mean_depth(st, 3.0, 2), ref, atol=1e-9)

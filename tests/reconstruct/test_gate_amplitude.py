@@ -70,14 +70,14 @@ def test_white_map_from_wall_matches_the_station_formula(wall):
     with stations beyond max_mm left out."""
     from tofmetry.io import WallDataset
     from tofmetry.reconstruct import white_amplitude_map, white_map_from_wall
-    from tofmetry.reconstruct._preprocess import robust_mean_fast
+    from tofmetry.pointcloud import robust_mean_depth
 
     calls = []
     wm = white_map_from_wall(wall, None, None, max_mm=2000.0, advance=lambda: calls.append(1))
     assert len(calls) == 2  # the 3000 mm station is beyond max_mm
     sts = [st for st in WallDataset(wall).stations if st.distance_mm <= 2000]
     caps = [st.open() for st in sts]
-    ref = white_amplitude_map([c.ir_mean() for c in caps], [robust_mean_fast(c.depth_stack(), 3.0, 1) for c in caps],
+    ref = white_amplitude_map([c.ir_mean() for c in caps], [robust_mean_depth(c.depth_stack(), 3.0, 1) for c in caps],
                               caps[0].intrinsics()[0])
     np.testing.assert_allclose(wm, ref, equal_nan=True)
     assert wm.shape == (424, 512) and np.isfinite(wm).mean() > 0.9

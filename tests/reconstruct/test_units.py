@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 
 from tofmetry.errors import EstimationError
-from tofmetry.pointcloud import robust_mean_depth
 from tofmetry.reconstruct import (
     PairResult,
     PoseGraphBuilder,
@@ -17,7 +16,6 @@ from tofmetry.reconstruct import (
     segment_object,
     undistort_depth,
 )
-from tofmetry.reconstruct._preprocess import robust_mean_fast
 from tofmetry.sensor import KINECT_V2
 
 
@@ -26,14 +24,6 @@ def plane_depth(intr, n, d, undistort=True):
     rays = intr.ray_table(undistort)
     denom = n[0] * rays[..., 0] + n[1] * rays[..., 1] + n[2]
     return d / denom * 1e3
-
-
-def test_robust_mean_matches_reference():
-    rng = np.random.default_rng(0)
-    st = rng.normal(1000, 2, (7, 30, 40)).round().astype(np.uint16)
-    st[rng.random(st.shape) < 0.1] = 0
-    st[0, :5] = 3000  # outliers
-    np.testing.assert_allclose(robust_mean_fast(st, 3.0, 2), robust_mean_depth(st, 3.0, 2), atol=1e-9)
 
 
 def test_undistort_depth_keeps_plane_flat():

@@ -33,7 +33,9 @@ def histogram_figure(deviation_m: np.ndarray, on_edge: np.ndarray, stats: dict, 
     ax.axvline(0, color="k", lw=0.8)
     ax.set_xlabel("signed deviation model - reference [mm]")
     ax.set_ylabel("number of points")
-    ax.set_title(title)
+    import textwrap
+
+    ax.set_title("\n".join(textwrap.wrap(title, 60)), fontsize=10)
     txt = (f"mean |d| {stats['mean_abs_mm']:.2f} mm, std {stats['std_signed_mm']:.2f} mm\n"
            f"p95 |d| {stats['percentiles_abs_mm']['p95']:.2f} mm, max {stats['max_abs_mm']:.2f} mm (trimmed)")
     ax.text(0.02, 0.97, txt, transform=ax.transAxes, va="top", fontsize=8,

@@ -27,7 +27,7 @@ def _stack_stats(stack, mean, std, count):  # pragma: no cover - compiled
         shift = np.zeros(n, np.float32)
         s1 = np.zeros(n, np.float32)
         s2 = np.zeros(n, np.float32)
-        c = np.zeros(n, np.int32)
+        c = np.zeros(n, np.float32)  # float: keeps the inner loop free of int/float conversions (SIMD)
         # shift = first valid sample of each pixel (usually frame 0)
         for k in range(n):
             for t in range(T):
@@ -44,10 +44,10 @@ def _stack_stats(stack, mean, std, count):  # pragma: no cover - compiled
                 x = (v - shift[k]) * w
                 s1[k] += x
                 s2[k] += x * x
-                c[k] += np.int32(w)
+                c[k] += w
         for k in range(n):
             ck = c[k]
-            count[lo + k] = ck
+            count[lo + k] = np.int32(ck)
             if ck > 0:
                 m1 = np.float64(s1[k]) / ck
                 mean[lo + k] = shift[k] + m1

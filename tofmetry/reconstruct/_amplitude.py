@@ -93,7 +93,7 @@ def white_map_from_wall(wall_dir, calibration=None, intrinsics: CameraIntrinsics
     InputError when a station has no IR frames or its size differs from the intrinsics.
     """
     from tofmetry.io import WallDataset
-    from tofmetry.reconstruct._preprocess import robust_mean_fast
+    from tofmetry.pointcloud import robust_mean_depth
 
     wall = WallDataset(wall_dir)
     stations = [st for st in wall.stations if st.distance_mm <= max_mm] or wall.stations[:1]
@@ -108,7 +108,7 @@ def white_map_from_wall(wall_dir, calibration=None, intrinsics: CameraIntrinsics
         if cap.shape != intr.shape:
             raise InputError(f"amplitude reference {wall_dir}: station {st.path} is {cap.shape}, "
                              f"expected {intr.shape} (the scan's depth size)")
-        d = robust_mean_fast(cap.depth_stack(range(min(max_frames, len(cap)))), 3.0, 1)
+        d = robust_mean_depth(cap.depth_stack(range(min(max_frames, len(cap)))), 3.0, 1)
         if calibration is not None:
             from tofmetry.calibrate import apply_depth_calibration
 

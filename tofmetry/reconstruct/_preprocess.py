@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tofmetry.errors import InputError
-from tofmetry.pointcloud import depth_to_points
+from tofmetry.pointcloud import depth_to_points, robust_mean_depth
 from tofmetry.reconstruct._config import PreprocessConfig
 from tofmetry.sensor import CameraIntrinsics
 
@@ -36,40 +36,6 @@ class ViewData:
     cos_incidence: np.ndarray
     ir: np.ndarray | None
     stats: dict
-
-
-def robust_mean_fast(stack: np.ndarray, k: float = 3.0, min_count: int = 1) -> np.ndarray:
-    """Same estimator as :func:`tofmetry.pointcloud.robust_mean_depth`, by sorting (no nanmedian).
-
-    Temporal mean of the samples within median +- k * max(1.4826 MAD, 0.5 mm); zeros ignored.
-
-    Parameters
-    ----------
-    stack : (T, H, W) uint16/float [mm]
-
-    Returns
-    -------
-    (H, W) float64 [mm], 0 where fewer than ``min_count`` samples survive.
-    """
-    st = np.asarray(stack, dtype=np.float64)
-    if st.ndim != 3 or st.shape[0] == 0:
-        raise InputError(f"robust mean: expected (T, H, W) with T >= 1, found {st.shape}")
-    st = np.where(st > 0, st, np.nan)
-    cnt = np.sum(~np.isnan(st), axis=0)
-
-    def _median(a: np.ndarray) -> np.ndarray:
-        srt = np.sort(a, axis=0)  # NaN sort last
-        lo = np.clip((cnt - 1) // 2, 0, None)[None]
-        hi = np.clip(cnt // 2, 0, None)[None]
-        return 0.5 * (np.take_along_axis(srt, lo, 0)[0] + np.take_along_axis(srt, hi, 0)[0])
-
-    med = _median(st)
-    mad = np.maximum(_median(np.abs(st - med)) * 1.4826, 0.5)
-    with np.errstate(invalid="ignore"):
-        keep = np.abs(st - med) <= k * mad
-    n = keep.sum(axis=0)
-    s = np.where(keep, st, 0.0).sum(axis=0)
-    return np.where((n >= min_count) & (cnt > 0), s / np.maximum(n, 1), 0.0)
 
 
 def _flying_filter(depth: np.ndarray, intr: CameraIntrinsics) -> np.ndarray:
@@ -101,7 +67,7 @@ def prepare_view(stack: np.ndarray, intr: CameraIntrinsics, calibration=None, co
     if stack.ndim != 3 or stack.shape[1:] != intr.shape:
         raise InputError(f"view {name}: depth stack shape {stack.shape} does not match the intrinsics {intr.shape} (T, H, W)")
     min_count = max(1, int(np.ceil(cfg.min_valid_share * stack.shape[0])))
-    depth = robust_mean_fast(stack, k=cfg.robust_k, min_count=min_count)
+    depth = robust_mean_depth(stack, k=cfg.robust_k, min_count=min_count)
     n_valid0 = int((depth > 0).sum())
     if calibration is not None:
         from tofmetry.calibrate import apply_depth_calibration

@@ -16,13 +16,17 @@ def _reference_path(ctx: StudyContext) -> Path | None:
     return None
 
 
-def _stats_row(label: str, s: dict, comp: dict | None) -> list:
-    c5 = (comp or {}).get("5") or (comp or {}).get("5.0") or {}
+def _at5(d: dict | None) -> dict:
+    d = d or {}
+    return d.get("5") or d.get("5.0") or {}
+
+
+def _stats_row(label: str, s: dict, comp: dict | None, comp_obs: dict | None) -> list:
     sw = s["share_within"]
     within5 = sw.get("5", sw.get("5.0", float("nan")))
     return [label, s["mean_abs_mm"], s["mean_signed_mm"], s["std_signed_mm"], s["rms_mm"],
             s["percentiles_abs_mm"]["p95"], s["max_abs_mm"], 100 * within5,
-            100 * c5.get("completeness", float("nan"))]
+            100 * _at5(comp).get("completeness", float("nan")), 100 * _at5(comp_obs).get("completeness", float("nan"))]
 
 
 def _amplitude_slope(ctx: StudyContext) -> tuple[float, str]:
@@ -88,26 +92,35 @@ def stage_model(ctx: StudyContext, out: StageOutcome) -> None:
         write_reconstruction(rdir, res, force=True)
         tm = res.diagnostics.get("timings_s", {})
         edges = [e for e in res.edges if e.get("accepted")]
+        cons = res.diagnostics.get("consistency", {})
         entry = {"views": len(res.names), "edges_accepted": len(edges), "edges_total": len(res.edges),
+                 "reliable": bool(res.diagnostics.get("reliable", True)), "consistency": cons,
                  "edge_fitness_min": float(min(e["fitness"] for e in edges)) if edges else None,
                  "edge_rmse_mm_max": float(max(e["inlier_rmse_mm"] for e in edges)) if edges else None,
                  "mesh_vertices": int(len(res.mesh_vertices)), "points": int(len(res.points)),
                  "fusion": res.diagnostics.get("fusion", {}), "timings_s": tm}
         out.data[label] = entry
+        if not entry["reliable"]:
+            reasons = "; ".join(cons.get("reasons", [])) or "see poses.json"
+            out.paragraphs.append(f"{label}: the registration is flagged UNRELIABLE by the pose-graph consistency gate "
+                                  f"({reasons}); its figures below describe a model that should not be trusted.")
         if label == runs[0][0]:
             out.tables.append((f"Registration edges ({label}; no manual input: coarse + robust ICP + pose graph)",
                                ["source", "target", "method", "fitness", "inlier RMSE [mm]", "kept"],
                                [[e["source"], e["target"], e["method"], e["fitness"], e["inlier_rmse_mm"],
                                  "yes" if e["kept"] else "pruned"] for e in edges]))
             out.data["registration_summary"] = (
-                f"automatic, {len(edges)} pairs (all overlapping, loop closed); inlier RMSE ≤ {entry['edge_rmse_mm_max']:.1f} mm")
+                f"automatic, {len(edges)} pairs (all overlapping, loop closed); inlier RMSE ≤ {entry['edge_rmse_mm_max']:.1f} mm"
+                + ("" if entry["reliable"] else "; FLAGGED UNRELIABLE"))
         if ref_path is None:
             continue
         ecfg = EvaluationConfig(align=True, thresholds_mm=tuple(mc.thresholds_mm),
                                 exclude_normal=(0.0, 0.0, -1.0) if ctx.simulated else None)
         model = read_geometry(rdir / "mesh.ply", "model")
         ref = read_geometry(ref_path, "reference")
-        ev = evaluate_model(model, ref, ecfg)
+        from tofmetry.io import read_json
+
+        ev = evaluate_model(model, ref, ecfg, poses=read_json(rdir / "poses.json", "poses.json"))
         files = write_evaluation(d / f"evaluation-{label}", ev, title=f"model ({label}) vs reference")
         ed = ev.to_dict()
         st = ed["stats_trimmed"]
@@ -115,10 +128,12 @@ def stage_model(ctx: StudyContext, out: StageOutcome) -> None:
         entry.update({"mean_abs_mm": st["mean_abs_mm"], "mean_signed_mm": st["mean_signed_mm"],
                       "std_mm": st["std_signed_mm"], "rms_mm": st["rms_mm"], "max_mm": st["max_abs_mm"],
                       "p95_mm": st["percentiles_abs_mm"]["p95"], "share_within_5mm": sw.get("5", sw.get("5.0")),
-                      "completeness": ed["completeness"], "stats_untrimmed": ed["stats"],
+                      "completeness": ed["completeness"], "completeness_observed": ed.get("completeness_observed"),
+                      "observed_surface": ed.get("observed_surface"), "stats_untrimmed": ed["stats"],
                       "edge_trimming": ed["edge_trimming"]})
-        table.append(_stats_row(f"{label}, edge-trimmed", st, ed["completeness"]))
-        table.append(_stats_row(f"{label}, all points", ed["stats"], ed["completeness"]))
+        comp_obs = ed.get("completeness_observed") or {}
+        table.append(_stats_row(f"{label}, edge-trimmed", st, ed["completeness"], comp_obs))
+        table.append(_stats_row(f"{label}, all points", ed["stats"], ed["completeness"], comp_obs))
         out.figures += [(f"{label}: {Path(p).stem.replace('_', ' ')}", Path(p)) for p in files.values()
                         if str(p).endswith(".png")]
         if label == runs[0][0]:
@@ -133,7 +148,8 @@ def stage_model(ctx: StudyContext, out: StageOutcome) -> None:
         out.tables.insert(0, ("Model vs reference mesh (study §5.3: mean ≈ 2 mm, std ≈ 2.5 mm, max ≈ 15 mm, 90 % < 5 mm; "
                               "Kinect Fusion §5.4: 1.1 / 1.4 mm)",
                               ["model", "mean |d| [mm]", "mean d [mm]", "std [mm]", "RMS [mm]", "p95 |d| [mm]",
-                               "max |d| [mm]", "|d| ≤ 5 mm [%]", "completeness @ 5 mm [%]"], table))
+                               "max |d| [mm]", "|d| ≤ 5 mm [%]", "completeness @ 5 mm [%]",
+                               "… of the observed surface [%]"], table))
         out.paragraphs.append(
             "Edge trimming (documented in `tofmetry evaluate`): model points whose closest reference point lies within "
             "3 mm of a sharp or boundary reference edge are excluded from the trimmed statistics — one Kinect v2 pixel "
