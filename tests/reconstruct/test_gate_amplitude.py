@@ -69,8 +69,8 @@ def test_white_map_from_wall_matches_the_station_formula(wall):
     """The library function = white_amplitude_map on the stations' mean IR / robust mean depth,
     with stations beyond max_mm left out."""
     from tofmetry.io import WallDataset
-    from tofmetry.reconstruct import white_amplitude_map, white_map_from_wall
     from tofmetry.pointcloud import robust_mean_depth
+    from tofmetry.reconstruct import white_amplitude_map, white_map_from_wall
 
     calls = []
     wm = white_map_from_wall(wall, None, None, max_mm=2000.0, advance=lambda: calls.append(1))

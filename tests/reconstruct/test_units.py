@@ -53,9 +53,37 @@ def test_tsdf_plane_at_one_metre():
     z = plane_depth(intr, np.array([0, 0, 1.0]), 1.0)
     f = TSDFFusion(intr, voxel_mm=4.0, trunc_mm=16.0)
     f.integrate(z, np.eye(4))
-    V, F, _, _, _ = f.extract(0.5)
+    V, F, _, _, _ = f.extract(1.0)  # one view = weight 1 must be enough
     assert len(F) > 1000
     assert np.abs(V[:, 2] - 1.0).max() < 4e-4
+
+
+def test_tsdf_keeps_surface_seen_by_one_view_only():
+    """Regression (issue #5): Open3D keeps voxels with weight strictly above its threshold, so
+    extracting at weight 1 dropped every patch seen by a single view. Two views of a wall at
+    1 m, each seeing one half (the other half invalid): the fused mesh must cover both halves,
+    as far out as a single view of the whole wall (within 2 voxels = 8 mm); the
+    strip seen by both views (|x| < 5 cm) must be there as well."""
+    intr = KINECT_V2.depth
+    z = plane_depth(intr, np.array([0, 0, 1.0]), 1.0)
+    x = intr.ray_table(True)[..., 0] * z * 1e-3  # [m]
+    f = TSDFFusion(intr, voxel_mm=4.0, trunc_mm=16.0)
+    f.integrate(np.where(x < 0.05, z, 0.0), np.eye(4))
+    f.integrate(np.where(x > -0.05, z, 0.0), np.eye(4))
+    V, F, _, _, _ = f.extract(1.0)
+    assert len(F) > 1000
+    full = TSDFFusion(intr, voxel_mm=4.0, trunc_mm=16.0)  # the whole wall in one view: the extent to reach
+    full.integrate(z, np.eye(4))
+    Vf = full.extract(1.0)[0]
+    assert V[:, 0].min() < Vf[:, 0].min() + 0.008 and V[:, 0].max() > Vf[:, 0].max() - 0.008
+    # the single-view halves hold most of the surface: vertices on both sides well beyond the overlap
+    assert (V[:, 0] < -0.2).sum() > 1000 and (V[:, 0] > 0.2).sum() > 1000
+    assert np.abs(V[:, 2] - 1.0).max() < 4e-4
+    # requiring two views keeps only the overlap strip (plus the cell fringe)
+    V2, _, _, _, _ = f.extract(2.0)
+    assert np.abs(V2[:, 0]).max() < 0.05 + 0.008
+    with pytest.raises(EstimationError):
+        f.extract(0.5)
 
 
 def test_segment_box_on_ground():

@@ -168,7 +168,8 @@ def _correct_backproject(depth, r, k0t, k1t, wt, surf, rays, start, out):  # pra
             j += 1
 
 
-def correct_and_backproject(depth: np.ndarray, cal: DepthCalibration, ray_table: np.ndarray) -> np.ndarray:
+def correct_and_backproject(depth: np.ndarray, cal: DepthCalibration, ray_table: np.ndarray,
+                            out: np.ndarray | None = None) -> np.ndarray:
     """Correct a depth frame and back-project it in one pass.
 
     Parameters
@@ -177,6 +178,8 @@ def correct_and_backproject(depth: np.ndarray, cal: DepthCalibration, ray_table:
     cal : DepthCalibration
     ray_table : (H, W, 2) normalised rays ``(x, y)`` (point = Z (x, y, 1)); pass float32
         (e.g. ``intr.ray_table().astype(np.float32)`` once) to avoid a conversion per call.
+    out : optional (H*W, 3) float32 buffer reused across frames (a live stream): the result is then
+        a view of its first N rows, and no memory is allocated per frame.
 
     Returns
     -------
@@ -192,7 +195,12 @@ def correct_and_backproject(depth: np.ndarray, cal: DepthCalibration, ray_table:
     cnt = _count_rows(depth)
     start = np.zeros(len(cnt), np.int64)
     np.cumsum(cnt[:-1], out=start[1:])
-    out = np.empty((int(cnt.sum()), 3), np.float32)
+    n = int(cnt.sum())
+    if out is None:
+        out = np.empty((n, 3), np.float32)
+    elif out.dtype != np.float32 or out.ndim != 2 or out.shape[1] != 3 or out.shape[0] < n or not out.flags.c_contiguous:
+        raise InputError(f"out: expected a C-contiguous (>= {n}, 3) float32 buffer, found {out.shape} {out.dtype}")
+    out = out[:n]
     t = cal.tables
     surf = cal.surfaces.reshape(cal.surfaces.shape[0], -1)
     _correct_backproject(depth, t.r, t.k0, t.k1, t.w, surf, rays, start, out)

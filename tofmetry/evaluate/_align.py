@@ -40,7 +40,7 @@ class AlignmentResult:
 def align_to_reference(model_pts: np.ndarray, ref_pts: np.ndarray, ref_nrm: np.ndarray, coarse: bool,
                        init: np.ndarray | None = None, icp_radii_mm=(10.0, 4.0, 2.0),
                        seeds: int = 3, ransac_max_iter: int = 20_000, extra_candidates=(),
-                       accept=None) -> AlignmentResult:
+                       accept=None, screen_keep: int = 3) -> AlignmentResult:
     """Rigid alignment of model samples onto reference samples.
 
     Parameters
@@ -58,6 +58,10 @@ def align_to_reference(model_pts: np.ndarray, ref_pts: np.ndarray, ref_nrm: np.n
         object otherwise aligns equally well rolled about its axis)
     ransac_max_iter : RANSAC iterations per seed (measured on the simulated balustrade: 20k gives
         the same alignment as 100k in a third of the time)
+    screen_keep : with more candidates than this, all are first screened by a cheap ICP (first
+        radius, 5 mm voxel clouds, 15 iterations) and only the best ``screen_keep`` get the full
+        first stage (measured on the simulated balustrade with the support-plane prior: 16
+        candidates, ICP time 20 s -> ~7 s, same alignment within 0.1 mm)
 
     Raises
     ------
@@ -86,13 +90,24 @@ def align_to_reference(model_pts: np.ndarray, ref_pts: np.ndarray, ref_nrm: np.n
         candidates.append(np.eye(4) if init is None else np.asarray(init, np.float64))
     if coarse:
         candidates += [np.asarray(T, np.float64) for T in extra_candidates]
+    def score(m):
+        return (accept is None or bool(accept(m.transform)), m.fitness, -m.inlier_rmse_m)
+
+    if len(candidates) > screen_keep:  # cheap screening of many hypotheses
+        m_scr, _ = voxel_down(model_pts, None, 0.005)
+        if len(m_scr) > 4_000:
+            m_scr = m_scr[np.random.default_rng(1).choice(len(m_scr), 4_000, replace=False)]
+        r_scr, r_scr_n = voxel_down(ref_pts, ref_nrm, 0.004)
+        scored = [(score(icp(m_scr, r_scr, r_scr_n, T, icp_radii_mm[0] * 1e-3, max_iter=15)), k)
+                  for k, T in enumerate(candidates)]
+        scored.sort(key=lambda sk: sk[0], reverse=True)
+        candidates = [candidates[k] for _, k in scored[:screen_keep]]
     best = None
-    for T in candidates:  # first (widest) stage on every candidate, keep the best
+    for T in candidates:  # first (widest) stage on every remaining candidate, keep the best
         m = icp(m_fine, r_fine, r_nrm, T, icp_radii_mm[0] * 1e-3, max_iter=30)
-        ok = accept is None or bool(accept(m.transform))
-        score = (ok, m.fitness, -m.inlier_rmse_m)
-        if best is None or score > best[0]:
-            best = (score, m, T)
+        sc = score(m)
+        if best is None or sc > best[0]:
+            best = (sc, m, T)
     _, m, T_init = best
     stages = [{"max_dist_mm": icp_radii_mm[0], "fitness": m.fitness, "inlier_rmse_mm": m.inlier_rmse_m * 1e3}]
     T = m.transform
