@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import resource
 import subprocess
 import sys
 import tempfile
@@ -25,11 +24,14 @@ def bench_depth_fit(n_stations: int = 15, n_frames: int = 50) -> dict:
         # the fit runs in a child process so that its own peak memory is measured (not the simulator's)
         code = ("import json, sys, time; from tofmetry.calibrate.pipelines import calibrate_depth_dataset; "
                 "t = time.perf_counter(); r = calibrate_depth_dataset(sys.argv[1], reference_offset_mm=20.0); "
-                "print(json.dumps({'seconds': time.perf_counter() - t, 'fit_only_seconds': r.seconds}))")
+                "hwm = [l for l in open('/proc/self/status') if l.startswith('VmHWM')][0].split()[1]; "
+                "print(json.dumps({'seconds': time.perf_counter() - t, 'fit_only_seconds': r.seconds, "
+                "'peak_rss_mb': int(hwm) / 1024}))")
         out = subprocess.run([sys.executable, "-c", code, str(Path(tmp) / "wall")], capture_output=True, text=True,
                              check=True)
+        # VmHWM of the child itself (RUSAGE_CHILDREN would count the parent's pages at fork time)
         res = json.loads(out.stdout.strip().splitlines()[-1])
-        child_rss = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0
+        child_rss = res["peak_rss_mb"]
     return {"stations": n_stations, "frames_per_station": n_frames, "seconds": res["seconds"],
             "fit_only_seconds": res["fit_only_seconds"], "simulate_seconds": t_sim, "peak_rss_mb": child_rss,
             "frames_in_memory_would_be_mb": n_stations * n_frames * 512 * 424 * 2 / 2**20}
