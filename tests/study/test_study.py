@@ -24,8 +24,8 @@ wall_distances_mm = [800.0, 1000.0, 1500.0, 2000.0, 2500.0]
 wall_frames = 4
 validation_distances_mm = [1250.0, 2250.0]
 validation_frames = 3
-scan_views = 4
-scan_frames = 2
+scan_views = 8
+scan_frames = 3
 [assess]
 noise_subsets = [10, 25]
 """

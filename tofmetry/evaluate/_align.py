@@ -61,7 +61,8 @@ def align_to_reference(model_pts: np.ndarray, ref_pts: np.ndarray, ref_nrm: np.n
     screen_keep : with more candidates than this, all are first screened by a cheap ICP (first
         radius, 5 mm voxel clouds, 15 iterations) and only the best ``screen_keep`` get the full
         first stage (measured on the simulated balustrade with the support-plane prior: 16
-        candidates, ICP time 20 s -> ~7 s, same alignment within 0.1 mm)
+        candidates, ICP time 20 s -> ~7 s, same alignment within 0.1 mm); if the screened alignment
+        fails, it is retried without screening and with at least 3 RANSAC runs
 
     Raises
     ------
@@ -93,7 +94,8 @@ def align_to_reference(model_pts: np.ndarray, ref_pts: np.ndarray, ref_nrm: np.n
     def score(m):
         return (accept is None or bool(accept(m.transform)), m.fitness, -m.inlier_rmse_m)
 
-    if len(candidates) > screen_keep:  # cheap screening of many hypotheses
+    screened = len(candidates) > screen_keep
+    if screened:  # cheap screening of many hypotheses
         m_scr, _ = voxel_down(model_pts, None, 0.005)
         if len(m_scr) > 4_000:
             m_scr = m_scr[np.random.default_rng(1).choice(len(m_scr), 4_000, replace=False)]
@@ -118,6 +120,10 @@ def align_to_reference(model_pts: np.ndarray, ref_pts: np.ndarray, ref_nrm: np.n
     if coarse:
         coarse_T = T_init
     res = AlignmentResult(T, coarse_T, stages[-1]["fitness"], stages[-1]["inlier_rmse_mm"], stages)
+    if res.fitness < 0.3 and screened:
+        # the cheap screening may have dropped the right hypothesis (partial models): retry in full
+        return align_to_reference(model_pts, ref_pts, ref_nrm, coarse, init, icp_radii_mm, max(seeds, 3),
+                                  ransac_max_iter, extra_candidates, accept, screen_keep=len(candidates) + 10**6)
     if res.fitness < 0.3:
         raise EstimationError(
             f"alignment to the reference failed: only {res.fitness:.0%} of the model lies within "
