@@ -19,8 +19,14 @@ def _fig_list(paths) -> list[tuple[str, Path]]:
     return [(Path(p).stem.replace("_", " "), Path(p)) for p in paths]
 
 
-def _save_json(ctx: StudyContext, key: str, d: dict) -> None:
+def _record(ctx: StudyContext, key: str, res, **figure_kw) -> tuple[dict, list[tuple[str, Path]]]:
+    """Write an assessment result's JSON and PNG figures into ``OUT/<key>/``; returns (dict, figures)."""
+    from tofmetry.assess import save_figures
+
+    d = res.to_dict()
     atomic_write_json(ctx.stage_dir(key) / "result.json", d)
+    pngs = [p for p in save_figures(res, ctx.stage_dir(key), **figure_kw) if str(p).endswith(".png")]
+    return d, _fig_list(pngs)
 
 
 # --------------------------------------------------------------------------- sensor
@@ -61,14 +67,12 @@ def stage_sensor(ctx: StudyContext, out: StageOutcome) -> None:
 
 # --------------------------------------------------------------------------- assessment
 def stage_warmup(ctx: StudyContext, out: StageOutcome) -> None:
-    from tofmetry.assess import assess_warmup, save_figures
+    from tofmetry.assess import assess_warmup
 
     cap = Capture(ctx.capture_dir("warmup", "a wall capture with timestamps_s"))
     a = ctx.config.assess
     res = assess_warmup(cap, patch=a.patch_px, tolerance_mm=a.warmup_tolerance_mm)
-    d = res.to_dict()
-    _save_json(ctx, "warmup", d)
-    out.figures = _fig_list(save_figures(res, ctx.stage_dir("warmup")))
+    d, out.figures = _record(ctx, "warmup", res)
     st = d["stabilisation_time_min"]
     out.data = {k: d[k] for k in ("stabilisation_time_min", "stabilisation_range_s", "total_drift_mm", "drift_range_mm",
                                   "residual_drift_mm", "final_level_mm", "n_frames", "duration_s", "patch", "notes")}
@@ -86,14 +90,12 @@ def stage_warmup(ctx: StudyContext, out: StageOutcome) -> None:
 
 
 def stage_noise(ctx: StudyContext, out: StageOutcome) -> None:
-    from tofmetry.assess import assess_noise, save_figures
+    from tofmetry.assess import assess_noise
 
     cap = Capture(ctx.capture_dir("noise", "a static capture of >= 100 frames"))
     a = ctx.config.assess
     res = assess_noise(cap, subsets=a.noise_subsets, row=a.noise_row)
-    d = res.to_dict()
-    _save_json(ctx, "noise", d)
-    out.figures = _fig_list(save_figures(res, ctx.stage_dir("noise")))
+    d, out.figures = _record(ctx, "noise", res)
     out.data = {"n_frames": d["n_frames"], "summaries": d["summaries"], "recommended_n": d["recommended_n"],
                 "recommendation_reason": d["recommendation_reason"], "block_precision": d["block_precision"],
                 "sigma_single_mm": d["sigma_single_mm"]}
@@ -116,7 +118,7 @@ def _regions_for(capdir: Path):
 
 
 def stage_materials(ctx: StudyContext, out: StageOutcome) -> None:
-    from tofmetry.assess import assess_materials, regions_from_dict, save_figures
+    from tofmetry.assess import assess_materials, regions_from_dict
     from tofmetry.io import read_json
 
     found = False
@@ -132,9 +134,8 @@ def stage_materials(ctx: StudyContext, out: StageOutcome) -> None:
             res = assess_materials(cap, regions)
         else:
             res = assess_materials(cap, auto_grey_board=True)
-        d = res.to_dict()
-        _save_json(ctx, name, d)
-        out.figures += [(f"{label}: {c}", p) for c, p in _fig_list(save_figures(res, ctx.stage_dir(name)))]
+        d, figs = _record(ctx, name, res)
+        out.figures += [(f"{label}: {c}", p) for c, p in figs]
         out.data[name] = {"fit": d["fit"], "erratic": d["erratic"],
                           "regions": [{k: r[k] for k in ("name", "amplitude", "bias_mm", "spatial_std_mm", "erratic")}
                                       for r in d["regions"]]}
@@ -152,14 +153,12 @@ def stage_materials(ctx: StudyContext, out: StageOutcome) -> None:
 
 
 def stage_outdoor(ctx: StudyContext, out: StageOutcome) -> None:
-    from tofmetry.assess import assess_outdoor, save_figures
+    from tofmetry.assess import assess_outdoor
 
     cap = Capture(ctx.capture_dir("outdoor", "a capture in strong ambient light"))
     res = assess_outdoor(cap)
-    d = res.to_dict()
-    _save_json(ctx, "outdoor", d)
     intr, _ = cap.intrinsics(ctx.intrinsics)
-    out.figures = _fig_list(p for p in save_figures(res, ctx.stage_dir("outdoor"), intr=intr) if str(p).endswith(".png"))
+    d, out.figures = _record(ctx, "outdoor", res, intr=intr)
     out.data = {k: d[k] for k in ("n_frames", "n_max_points", "valid_points_mean", "valid_fraction",
                                   "flying_points_mean", "flying_share_of_cloud", "detector")}
     out.tables.append(("Strong light (study §3.3.2: ~35 000 of 217 088 points ≈ 20 % valid; ~2 % flying)",
