@@ -47,12 +47,6 @@ def _notes(notes) -> None:
 
 
 # ------------------------------------------------------------------ intrinsics
-def _write_calib_yaml(path: Path, intr) -> Path:
-    from tofmetry.io.iai_kinect2 import write_calib_ir
-
-    return write_calib_ir(path, intr)
-
-
 def intrinsics_cmd(
     images_dir: Path = typer.Argument(..., help="Folder of IR (16-bit) or colour images of a checkerboard."),
     board: str = typer.Option(..., "--board", help="Inner corners COLSxROWS, e.g. 9x6."),
@@ -74,6 +68,7 @@ def intrinsics_cmd(
     from tofmetry.errors import InputError
     from tofmetry.io import write_intrinsics
     from tofmetry.io.board_dataset import BoardSpec
+    from tofmetry.io.iai_kinect2 import write_calib_ir
 
     spec = BoardSpec.parse(board, square_mm)
     if output.exists() and not force:
@@ -102,7 +97,7 @@ def intrinsics_cmd(
         console.print(f"[yellow]warning:[/] {w}")
     write_intrinsics(output, res.intrinsics, rms_px=res.rms_px, std=res.std, n_images=len(res.used))
     ypath = yaml or output.with_name("calib_ir.yaml")
-    _write_calib_yaml(ypath, res.intrinsics)
+    write_calib_ir(ypath, res.intrinsics)
     rdir = report or output.with_name(f"{output.stem}_report")
     write_intrinsics_report(run, rdir)
     console.print(f"wrote {output}, {ypath} and {rdir}/")

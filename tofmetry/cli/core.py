@@ -63,10 +63,7 @@ def cloud(
     intr, src = cap.intrinsics(load_intrinsics_option(intrinsics))
     if average:
         with progress("loading frames", len(cap)) as adv:
-            stack = np.empty((len(cap), *cap.shape), np.uint16)
-            for i in range(len(cap)):
-                stack[i] = cap.depth(i)
-                adv()
+            stack = cap.depth_stack(advance=adv)
         depth = robust_mean_depth(stack)
     else:
         if not 0 <= frame < len(cap):

@@ -221,12 +221,15 @@ class Capture:
             raise InputError(f"{self.path}: capture has no colour frames (color/ folder)")
         return images.read_color_image(self.color_files[min(i, len(self.color_files) - 1)])
 
-    def depth_stack(self, indices: Iterable[int] | None = None) -> np.ndarray:
-        """Load frames into a (T, H, W) uint16 stack (use only for short captures)."""
+    def depth_stack(self, indices: Iterable[int] | None = None, advance=None) -> np.ndarray:
+        """Load frames into a (T, H, W) uint16 stack (use only for short captures);
+        ``advance()`` is called after each frame (progress)."""
         idx = list(range(len(self))) if indices is None else list(indices)
         out = np.empty((len(idx), *self._shape), dtype=np.uint16)
         for k, i in enumerate(idx):
             out[k] = self.depth(i)
+            if advance is not None:
+                advance()
         return out
 
     def ir_mean(self, max_frames: int = 20) -> np.ndarray:

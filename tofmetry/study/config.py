@@ -63,9 +63,9 @@ class IntrinsicsConfig(_Cfg):
     @field_validator("board")
     @classmethod
     def _board(cls, v: str) -> str:
-        parts = v.lower().split("x")
-        if len(parts) != 2 or not all(p.isdigit() and int(p) >= 2 for p in parts):
-            raise ValueError(f"board must look like 9x6 (inner corners), found {v!r}")
+        from tofmetry.io.board_dataset import BoardSpec
+
+        BoardSpec.parse(v, 1.0)  # InputError (a ValueError) names the expected form
         return v
 
 

@@ -23,8 +23,9 @@ def stage_intrinsics(ctx: StudyContext, out: StageOutcome) -> None:
 
     folder = ctx.input("checkerboard", "IR images of a planar checkerboard")
     c = ctx.config.intrinsics
-    board = tuple(int(x) for x in c.board.lower().split("x"))
-    square = c.square_mm
+    from tofmetry.io.board_dataset import BoardSpec
+
+    board, square = BoardSpec.parse(c.board, c.square_mm).size, c.square_mm
     bj = folder / "board.json"
     if bj.is_file():  # the board's own description wins over the config default
         from tofmetry.io import read_json
