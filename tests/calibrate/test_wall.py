@@ -33,3 +33,23 @@ def test_plane_fit_recovers_tilt_and_rejects_outliers(small_intr):
     pf = fit_plane(z, small_intr)
     assert np.degrees(np.arccos(min(1.0, abs(pf.normal @ n)))) < 0.01
     assert not pf.inliers[:5, :5].any() and pf.std_mm < 1e-6
+
+
+def test_validation_separates_noise_of_the_mean(small_intr):
+    """A perfectly corrected station whose mean still carries noise of known std error:
+    the after-RMS is that noise and its systematic part is ~0."""
+    from tofmetry.calibrate import evaluate_wall_station
+    from tofmetry.calibrate.board import constant_shift_calibration
+
+    rng = np.random.default_rng(1)
+    sem = 0.5  # [mm] standard error of the temporal mean per pixel
+    truth = wall_reference(small_intr, 1500.0)
+    mean = truth + 3.0 + rng.normal(0, sem, truth.shape)  # constant 3 mm bias + noise
+    cal = constant_shift_calibration(-3.0, small_intr)  # corrected = measured - 3
+    rep, _ = evaluate_wall_station(mean, 1500.0, cal, small_intr, mean_sem_mm=np.full(truth.shape, sem))
+    n = truth.size * 0.81  # pixels in the central 90 % x 90 %
+    assert abs(rep.rms_noise_mm - sem) < 1e-9
+    assert abs(rep.rms_after_mm - sem) < 5 * sem / np.sqrt(2 * n)  # sampling error of an RMS
+    assert rep.rms_after_systematic_mm < 0.1 * sem
+    assert abs(rep.rms_raw_before_mm - np.hypot(3.0, sem)) < 0.05
+    assert "rms_after_systematic_mm" in rep.to_dict()

@@ -11,6 +11,14 @@ import numpy as np  # noqa: E402
 from tofmetry.calibrate._model import DepthCalibration  # noqa: E402
 
 
+def _range_label(cal) -> str:
+    name = cal.diagnostics.get("range_model", "spline")
+    if name == "spline":
+        return "smoothing B-spline"
+    cv = cal.diagnostics.get("range_model_cv_rms_mm", {})
+    return f"{name} (left-out RMS {cv.get(name, float('nan')):.2f} mm; spline {cv.get('spline', float('nan')):.2f} mm)"
+
+
 def fig_range_curve(cal: DepthCalibration, points_mm: np.ndarray, frame_points: list | None = None,
                     held_out: list | None = None):
     """Study Fig. 7a: central deviation [mm] against measured range [m], with the fitted spline.
@@ -29,7 +37,7 @@ def fig_range_curve(cal: DepthCalibration, points_mm: np.ndarray, frame_points: 
     ax.plot(points_mm[:, 0] / 1000.0, points_mm[:, 1] - off, "o", color="C0", label="stations (central patch)")
     lo, hi = cal.range_data_mm
     x = np.linspace(lo, hi, 400)
-    ax.plot(x / 1000.0, cal.range_error(x) - off, "-", color="C1", label="smoothing B-spline")
+    ax.plot(x / 1000.0, cal.range_error(x) - off, "-", color="C1", label=_range_label(cal))
     if held_out:
         h = np.asarray(held_out, float)
         ax.plot(h[:, 0] / 1000.0, h[:, 1], "s", mfc="none", color="C3", label="held-out stations")

@@ -24,9 +24,8 @@ import time
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
-from scipy.interpolate import make_interp_spline, make_smoothing_spline
-
 from tofmetry.calibrate._model import DepthCalibration, _node_weights
+from tofmetry.calibrate._range import select_range_curve
 from tofmetry.calibrate._surface import SurfaceSpec, fit_surface
 from tofmetry.errors import EstimationError, InputError
 from tofmetry.sensor import CameraIntrinsics
@@ -58,6 +57,9 @@ class DepthFitConfig:
     center_pixels: int = 100          # pixels nearest the principal point for the range data
     center_radius_px: float = 6.0     # disc on which each surface is forced to zero mean
     range_smoothing: float | None = None  # make_smoothing_spline lam; None = GCV
+    range_model: str = "auto"         # "spline" (study), "harmonic" or "auto" (leave-one-out choice, see _range)
+    modulation_mhz: tuple[float, ...] | None = None  # None = the sensor profile's (empty for unknown sensors)
+    max_harmonic: int = 3             # harmonics of each modulation half wavelength in the harmonic models
     range_margin_mm: float = 50.0     # corrected range = data range +- margin (R clamped there)
     nodes_mm: tuple[float, ...] | None = None  # surface nodes; None = one per distinct sample distance
     node_merge_mm: float = 1.0        # samples closer than this share a node
@@ -101,25 +103,17 @@ def fit_range_curve(x: np.ndarray, y: np.ndarray, lam: float | None = None, merg
 
     Points closer than ``merge_mm`` in ``x`` are averaged first (weight = their count).
     Fewer than 5 distinct distances: interpolating spline of degree ``min(3, n - 1)``.
-    Returns a ``scipy.interpolate.BSpline``.
+    Returns a ``scipy.interpolate.BSpline``. (The study's model; :func:`fit_depth_model`
+    chooses between it and harmonic models with :func:`select_range_curve`.)
     """
-    order = np.argsort(x, kind="stable")
-    x, y = np.asarray(x, float)[order], np.asarray(y, float)[order]
-    gx, gy, gw = [x[0]], [y[0]], [1.0]
-    for xi, yi in zip(x[1:], y[1:]):
-        if xi - gx[-1] / gw[-1] < merge_mm:
-            gx[-1] += xi
-            gy[-1] += yi
-            gw[-1] += 1.0
-        else:
-            gx.append(xi)
-            gy.append(yi)
-            gw.append(1.0)
-    w = np.array(gw)
-    x, y = np.array(gx) / w, np.array(gy) / w
-    if len(x) >= 5:
-        return make_smoothing_spline(x, y, w=w / w.mean(), lam=lam)
-    return make_interp_spline(x, y, k=min(3, len(x) - 1))
+    return select_range_curve(x, y, lam, merge_mm, model="spline").spline
+
+
+def _profile_modulation(sensor: str) -> tuple:
+    from tofmetry.sensor import PROFILES
+
+    prof = PROFILES.get(sensor)
+    return tuple(getattr(prof, "modulation_mhz", ()) or ()) if prof is not None else ()
 
 
 def _nodes_from(centers: np.ndarray, merge_mm: float) -> np.ndarray:
@@ -191,6 +185,7 @@ def fit_depth_model(samples: list[DepthSample], intrinsics: CameraIntrinsics, co
     if len(np.unique(centers.round(3))) < 2:
         raise InputError("depth calibration needs samples at 2 or more distinct distances")
     k0, k1, hw = _node_weights(nodes, centers)
+    modulation = cfg.modulation_mhz if cfg.modulation_mhz is not None else _profile_modulation(sensor)
     n_nodes = len(nodes)
     surfaces = np.zeros((n_nodes, *shape))
     bad = [np.zeros(shape, bool) for _ in samples]
@@ -205,7 +200,9 @@ def fit_depth_model(samples: list[DepthSample], intrinsics: CameraIntrinsics, co
             ci = cidx[j]
             ww = wts[j].ravel()[ci] * ~bad[j].ravel()[ci]
             y[j] = np.sum((err[j].ravel()[ci] - s_j.ravel()[ci]) * ww) / max(ww.sum(), 1e-12)
-        spline = fit_range_curve(centers, y, cfg.range_smoothing, cfg.node_merge_mm)
+        choice = select_range_curve(centers, y, cfg.range_smoothing, cfg.node_merge_mm, cfg.range_model,
+                                    modulation, cfg.max_harmonic)
+        spline = choice.spline
         history.append(float(np.max(np.abs(y - prev_y))) if prev_y is not None else float("nan"))
         prev_y = y
         if cfg.surface.model == "none":
@@ -266,7 +263,9 @@ def fit_depth_model(samples: list[DepthSample], intrinsics: CameraIntrinsics, co
             "rms_after_mm": float(np.sqrt(np.mean(after[good] ** 2))),
             "n_valid": int(good.sum()), "n_outliers": int(bad[j].sum()),
         })
-    cal.diagnostics.update({"samples": table, "offset_mm": offset, "history": history})
+    cal.diagnostics.update({"samples": table, "offset_mm": offset, "history": history,
+                            "range_model": choice.name, "range_model_cv_rms_mm": choice.cv_rms_mm,
+                            "modulation_mhz": list(modulation)})
     return DepthCalibrationResult(
         calibration=cal, samples=table, range_points=np.column_stack([centers, prev_y]), history=history,
         seconds=time.perf_counter() - t0,

@@ -8,7 +8,14 @@ Metrics for a wall station at reference distance ``D`` (all [mm]):
 * ``plane_std``: std of the residuals to a robust least-squares plane (tilt free).
 * ``rms``: RMS of the per-pixel error against the reference wall (anchored at ``D`` on the
   optical axis; frontal, or with the orientation fitted on the corrected data) over the
-  central 90 % of the image (5 % cut on each side), offset removed before correction.
+  central 90 % of the image (5 % cut on each side), offset removed before correction (the
+  strict figure: it credits the calibration only for the shape of the error).
+* ``rms_raw_before``: the same before correction *without* removing the offset: the error a
+  user of the uncorrected sensor actually gets.
+* ``rms_noise``: the part of these RMS figures that is the random noise of the station's
+  temporal mean (RMS of the per-pixel standard error ``std / sqrt(n)``), which no calibration
+  can remove; ``rms_after_systematic = sqrt(rms_after^2 - rms_noise^2)`` is what is left of the
+  systematic error.
 """
 
 from __future__ import annotations
@@ -38,9 +45,16 @@ class StationReport:
     rms_after_mm: float
     n_outside_range: int
     held_out: bool = True
+    rms_raw_before_mm: float = float("nan")
+    rms_noise_mm: float = float("nan")
+
+    @property
+    def rms_after_systematic_mm(self) -> float:
+        """Systematic part of ``rms_after_mm`` (noise of the temporal mean removed) [mm]."""
+        return float(np.sqrt(max(self.rms_after_mm ** 2 - self.rms_noise_mm ** 2, 0.0)))
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        return asdict(self) | {"rms_after_systematic_mm": self.rms_after_systematic_mm}
 
 
 def central_fraction_mask(shape: tuple[int, int], fraction: float = 0.9) -> np.ndarray:
@@ -54,7 +68,8 @@ def central_fraction_mask(shape: tuple[int, int], fraction: float = 0.9) -> np.n
 
 def evaluate_wall_station(mean_mm: np.ndarray, distance_mm: float, cal: DepthCalibration,
                           intrinsics: CameraIntrinsics | None = None, name: str = "", frontal: bool = True,
-                          fraction: float = 0.9, held_out: bool = True) -> tuple[StationReport, dict]:
+                          fraction: float = 0.9, held_out: bool = True,
+                          mean_sem_mm: np.ndarray | None = None) -> tuple[StationReport, dict]:
     """Before/after metrics of one station's averaged depth.
 
     Parameters
@@ -66,6 +81,8 @@ def evaluate_wall_station(mean_mm: np.ndarray, distance_mm: float, cal: DepthCal
     frontal : reference wall perpendicular to the optical axis; else its orientation is
         fitted on the corrected cloud
     fraction : central fraction of the image used for ``rms``
+    mean_sem_mm : (H, W) float [mm], optional standard error of ``mean_mm`` per pixel
+        (temporal std / sqrt(n)); gives ``rms_noise_mm``
 
     Returns
     -------
@@ -91,6 +108,8 @@ def evaluate_wall_station(mean_mm: np.ndarray, distance_mm: float, cal: DepthCal
         plane_std_before_mm=pf_b.std_mm, plane_std_after_mm=pf_a.std_mm,
         rms_before_mm=rms(eb), rms_after_mm=rms(ea),
         n_outside_range=count_outside_range(np.nan_to_num(m), cal), held_out=held_out,
+        rms_raw_before_mm=rms(m - ref),
+        rms_noise_mm=rms(np.where(np.isfinite(c), mean_sem_mm, np.nan)) if mean_sem_mm is not None else float("nan"),
     )
     maps = {"residual_before": pf_b.residual_mm, "residual_after": pf_a.residual_mm, "error_before": eb, "error_after": ea}
     return rep, maps
@@ -132,15 +151,27 @@ def summarize(reports: list[StationReport], max_distance_mm: float = 4000.0) -> 
     """Aggregate figures over stations: max |dev| after (<= max_distance), median rms ratio, etc."""
     sel = [r for r in reports if r.distance_mm <= max_distance_mm] or reports
     ratio = [r.rms_before_mm / r.rms_after_mm for r in reports if r.rms_after_mm > 0]
+    raw = [r.rms_raw_before_mm / r.rms_after_mm for r in reports if r.rms_after_mm > 0 and np.isfinite(r.rms_raw_before_mm)]
     return {
         "n_stations": len(reports),
         "max_abs_dev_after_mm": float(max(abs(r.dev_after_mm) for r in sel)) if sel else float("nan"),
         "max_abs_dev_before_mm": float(max(abs(r.dev_before_mm) for r in sel)) if sel else float("nan"),
         "min_rms_reduction": float(min(ratio)) if ratio else float("nan"),
         "median_rms_reduction": float(np.median(ratio)) if ratio else float("nan"),
+        "min_rms_reduction_raw": float(min(raw)) if raw else float("nan"),
+        "min_rms_reduction_systematic": _min_sys(reports),
         "mean_plane_std_before_mm": float(np.mean([r.plane_std_before_mm for r in reports])) if reports else float("nan"),
         "mean_plane_std_after_mm": float(np.mean([r.plane_std_after_mm for r in reports])) if reports else float("nan"),
     }
+
+
+def _min_sys(reports) -> float:
+    """Smallest reduction of the systematic RMS (noise of the temporal means removed on both sides)."""
+    out = []
+    for r in reports:
+        if np.isfinite(r.rms_noise_mm) and r.rms_after_systematic_mm > 0:
+            out.append(np.sqrt(max(r.rms_before_mm ** 2 - r.rms_noise_mm ** 2, 0.0)) / r.rms_after_systematic_mm)
+    return float(min(out)) if out else float("nan")
 
 
 def with_surface(config: DepthFitConfig, model: str, **kw) -> DepthFitConfig:

@@ -320,7 +320,9 @@ def calibrate_depth_dataset(path: Path, *, intrinsics: CameraIntrinsics | None =
     cal.diagnostics["samples"] = res.samples
     frame_points = [(row["center_mm"], s.frame_center_mm - st.distance_mm + reference_offset_mm)
                     for row, s, st in zip(res.samples, stats, stations)]
-    return DepthRun("wall", cal, intr, src, sensor, rows, {"history": res.history, "fit_seconds": res.seconds},
+    return DepthRun("wall", cal, intr, src, sensor, rows, {"history": res.history, "fit_seconds": res.seconds,
+                                                              "range_model": cal.diagnostics.get("range_model"),
+                                                              "range_model_cv_rms_mm": cal.diagnostics.get("range_model_cv_rms_mm")},
                     time.perf_counter() - t0, notes, str(path), res.range_points, frame_points)
 
 
@@ -481,7 +483,8 @@ def validate_depth(path: Path, cal: DepthCalibration, *, intrinsics: CameraIntri
     reports, maps = [], []
     for st, s in zip(stations, stats):
         rep, mp = evaluate_wall_station(s.mean_mm, st.distance_mm - reference_offset_mm, cal, intr, name=st.name,
-                                        frontal=not tilted, held_out=st.name not in fit_names)
+                                        frontal=not tilted, held_out=st.name not in fit_names,
+                                        mean_sem_mm=s.std_mm / np.sqrt(max(s.n_frames, 1)))
         reports.append(rep)
         maps.append(mp)
     cvres = None

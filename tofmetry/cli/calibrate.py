@@ -14,7 +14,8 @@ calibrate_app = typer.Typer(help="Calibrate the camera: IR intrinsics (checkerbo
 
 
 # ------------------------------------------------------------------ helpers
-def _fit_config(surface: str, poly_degree: int, knots: str, iterations: int):
+def _fit_config(surface: str, poly_degree: int, knots: str, iterations: int, range_model: str = "auto",
+                modulation_mhz: str | None = None):
     from tofmetry.calibrate import DepthFitConfig, SurfaceSpec
     from tofmetry.errors import InputError
 
@@ -24,7 +25,18 @@ def _fit_config(surface: str, poly_degree: int, knots: str, iterations: int):
         raise InputError(f"--knots must be like 6x5 (interior knots along u and v), found {knots!r}") from None
     if surface not in ("spline", "poly", "none"):
         raise InputError(f"--surface must be spline, poly or none, found {surface!r}")
-    return DepthFitConfig(surface=SurfaceSpec(model=surface, degree=poly_degree, knots=(ku, kv)), iterations=iterations)
+    if range_model not in ("auto", "spline", "harmonic"):
+        raise InputError(f"--range-model must be auto, spline or harmonic, found {range_model!r}")
+    mod = None
+    if modulation_mhz is not None:
+        try:
+            mod = tuple(float(x) for x in modulation_mhz.split(",") if x.strip())
+        except ValueError:
+            raise InputError(f"--modulation-mhz must be comma-separated MHz like 80,16,120, found {modulation_mhz!r}") from None
+        if any(not f > 0 for f in mod):
+            raise InputError(f"--modulation-mhz: frequencies must be positive, found {modulation_mhz!r}")
+    return DepthFitConfig(surface=SurfaceSpec(model=surface, degree=poly_degree, knots=(ku, kv)), iterations=iterations,
+                          range_model=range_model, modulation_mhz=mod)
 
 
 def _report_table(reports, title: str):
@@ -32,11 +44,11 @@ def _report_table(reports, title: str):
 
     t = Table(title=title)
     for col in ("station", "D [mm]", "dev before", "dev after", "plane std before", "plane std after",
-                "RMS before", "RMS after", "outside"):
+                "RMS raw before", "RMS before (offset removed)", "RMS after", "outside"):
         t.add_column(col, justify="right")
     for r in reports:
         t.add_row(r.name, f"{r.distance_mm:.0f}", f"{r.dev_before_mm:+.2f}", f"{r.dev_after_mm:+.2f}",
-                  f"{r.plane_std_before_mm:.2f}", f"{r.plane_std_after_mm:.2f}", f"{r.rms_before_mm:.2f}",
+                  f"{r.plane_std_before_mm:.2f}", f"{r.plane_std_after_mm:.2f}", f"{r.rms_raw_before_mm:.2f}", f"{r.rms_before_mm:.2f}",
                   f"{r.rms_after_mm:.2f}", str(r.n_outside_range))
     return t
 
@@ -114,6 +126,11 @@ def depth(
     poly_degree: int = typer.Option(3, help="Wall: total degree of the polynomial surface."),
     knots: str = typer.Option("6x5", help="Wall: interior knots (u x v) of the tensor-spline surface."),
     iterations: int = typer.Option(4, help="Wall: alternations between range curve and surfaces."),
+    range_model: str = typer.Option("auto", help="Wall: range-error curve: spline (the study's smoothing B-spline), "
+                                    "harmonic (trend + harmonics of the modulation half wavelengths) or auto (the one "
+                                    "predicting left-out stations best)."),
+    modulation_mhz: Optional[str] = typer.Option(None, help="Wall: modulation frequencies [MHz], e.g. 80,16,120 "
+                                                 "(default: the sensor profile's; empty string: none, spline only)."),
     tilted: bool = typer.Option(True, "--tilted/--frontal", help="Wall: fit the wall orientation (tilt) per station, "
                                 "or take the wall perpendicular to the optical axis."),
     reference_offset_mm: float = typer.Option(0.0, help="Wall: known distance [mm] from the stations' reference point "
@@ -135,7 +152,7 @@ def depth(
 
     if output.exists() and not force:
         raise InputError(f"output {output} exists; pass --force to overwrite it")
-    cfg = _fit_config(surface, poly_degree, knots, iterations)
+    cfg = _fit_config(surface, poly_degree, knots, iterations, range_model, modulation_mhz)
     with progress(f"calibrating depth on {dataset.name}", None) as adv:
         run = calibrate_depth_dataset(dataset, intrinsics=load_intrinsics_option(intrinsics), config=cfg, tilted=tilted,
                                       reference_offset_mm=reference_offset_mm, advance=adv, squares=squares,
@@ -153,6 +170,10 @@ def depth(
                       f"{row['dev_before_mm']:+.2f}", f"{row['dev_after_mm']:+.3f}", f"{row['rms_before_mm']:.2f}",
                       f"{row['rms_after_mm']:.2f}", f"{row['center_std_mm']:.2f}")
         console.print(t)
+        cv = cal.diagnostics.get("range_model_cv_rms_mm", {})
+        chosen = cal.diagnostics.get("range_model", "spline")
+        console.print(f"range-error model: {chosen} (of {len(cv)} candidates; left-out station RMS "
+                      f"{cv.get(chosen, float('nan')):.2f} mm, smoothing spline {cv.get('spline', float('nan')):.2f} mm)")
         console.print(f"offset (reference point -> optical centre + mean range bias): {cal.offset_mm:+.2f} mm; "
                       f"valid range {cal.valid_range_mm[0]:.0f}-{cal.valid_range_mm[1]:.0f} mm")
     else:

@@ -35,6 +35,9 @@ class SensorProfile:
         Operative measuring range [mm] (Z).
     fps : float
         Frame rate [1/s].
+    modulation_mhz : tuple of float
+        Modulation frequencies of the continuous-wave ToF illumination [MHz] (empty when
+        unknown). The depth calibration uses them as candidate wiggling periods ``c / (2 f)``.
     """
 
     name: str
@@ -44,6 +47,7 @@ class SensorProfile:
     min_range_mm: float
     max_range_mm: float
     fps: float
+    modulation_mhz: tuple = ()
 
     @property
     def n_pixels(self) -> int:
@@ -69,6 +73,7 @@ KINECT_V2 = SensorProfile(
     min_range_mm=500.0,
     max_range_mm=4500.0,
     fps=30.0,
+    modulation_mhz=(80.0, 16.0, 120.0),  # the three frequencies libfreenect2 decodes (half wavelengths 1.87, 9.37, 1.25 m)
 )
 
 #: Azure Kinect DK, NFOV unbinned depth mode (640x576, 75 x 65 deg, 0.5-3.86 m) and 1280x720 colour.

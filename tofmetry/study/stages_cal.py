@@ -121,9 +121,13 @@ def stage_depth(ctx: StudyContext, out: StageOutcome) -> None:
                                           float(max(r.plane_std_after_mm for r in va.stations))]
         out.tables.append(("Held-out stations (never fitted): before → after correction [mm]",
                            ["station", "distance [m]", "central dev before", "after", "plane std before", "after",
-                            "per-pixel RMS (central 90 %) before", "after", "reduction"],
+                            "per-pixel RMS (central 90 %) before, raw", "before, offset removed", "after",
+                            "noise of the temporal mean", "after, systematic part",
+                            "reduction (raw)", "reduction (offset removed)"],
                            [[r.name, r.distance_mm / 1000, r.dev_before_mm, r.dev_after_mm, r.plane_std_before_mm,
-                             r.plane_std_after_mm, r.rms_before_mm, r.rms_after_mm,
+                             r.plane_std_after_mm, r.rms_raw_before_mm, r.rms_before_mm, r.rms_after_mm,
+                             r.rms_noise_mm, r.rms_after_systematic_mm,
+                             r.rms_raw_before_mm / r.rms_after_mm if r.rms_after_mm > 0 else float("nan"),
                              r.rms_before_mm / r.rms_after_mm if r.rms_after_mm > 0 else float("nan")]
                             for r in va.stations]))
         if dc.compare_polynomial and run.kind == "wall":

@@ -81,6 +81,15 @@ def comparison_rows(ctx: StudyContext) -> list[ComparisonRow]:
             rows.append(ComparisonRow("central deviation after correction", f"|dev| ≤ {d['heldout_central_after_max_mm']:.1f} mm on held-out stations",
                                       "≈ 0 on the training stations only", "§4.3, Fig. 9a", "better",
                                       "validated on stations never used for fitting"))
+        h = d.get("heldout") or {}
+        if isinstance(h.get("min_rms_reduction"), (int, float)) and np.isfinite(h["min_rms_reduction"]):
+            rows.append(ComparisonRow("per-pixel RMS error reduction (central 90 %)",
+                                      f"≥ {h['min_rms_reduction']:.1f}× (offset removed before), "
+                                      f"≥ {h.get('min_rms_reduction_raw', float('nan')):.1f}× (raw), "
+                                      f"≥ {h.get('min_rms_reduction_systematic', float('nan')):.1f}× (systematic part) "
+                                      "on held-out stations",
+                                      "not reported", "§4.3, Fig. 9b", "better",
+                                      "against the true wall; stations never used for fitting"))
         if d.get("plane_std_before_mm") and d.get("plane_std_after_mm"):
             b, a = d["plane_std_before_mm"], d["plane_std_after_mm"]
             rows.append(ComparisonRow("plane-fit residual std before → after", f"{b[0]:.1f}–{b[1]:.1f} → {a[0]:.1f}–{a[1]:.1f} mm",
