@@ -40,12 +40,17 @@ def test_registration_ideal_sensor(ideal_scan, tmp_path):
     ds = ScanDataset(ideal_scan)
     res = ReconstructionPipeline(ds, None).run()
     err = _rel_errors(res.poses, read_json(ideal_scan / "truth.json"))
+    print("ideal sensor, rotation [deg] / translation [mm] per view:", err.round(3).tolist())
     # with only ~1 mm noise (2-frame mean) and no bias, pairwise ICP residuals are sub-mm:
     # the task's bounds (0.5 deg, 3 mm) hold with margin
     assert err[:, 0].max() < 0.5, err
     assert err[:, 1].max() < 3.0, err
     assert sum(e["accepted"] for e in res.edges) >= 8
     assert res.diagnostics["reliable"], res.diagnostics["consistency"]
+    # no range-dependent depth error in this sensor: the self-calibrated gain must stay near 0
+    # (noise-limited; 0.2 % over the object's +-100 mm depth span would be 0.2 mm)
+    adj = res.diagnostics["adjustment"]
+    assert abs(adj["depth_gain"]) < 2e-3 and adj["iterations"] >= 1, adj
     write_reconstruction(tmp_path / "rec", res)
     d = json.loads((tmp_path / "rec" / "poses.json").read_text())
     assert [v["name"] for v in d["views"]] == ds.names
@@ -81,11 +86,15 @@ def test_end_to_end_full_errors(tmp_path):
     """All error terms on, calibration fitted by the calibration pipeline on a simulated wall
     dataset (not the truth); then reconstruct + evaluate through the CLI.
 
-    With the amplitude-bias correction referenced on the same wall. Asserted: the issue's
-    bounds on rotation (< 0.5 deg) and on the model (mean |d| <= 1.0 mm, std <= 1.2 mm,
-    p95 <= 3 mm, max <= 8 mm after edge trimming). Not asserted (not reached, see the
-    report): translation < 3 mm (5-6 mm measured) and completeness >= 90 % (66 % measured over
-    the whole reference, 73 % over the surface the registered cameras could see).
+    With the amplitude-bias correction referenced on the same wall, and the global adjustment
+    with its depth-gain self-calibration (the 5-station calibration leaves a ~0.5 % depth gain
+    over the object's depth span; without the gain the cameras were off by up to 5.9 mm).
+    Asserted: the issue's bounds on registration (rotation < 0.5 deg, translation < 3 mm for
+    every view; measured 0.09 deg / 1.6 mm on seeds 0 and 1 with 10 frames) and on the model
+    (mean |d| <= 1.0 mm, std <= 1.2 mm, p95 <= 3 mm, max <= 8 mm after edge trimming),
+    completeness at 5 mm >= 90 % over the surface the registered cameras could see (the
+    underside and occluded parts of the reference cannot be modelled; over the whole reference
+    ~87 % measured, asserted > 80 %).
     """
     from typer.testing import CliRunner
 
@@ -103,6 +112,7 @@ def test_end_to_end_full_errors(tmp_path):
     poses = np.array([v["camera_to_world"] for v in read_json(tmp_path / "rec" / "poses.json")["views"]])
     err = _rel_errors(poses, read_json(scan / "truth.json"))
     assert err[:, 0].max() < 0.5, err
+    assert err[:, 1].max() < 3.0, err
     T0 = np.array(read_json(scan / "truth.json")["views"][0]["camera_to_world"])
     (tmp_path / "init.json").write_text(json.dumps({"transform": T0.tolist()}))
     r = run.invoke(app, ["evaluate", str(tmp_path / "rec" / "mesh.ply"), "--reference", str(scan / "reference.ply"),
@@ -112,9 +122,9 @@ def test_end_to_end_full_errors(tmp_path):
     m = read_json(tmp_path / "ev" / "metrics.json")
     assert read_json(tmp_path / "rec" / "poses.json")["reliable"] is True
     # the observed surface is a subset of the reference: completeness over it cannot be lower
-    # (measured 73 %, not the 90 % target: see the report)
     assert m["completeness_observed"]["5"]["completeness"] >= m["completeness"]["5"]["completeness"]
+    assert m["completeness_observed"]["5"]["completeness"] >= 0.9, m["completeness_observed"]
     st = m["stats_trimmed"]
     assert st["mean_abs_mm"] <= 1.0 and st["std_signed_mm"] <= 1.2, st
     assert st["percentiles_abs_mm"]["p95"] <= 3.0 and st["max_abs_mm"] <= 8.0, st
-    assert m["completeness"]["5"]["completeness"] > 0.5
+    assert m["completeness"]["5"]["completeness"] > 0.8, m["completeness"]

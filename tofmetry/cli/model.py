@@ -27,6 +27,11 @@ def reconstruct(
     poisson: bool = typer.Option(False, "--poisson", help="Also write a density-trimmed Poisson mesh (mesh_poisson.ply)."),
     voxel_mm: float | None = typer.Option(None, help="TSDF voxel [mm] (default: 0.6 * range / focal)."),
     max_mm: float = typer.Option(2500.0, help="Farthest depth kept [mm]."),
+    global_adjust: bool = typer.Option(True, "--global-adjust/--no-global-adjust",
+                                       help="Refine all poses jointly after the pose graph (multi-view ICP)."),
+    depth_gain: bool = typer.Option(True, "--depth-gain/--no-depth-gain",
+                                    help="Let the global adjustment estimate a depth gain g (z -> z + g (z - z_ref)): the "
+                                    "range-dependent residual a few-station depth calibration leaves over the object's depth."),
     force: bool = typer.Option(False, "--force", help="Replace an existing output folder."),
     allow_unreliable: bool = typer.Option(
         False, "--allow-unreliable", help="Exit 0 even when the pose-graph consistency gate flags the registration "
@@ -56,6 +61,8 @@ def reconstruct(
     cfg.fusion.voxel_mm = voxel_mm
     cfg.preprocess.max_mm = max_mm
     cfg.preprocess.amplitude_k_mm_per_ln = amplitude_k
+    cfg.registration.global_adjust = global_adjust
+    cfg.registration.estimate_depth_gain = depth_gain
     ds = ScanDataset(scan_dir)
     white_map = None
     if amplitude_reference is not None:
@@ -84,9 +91,16 @@ def reconstruct(
     console.print(f"{n_rej} pair(s) rejected (no overlap / failed gates); TSDF voxel {f['voxel_mm']:.2f} mm, "
                   f"truncation {f['trunc_mm']:.2f} mm; mesh {len(res.mesh_vertices)} vertices / "
                   f"{len(res.mesh_triangles)} triangles; cloud {len(res.points)} points")
+    adj = res.diagnostics.get("adjustment")
+    if adj and "failed" in adj:
+        console.print(f"[yellow]global adjustment failed ({adj['failed']}); the pose-graph poses are used[/yellow]")
+    elif adj:
+        console.print(f"global adjustment: {adj['iterations']} iterations, residual RMS {adj['rms_mm'][-1]:.2f} mm, poses "
+                      f"moved up to {max(adj['moved_deg'].values()):.3f} deg / {max(adj['moved_mm'].values()):.2f} mm; "
+                      f"depth gain {adj['depth_gain'] * 100:+.3f} % of (z - {adj['z_ref_mm']:.0f} mm)")
     tm = res.diagnostics["timings_s"]
     console.print(f"wrote {output} in {tm['total_s']:.1f} s (views {tm['views_s']:.1f}, registration "
-                  f"{tm['registration_s']:.1f}, fusion {tm['fusion_s']:.1f}, meshing {tm['meshing_s']:.1f})")
+                  f"{tm['registration_s']:.1f}, adjustment {tm['adjustment_s']:.1f}, fusion {tm['fusion_s']:.1f}, meshing {tm['meshing_s']:.1f})")
     cons = res.diagnostics.get("consistency") or {}
     if cons.get("cycle_closure_mm") is not None:
         console.print(f"consistency: view circle closes to {cons['cycle_closure_deg']:.2f} deg / {cons['cycle_closure_mm']:.1f} mm "

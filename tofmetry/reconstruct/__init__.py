@@ -3,10 +3,16 @@
 Stages (one module each): :mod:`._preprocess` (robust mean, calibration, flying pixels,
 range, normals) -> :mod:`._segment` (support plane + object) -> :mod:`._register` (plane-yaw
 or FPFH coarse, robust point-to-plane ICP) -> :mod:`._posegraph` (all pairs, LM global
-optimisation) -> :mod:`._fusion` (TSDF VoxelBlockGrid on undistorted depth, mesh, Poisson).
+optimisation) -> :mod:`._adjust` (joint multi-view ICP of all views + depth-gain self-calibration) -> :mod:`._fusion` (TSDF VoxelBlockGrid on undistorted depth, mesh, Poisson).
 :class:`ReconstructionPipeline` runs them; :func:`write_reconstruction` writes the outputs.
 """
 
+from tofmetry.reconstruct._adjust import (
+    AdjustResult,
+    AdjustView,
+    apply_depth_gain,
+    global_adjust,
+)
 from tofmetry.reconstruct._amplitude import (
     PAPER_K_MM_PER_LN,
     amplitude_bias_mm,
@@ -52,6 +58,8 @@ from tofmetry.reconstruct._segment import (
 
 __all__ = [
     "PAPER_K_MM_PER_LN",
+    "AdjustResult",
+    "AdjustView",
     "FusionConfig",
     "PairResult",
     "PoseGraphBuilder",
@@ -67,10 +75,12 @@ __all__ = [
     "TSDFFusion",
     "ViewData",
     "amplitude_bias_mm",
+    "apply_depth_gain",
     "connected_components",
     "consistency_gate",
     "crop_mesh",
     "fit_support_plane",
+    "global_adjust",
     "image_normals",
     "make_reg_view",
     "plane_consistent",

@@ -14,6 +14,12 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from tofmetry.errors import EstimationError, InputError, SensorMismatchError
+from tofmetry.reconstruct._adjust import (
+    AdjustResult,
+    AdjustView,
+    apply_depth_gain,
+    global_adjust,
+)
 from tofmetry.reconstruct._config import ReconstructionConfig
 from tofmetry.reconstruct._fusion import TSDFFusion, crop_mesh, poisson_mesh
 from tofmetry.reconstruct._posegraph import PoseGraphBuilder
@@ -25,6 +31,15 @@ from tofmetry.reconstruct._segment import Segmentation, segment_object
 @contextmanager
 def _no_progress(description: str, total: int | None):
     yield lambda n=1: None
+
+
+def _refit_plane(points: np.ndarray, plane: np.ndarray) -> np.ndarray:
+    """Least-squares plane (4,) through ``points`` (N, 3) [m], oriented like ``plane``."""
+    c = points.mean(0)
+    n = np.linalg.svd(points - c, full_matrices=False)[2][2]
+    if n @ plane[:3] < 0:
+        n = -n
+    return np.r_[n, -n @ c]
 
 
 @dataclass
@@ -79,6 +94,7 @@ class ReconstructionPipeline:
         self.progress = progress or _no_progress
         self.white_map = white_map
         self.timings: dict[str, float] = {}
+        self.adjust_failure: str | None = None
 
     # -- stages -----------------------------------------------------------------------------
     def _intrinsics(self, cap):
@@ -122,8 +138,9 @@ class ReconstructionPipeline:
 
     def register(self, regs: list[RegView]):
         """Successive pairs (and last -> first) with the global search; a failed successive pair is
-        bridged by a global search to the view after next; every other pair is a loop-closure
-        candidate seeded by the chained poses (ICP only, bounded jump). Global search between
+        bridged by a global search to the view after next; with ``all_pairs`` every other pair is a
+        loop-closure candidate seeded by the chained poses (ICP only, bounded jump; off by default:
+        :meth:`adjust` matches all overlapping views jointly afterwards). Global search between
         distant views is never used: a nearly symmetric object seen from opposite sides matches
         itself rotated by 180 degrees."""
         rc = self.cfg.registration
@@ -153,6 +170,34 @@ class ReconstructionPipeline:
                         pg.add(register_pair(regs[i], regs[j], i, j, rc, init=init, global_search=False))
                     adv()
         return pg.optimize(rc.icp_radii_mm[-1] * 1e-3, rc.edge_prune, rc.gate_max_deg, rc.gate_max_mm)
+
+    def adjust(self, views: list[ViewData], segs: list[Segmentation], regs: list[RegView],
+               poses: np.ndarray) -> AdjustResult | None:
+        """Global adjustment of the pose-graph poses (and the depth gain); applies the gain to
+        ``views`` (depth and points) in place. None when switched off."""
+        rc = self.cfg.registration
+        if not rc.global_adjust:
+            return None
+        z_obj = np.concatenate([v.points[s.object_mask, 2] for v, s in zip(views, segs)])
+        z_ref = float(np.median(z_obj)) if len(z_obj) else 1.0
+        av = [AdjustView(*(r.mid_points, r.mid_normals) if r.mid_points is not None else (r.icp_points, r.icp_normals),
+                         r.icp_points, r.icp_normals) for r in regs]
+        with self.progress("global adjustment", None):
+            try:
+                res = global_adjust(av, poses, z_ref, tuple(x * 1e-3 for x in rc.adjust_radii_mm), rc.adjust_iters,
+                                    estimate_gain=rc.estimate_depth_gain, gain_prior_sigma=rc.depth_gain_prior)
+            except EstimationError as exc:  # keep the pose-graph poses; the reason goes to the diagnostics
+                self.adjust_failure = str(exc)
+                return None
+        if res.depth_gain != 0.0:
+            thr = self.cfg.segment.plane_threshold_mm * 1e-3
+            for v, s in zip(views, segs):
+                on_plane = None if s.plane is None else np.abs(v.points @ s.plane[:3] + s.plane[3]) < thr
+                v.points = apply_depth_gain(v.points, res.depth_gain, z_ref)
+                v.depth_mm = np.where(v.depth_mm > 0, v.depth_mm + res.depth_gain * (v.depth_mm - z_ref * 1e3), 0.0)
+                if on_plane is not None and on_plane.sum() >= 3:  # the support plane moved with its points
+                    s.plane = _refit_plane(v.points[on_plane], s.plane)
+        return res
 
     def fuse(self, views, segs, poses, intr):
         fc = self.cfg.fusion
@@ -199,8 +244,10 @@ class ReconstructionPipeline:
         views, segs, regs, intr = self.load_views()
         t1 = time.perf_counter()
         graph = self.register(regs)
+        t2a = time.perf_counter()
+        adj = self.adjust(views, segs, regs, graph.poses)
         t2 = time.perf_counter()
-        poses = graph.poses
+        poses = graph.poses if adj is None else adj.poses
         V, F, N, P, PN, fusion_info = self.fuse(views, segs, poses, intr)
         t3 = time.perf_counter()
         world_obj = np.concatenate([
@@ -224,10 +271,12 @@ class ReconstructionPipeline:
             pv, pf, _ = crop_mesh(pv, pf, pv_keep)
             poisson = (pv, pf)
         t4 = time.perf_counter()
-        self.timings = {"views_s": t1 - t0, "registration_s": t2 - t1, "fusion_s": t3 - t2, "meshing_s": t4 - t3,
-                        "total_s": t4 - t0}
+        self.timings = {"views_s": t1 - t0, "registration_s": t2a - t1, "adjustment_s": t2 - t2a, "fusion_s": t3 - t2,
+                        "meshing_s": t4 - t3, "total_s": t4 - t0}
         diag = {"consistency": graph.consistency, "reliable": bool(graph.consistency["reliable"]),
                 "views": {v.name: v.stats for v in views}, "fusion": fusion_info, "timings_s": self.timings,
+                "adjustment": ({"failed": self.adjust_failure} if self.adjust_failure else None) if adj is None
+                else adj.to_dict(list(self.ds.names)),
                 "calibrated": self.cal is not None, "amplitude_corrected": self.white_map is not None, "intrinsics": intr.to_dict(),
                 "working_range_mm": self.working_range_mm(), "config": self.cfg.model_dump()}
         return ReconstructionResult(list(self.ds.names), poses, graph.edges, V, F, N, P, PN, poisson, plane_w, diag)
