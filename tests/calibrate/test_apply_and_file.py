@@ -2,17 +2,26 @@
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 
+import numba
 import numpy as np
 import pytest
 
 from tofmetry.calibrate import (
-    DepthCalibration, apply_depth_calibration, apply_depth_calibration_reference, correct_and_backproject,
-    count_outside_range, fit_range_curve, load_calibration, save_calibration,
+    DepthCalibration,
+    apply_depth_calibration,
+    apply_depth_calibration_reference,
+    correct_and_backproject,
+    count_outside_range,
+    fit_range_curve,
+    load_calibration,
+    save_calibration,
 )
-from tofmetry.errors import FormatError, SensorMismatchError
+from tofmetry.calibrate._apply import FrameCorrector, _correct_backproject
+from tofmetry.errors import FormatError, InputError, SensorMismatchError
 from tofmetry.pointcloud import depth_to_points
 
 
@@ -71,6 +80,98 @@ def test_correct_and_backproject(small_intr):
     ref = depth_to_points(apply_depth_calibration_reference(d, cal), small_intr, min_mm=1, max_mm=65535)
     assert pts.dtype == np.float32 and pts.shape == ref.shape
     np.testing.assert_allclose(pts, ref, atol=2e-6)  # float32 [m]: ~1e-7 relative
+
+
+def _numpy_points(d, cal, rays):
+    """The straightforward numpy pipeline: reference correction, float32 metres, ray scaling."""
+    z = apply_depth_calibration_reference(d, cal).astype(np.float32).ravel() * np.float32(1e-3)
+    ok = d.ravel() != 0
+    r = rays.reshape(-1, 2)[ok]
+    return np.column_stack([r[:, 0] * z[ok], r[:, 1] * z[ok], z[ok]])
+
+
+def test_linear_form_precision_on_steep_surfaces(small_intr):
+    """The per-interval linear form a + b d in float32 stays within float32 rounding of the reference.
+
+    Steep, large surfaces (+-40 mm, nodes 150 mm apart: slopes |b| up to ~0.5, |a| up to ~700 mm)
+    are the worst case for rounding a and b. Each float32 rounding errs by <= 2**-24 of its value;
+    the kernel rounds a, b, b*d + (a + R), a + R and the final difference, so the error is below
+    2**-24 (|z| + 3 (|a| + |b| d + |R|)) -- and must stay < 1e-3 mm (the precision required of the
+    fast path).
+    """
+    rng = np.random.default_rng(7)
+    nodes = (900.0, 1050.0, 1200.0, 1350.0)
+    cal = _cal(small_intr, nodes=nodes)
+    cal = dataclasses.replace(cal, surfaces=rng.uniform(-40, 40, (4, *small_intr.shape)))
+    d = _depth(small_intr, 11)
+    fast = apply_depth_calibration(d, cal).astype(np.float64)
+    ref = apply_depth_calibration_reference(d, cal)
+    t = cal.tables
+    q = t.lut_i[2 * d.ravel().astype(np.int64) + 1] + np.arange(d.size)
+    b, a = t.coef[2 * q].astype(np.float64), t.coef[2 * q + 1].astype(np.float64)
+    r = np.abs(t.lut_f[2 * d.ravel().astype(np.int64)]).astype(np.float64)
+    bound = 2.0**-24 * (np.abs(ref.ravel()) + 3 * (np.abs(a) + np.abs(b) * d.ravel() + r))
+    err = np.abs(fast - ref).ravel()
+    assert np.all(err <= bound + 1e-12)
+    assert err.max() < 1e-3 and bound.max() < 1e-3
+
+
+@pytest.mark.parametrize("nodes", [(1500.0,), (900.0, 1500.0, 2400.0)])
+def test_frame_corrector_matches_numpy(small_intr, nodes):
+    cal = _cal(small_intr, nodes=nodes)
+    rays = small_intr.ray_table().astype(np.float32)
+    ref = _numpy_points(_depth(small_intr, 5), cal, rays)
+    fc = FrameCorrector(cal)  # default rays: the calibration's intrinsics
+    pts = fc(_depth(small_intr, 5))
+    assert pts.dtype == np.float32 and pts.shape == ref.shape
+    assert np.shares_memory(pts, fc.buffer)  # streaming: no allocation per frame
+    # same float32 operations up to the order of two roundings of z: 2 ulp of 2.8 m = 5e-7 m
+    np.testing.assert_allclose(pts, ref, rtol=0, atol=5e-7)
+    np.testing.assert_array_equal(pts, correct_and_backproject(_depth(small_intr, 5), cal, rays))
+    # a non-contiguous frame and an external buffer
+    big = np.zeros((small_intr.height, 2 * small_intr.width), np.uint16)
+    big[:, ::2] = _depth(small_intr, 5)
+    ext = np.empty((small_intr.width * small_intr.height, 3), np.float32)
+    np.testing.assert_array_equal(fc(big[:, ::2], out=ext), pts)
+    with pytest.raises(InputError, match="uint16"):
+        fc(_depth(small_intr).astype(np.float32))
+    with pytest.raises(InputError, match="uint16"):
+        fc(np.zeros((10, 10), np.uint16))
+    with pytest.raises(InputError, match="out"):
+        fc(_depth(small_intr), out=np.empty((10, 3), np.float32))
+
+
+def test_backproject_blocks_and_buffers(small_intr):
+    """The kernel splits the pixels in one block per thread: any split gives the same points."""
+    cal = _cal(small_intr)
+    rays = small_intr.ray_table().astype(np.float32)
+    d = _depth(small_intr, 9)
+    d.ravel()[[0, 6143, 6144, 6365, 6366, 6367, d.size - 1]] = 0  # invalid pixels at and near block edges
+    ref = correct_and_backproject(d, cal, rays)
+    t = cal.tables
+    for nthreads in (1, 2, 3, 7, 10**9):  # 12288 pixels: 1, 2, 3, 4, 4 blocks
+        out = np.full((d.size, 3), np.nan, np.float32)
+        n = _correct_backproject(d.ravel(), t.lut_f, t.lut_i, t.coef, rays.ravel(), out.reshape(-1), nthreads)
+        assert n == len(ref)
+        np.testing.assert_array_equal(out[:n], ref)
+        assert np.isnan(out[n:]).all()  # nothing written past the N points
+    old = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        np.testing.assert_array_equal(correct_and_backproject(d, cal, rays), ref)
+    finally:
+        numba.set_num_threads(old)
+    # an exactly sized buffer (counting path), a too small one, no valid pixel, all valid
+    n = len(ref)
+    exact = np.empty((n, 3), np.float32)
+    np.testing.assert_array_equal(correct_and_backproject(d, cal, rays, out=exact), ref)
+    with pytest.raises(InputError, match=f">= {n}"):
+        correct_and_backproject(d, cal, rays, out=np.empty((n - 1, 3), np.float32))
+    with pytest.raises(InputError, match="float32"):
+        correct_and_backproject(d, cal, rays, out=np.empty((d.size, 3), np.float64))
+    assert correct_and_backproject(np.zeros_like(d), cal, rays).shape == (0, 3)
+    full = np.full_like(d, 1234)
+    assert correct_and_backproject(full, cal, rays).shape == (d.size, 3)
 
 
 def test_file_round_trip(tmp_path, small_intr):

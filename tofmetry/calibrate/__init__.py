@@ -21,7 +21,8 @@ penalty) and polynomial surfaces extrapolate as polynomials where a sample has n
 """
 
 from tofmetry.calibrate._apply import (
-    apply_depth_calibration, apply_depth_calibration_reference, correct_and_backproject, count_outside_range,
+    FrameCorrector, apply_depth_calibration, apply_depth_calibration_reference, correct_and_backproject,
+    count_outside_range,
 )
 from tofmetry.calibrate._fit import DepthCalibrationResult, DepthFitConfig, DepthSample, fit_depth_model, fit_range_curve
 from tofmetry.calibrate._intrinsics import (
@@ -40,7 +41,8 @@ from tofmetry.calibrate._validate import (
 from tofmetry.io.calibration_file import load_calibration, read_calibration_header, save_calibration
 
 __all__ = [
-    "apply_depth_calibration", "apply_depth_calibration_reference", "correct_and_backproject", "count_outside_range",
+    "FrameCorrector", "apply_depth_calibration", "apply_depth_calibration_reference", "correct_and_backproject",
+    "count_outside_range",
     "DepthCalibrationResult", "DepthFitConfig", "DepthSample", "fit_depth_model", "fit_range_curve",
     "FORMAT_VERSION", "DepthCalibration", "SurfaceSpec", "fit_surface",
     "PlaneFit", "StationStats", "central_patch", "fit_plane", "station_statistics", "wall_reference", "wall_sample",
