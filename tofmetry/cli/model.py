@@ -78,15 +78,21 @@ def reconstruct(
     from rich.table import Table
 
     t = Table(title="registration edges (fitness = matched share of object points)")
-    for col in ("source", "target", "method", "fitness", "RMSE [mm]", "kept", "resid [deg]", "resid [mm]"):
+    for col in ("source", "target", "method", "fitness", "RMSE [mm]", "seen-through", "alternatives", "kept", "resid [deg]",
+                "resid [mm]"):
         t.add_column(col, justify="right")
     for e in res.edges:
         if e["accepted"]:
             t.add_row(e["source"], e["target"], e["method"], f"{e['fitness']:.3f}", f"{e['inlier_rmse_mm']:.2f}",
+                      f"{e.get('see_through', 0.0):.1%}", str(len(e.get("alternatives", []))),
                       "yes" if e["kept"] else "pruned", f"{e.get('residual_rot_deg', float('nan')):.3f}",
                       f"{e.get('residual_trans_mm', float('nan')):.2f}")
     console.print(t)
     n_rej = sum(not e["accepted"] for e in res.edges)
+    sel = (res.diagnostics.get("consistency") or {}).get("selection") or {}
+    if sel.get("changed") or sel.get("dropped"):
+        console.print(f"multi-view selection: alternative hypothesis taken for {', '.join(sel.get('changed', [])) or 'none'}; "
+                      f"dropped (contradict the other views): {', '.join(sel.get('dropped', [])) or 'none'}")
     f = res.diagnostics["fusion"]
     console.print(f"{n_rej} pair(s) rejected (no overlap / failed gates); TSDF voxel {f['voxel_mm']:.2f} mm, "
                   f"truncation {f['trunc_mm']:.2f} mm; mesh {len(res.mesh_vertices)} vertices / "

@@ -2,8 +2,8 @@
 
 Stages (one module each): :mod:`._preprocess` (robust mean, calibration, flying pixels,
 range, normals) -> :mod:`._segment` (support plane + object) -> :mod:`._register` (plane-yaw
-or FPFH coarse, robust point-to-plane ICP) -> :mod:`._posegraph` (all pairs, LM global
-optimisation) -> :mod:`._adjust` (joint multi-view ICP of all views + depth-gain self-calibration) -> :mod:`._fusion` (TSDF VoxelBlockGrid on undistorted depth, mesh, Poisson).
+or FPFH coarse, free-space test, robust point-to-plane ICP; alternatives kept) -> :mod:`._posegraph`
+(multi-view hypothesis selection over the loops, LM global optimisation, loop gate) -> :mod:`._adjust` (joint multi-view ICP of all views + depth-gain self-calibration) -> :mod:`._fusion` (TSDF VoxelBlockGrid on undistorted depth, mesh, Poisson).
 :class:`ReconstructionPipeline` runs them; :func:`write_reconstruction` writes the outputs.
 """
 
@@ -40,15 +40,21 @@ from tofmetry.reconstruct._posegraph import (
     PoseGraphResult,
     connected_components,
     consistency_gate,
+    loop_closures,
     rotation_angle_deg,
+    select_hypotheses,
+    spanning_tree,
 )
 from tofmetry.reconstruct._preprocess import ViewData, image_normals, prepare_view
 from tofmetry.reconstruct._register import (
     PairResult,
     RegView,
+    free_space_violation,
     make_reg_view,
     plane_consistent,
     register_pair,
+    registration_conditioning,
+    visibility_violation,
 )
 from tofmetry.reconstruct._segment import (
     Segmentation,
@@ -80,18 +86,24 @@ __all__ = [
     "consistency_gate",
     "crop_mesh",
     "fit_support_plane",
+    "free_space_violation",
     "global_adjust",
     "image_normals",
+    "loop_closures",
     "make_reg_view",
     "plane_consistent",
     "poisson_mesh",
     "poses_document",
     "prepare_view",
     "register_pair",
+    "registration_conditioning",
     "rotation_angle_deg",
     "segment_object",
+    "select_hypotheses",
+    "spanning_tree",
     "undistort_depth",
     "undistort_maps",
+    "visibility_violation",
     "white_amplitude_map",
     "white_map_from_wall",
     "write_reconstruction",

@@ -55,6 +55,16 @@ class RegistrationConfig(BaseModel):
     fine_max_incidence_deg: float = Field(90.0, gt=0, le=90, description="the fine ICP clouds keep points seen "
                                           "at incidence below this [deg] (stricter reliability weighting)")
     use_ground: bool = Field(True, description="fine ICP on object + a ring of the support plane (ground constrains tilt/height)")
+    see_through_tol_mm: float = Field(15.0, gt=0, description="free-space test: a point mapped into the other camera "
+                                      "counts as seen through when it lies this far in front of everything that camera "
+                                      "observed around the pixel [mm] (several depth-noise sigmas + calibration residual "
+                                      "+ coarse ICP error)")
+    max_see_through: float = Field(0.20, ge=0, le=1, description="a pairwise hypothesis whose object points are seen "
+                                   "through by the other camera for more than this share is rejected; measured on the "
+                                   "simulated robustness matrix: correct poses 0.01-0.03 (balustrade, box) and up to 0.10 "
+                                   "(rounded lumpy object: limb points at the silhouette), turned-over false matches of "
+                                   "nearly symmetric objects 0.25-0.76; a pose slid along a prism-like object reads "
+                                   "0.06-0.09 and is NOT caught by this test")
     min_fitness: float = Field(0.35, ge=0, le=1, description="an edge needs this share of object points matched")
     max_rmse_mm: float = Field(3.0, gt=0, description="...and an inlier RMSE below this [mm]")
     all_pairs: bool = Field(False, description="also register every non-successive pair (ICP loop closures seeded by "
@@ -71,6 +81,9 @@ class RegistrationConfig(BaseModel):
     gate_max_deg: float = Field(2.0, gt=0, description="consistency gate: a kept pose-graph edge residual or the "
                                 "per-edge closure of the view circle above this flags the run unreliable [deg]")
     gate_max_mm: float = Field(10.0, gt=0, description="... or above this [mm]")
+    ambiguity_margin: float = Field(0.05, ge=0, description="two choices of the pairwise hypotheses that both close every "
+                                    "loop are indistinguishable when their summed fitness (share of object points "
+                                    "matched) differs by less than this: the run is flagged 'registration ambiguous'")
     global_adjust: bool = Field(True, description="after the pose graph, refine all poses jointly: every view's points "
                                 "against every other view's surface (multi-view point-to-plane, Huber), view 0 fixed")
     adjust_radii_mm: tuple[float, ...] = Field((6.0, 3.0), description="correspondence radii of the global adjustment [mm]")

@@ -132,7 +132,7 @@ class ReconstructionPipeline:
                 v.stats["object_points"] = int(s.object_mask.sum())
                 views.append(v)
                 segs.append(s)
-                regs.append(make_reg_view(v, s, self.cfg.registration))
+                regs.append(make_reg_view(v, s, self.cfg.registration, intr))
                 adv()
         return views, segs, regs, intr0
 
@@ -169,6 +169,7 @@ class ReconstructionPipeline:
                         init = np.linalg.inv(chain[j]) @ chain[i]
                         pg.add(register_pair(regs[i], regs[j], i, j, rc, init=init, global_search=False))
                     adv()
+        pg.select_hypotheses(rc.gate_max_deg, rc.gate_max_mm, rc.ambiguity_margin)
         return pg.optimize(rc.icp_radii_mm[-1] * 1e-3, rc.edge_prune, rc.gate_max_deg, rc.gate_max_mm)
 
     def adjust(self, views: list[ViewData], segs: list[Segmentation], regs: list[RegView],
