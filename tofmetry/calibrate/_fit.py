@@ -24,6 +24,7 @@ import time
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
+
 from tofmetry.calibrate._model import DepthCalibration, _node_weights
 from tofmetry.calibrate._range import select_range_curve
 from tofmetry.calibrate._surface import SurfaceSpec, fit_surface
@@ -113,7 +114,7 @@ def _profile_modulation(sensor: str) -> tuple:
     from tofmetry.sensor import PROFILES
 
     prof = PROFILES.get(sensor)
-    return tuple(getattr(prof, "modulation_mhz", ()) or ()) if prof is not None else ()
+    return tuple(prof.modulation_mhz) if prof is not None else ()
 
 
 def _nodes_from(centers: np.ndarray, merge_mm: float) -> np.ndarray:

@@ -8,8 +8,8 @@ Metrics for a wall station at reference distance ``D`` (all [mm]):
 * ``plane_std``: std of the residuals to a robust least-squares plane (tilt free).
 * ``rms``: RMS of the per-pixel error against the reference wall (anchored at ``D`` on the
   optical axis; frontal, or with the orientation fitted on the corrected data) over the
-  central 90 % of the image (5 % cut on each side), offset removed before correction (the
-  strict figure: it credits the calibration only for the shape of the error).
+  central 90 % of the image (5 % cut on each side), offset removed before correction (it
+  credits the calibration only for the shape of the error, not for the constant offset).
 * ``rms_raw_before``: the same before correction *without* removing the offset: the error a
   user of the uncorrected sensor actually gets.
 * ``rms_noise``: the part of these RMS figures that is the random noise of the station's
