@@ -90,10 +90,16 @@ def fig_validation(reports) -> "plt.Figure":
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
     pairs = [("dev_before_mm", "dev_after_mm", "central deviation [mm]"),
              ("plane_std_before_mm", "plane_std_after_mm", "plane-fit residual std [mm]"),
-             ("rms_before_mm", "rms_after_mm", "per-pixel RMS error, central 90 % [mm]")]
+             ("rms_before_mm", "rms_after_mm", "per-pixel RMS error, central 90 % [mm]\n(before: offset removed)")]
     for ax, (b, a, lab) in zip(axes, pairs):
         ax.plot(d, [getattr(r, b) for r in reports], "o-", label="before")
         ax.plot(d, [getattr(r, a) for r in reports], "s-", label="after")
+        noise = [getattr(r, "rms_noise_mm", float("nan")) for r in reports]
+        if a == "rms_after_mm" and np.isfinite(noise).any():
+            ax.plot(d, noise, "k:", label="noise of the temporal mean (floor)")
+            ax.plot(d, [getattr(r, "rms_raw_before_mm", float("nan")) for r in reports], "o--", color="C0", alpha=0.5,
+                    label="before, offset not removed")
+            ax.set_yscale("log")  # the before/after ratio reads as a distance
         ax.set_xlabel("reference range [m]")
         ax.set_ylabel(lab)
         ax.grid(alpha=0.3)
