@@ -13,8 +13,8 @@ alias into the phase; Lindner & Kolb 2006, Rapp 2008). A *harmonic* candidate mo
     ``R(d) = sum_p a_p t^p + sum_{k} (b_k sin(2 pi k d / L) + c_k cos(2 pi k d / L))``
 
 with ``t`` the centred distance in metres, a low-order polynomial trend and the harmonics
-``k`` of the half wavelength ``L`` whose period the station spacing can resolve (period >=
-``min_samples_per_period`` x median spacing). Candidates are scored by leave-one-out
+``k = 1..m`` of the half wavelength ``L`` whose period the station spacing can resolve (period
+>= ``min_samples_per_period`` x median spacing), for every ``m`` the number of stations affords. Candidates are scored by leave-one-out
 prediction at interior stations (the honest figure: it predicts a station that was not
 fitted) and the best one is kept; the spline stays the choice when nothing beats it, e.g. for
 a sensor whose modulation frequencies are unknown or whose wiggling is not periodic.
@@ -145,13 +145,12 @@ def harmonic_candidates(x: np.ndarray, modulation_mhz, max_harmonic: int = 3, de
     out = []
     for f in modulation_mhz:
         period = half_wavelength_mm(float(f))
-        ks = tuple(k for k in range(1, max_harmonic + 1) if period / k >= min_samples_per_period * spacing)
-        if not ks:
-            continue
-        for deg in degrees:
-            h = _Harmonic(deg, period, ks, float(f))
-            if h.n_params <= len(x) - 4:  # keep >= 4 degrees of freedom for the LOO score
-                out.append(h)
+        ks_all = tuple(k for k in range(1, max_harmonic + 1) if period / k >= min_samples_per_period * spacing)
+        for m in range(1, len(ks_all) + 1):  # harmonics 1..m: fewer stations afford fewer terms
+            for deg in degrees:
+                h = _Harmonic(deg, period, ks_all[:m], float(f))
+                if h.n_params <= len(x) - 4:  # keep >= 4 degrees of freedom for the LOO score
+                    out.append(h)
     return out
 
 
