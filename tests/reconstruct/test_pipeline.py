@@ -11,18 +11,13 @@ from tofmetry.errors import InputError, SensorMismatchError
 from tofmetry.io import ScanDataset, read_json, read_ply
 from tofmetry.reconstruct import (
     ReconstructionPipeline,
-    rotation_angle_deg,
+    relative_pose_errors,
     write_reconstruction,
 )
 
 
-def _rel_errors(poses, truth):
-    Tt = [np.array(v["camera_to_world"]) for v in truth["views"]]
-    out = []
-    for k, P in enumerate(poses):
-        E = np.linalg.inv(np.linalg.inv(Tt[0]) @ Tt[k]) @ P
-        out.append((rotation_angle_deg(E), float(np.linalg.norm(E[:3, 3])) * 1e3))
-    return np.array(out)
+def _true_poses(scan):
+    return [v["camera_to_world"] for v in read_json(scan / "truth.json")["views"]]
 
 
 @pytest.fixture(scope="module")
@@ -39,7 +34,7 @@ def ideal_scan(tmp_path_factory):
 def test_registration_ideal_sensor(ideal_scan, tmp_path):
     ds = ScanDataset(ideal_scan)
     res = ReconstructionPipeline(ds, None).run()
-    err = _rel_errors(res.poses, read_json(ideal_scan / "truth.json"))
+    err = relative_pose_errors(res.poses, _true_poses(ideal_scan))
     print("ideal sensor, rotation [deg] / translation [mm] per view:", err.round(3).tolist())
     # with only ~1 mm noise (2-frame mean) and no bias, pairwise ICP residuals are sub-mm:
     # the task's bounds (0.5 deg, 3 mm) hold with margin
@@ -110,7 +105,7 @@ def test_end_to_end_full_errors(tmp_path):
                          "--amplitude-reference", str(wall)])
     assert r.exit_code == 0, r.output
     poses = np.array([v["camera_to_world"] for v in read_json(tmp_path / "rec" / "poses.json")["views"]])
-    err = _rel_errors(poses, read_json(scan / "truth.json"))
+    err = relative_pose_errors(poses, _true_poses(scan))
     assert err[:, 0].max() < 0.5, err
     assert err[:, 1].max() < 3.0, err
     T0 = np.array(read_json(scan / "truth.json")["views"][0]["camera_to_world"])

@@ -16,6 +16,30 @@ def rotation_angle_deg(R: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(R[:3, :3]) - 1) / 2, -1, 1))))
 
 
+def relative_pose_errors(poses, true_poses) -> np.ndarray:
+    """Errors of estimated camera poses against true ones, both relative to view 0.
+
+    Parameters
+    ----------
+    poses : (N, 4, 4) estimated camera-to-world [m], world = camera frame of view 0
+    true_poses : (N, 4, 4) true camera-to-world [m] in any world frame
+
+    Returns
+    -------
+    (N, 2) float64: rotation error [deg] and camera-centre error [mm] of each view
+    (``E = inv(inv(T0) Tk) Pk``; view 0 is exact by construction).
+    """
+    true_poses = [np.asarray(T, np.float64) for T in true_poses]
+    if len(poses) != len(true_poses):
+        raise ValueError(f"relative_pose_errors: {len(poses)} poses for {len(true_poses)} true poses")
+    inv0 = np.linalg.inv(true_poses[0])
+    out = []
+    for P, T in zip(poses, true_poses):
+        E = np.linalg.inv(inv0 @ T) @ np.asarray(P, np.float64)
+        out.append((rotation_angle_deg(E), float(np.linalg.norm(E[:3, 3])) * 1e3))
+    return np.array(out)
+
+
 def connected_components(n: int, edges: list[tuple[int, int]]) -> list[list[int]]:
     """Connected components of an undirected graph on nodes 0..n-1 (union-find)."""
     parent = list(range(n))
