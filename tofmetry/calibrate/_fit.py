@@ -29,7 +29,7 @@ from tofmetry.calibrate._model import DepthCalibration, _node_weights
 from tofmetry.calibrate._range import select_range_curve
 from tofmetry.calibrate._surface import SurfaceSpec, fit_surface
 from tofmetry.errors import EstimationError, InputError
-from tofmetry.sensor import CameraIntrinsics
+from tofmetry.sensor import PROFILES, CameraIntrinsics
 
 
 @dataclass(frozen=True, eq=False)
@@ -111,8 +111,6 @@ def fit_range_curve(x: np.ndarray, y: np.ndarray, lam: float | None = None, merg
 
 
 def _profile_modulation(sensor: str) -> tuple:
-    from tofmetry.sensor import PROFILES
-
     prof = PROFILES.get(sensor)
     return tuple(prof.modulation_mhz) if prof is not None else ()
 
