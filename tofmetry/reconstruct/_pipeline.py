@@ -33,6 +33,12 @@ def _no_progress(description: str, total: int | None):
     yield lambda n=1: None
 
 
+def _median_object_depth_m(views, segs) -> float:
+    """Median depth Z [m] of the segmented object points over all views (1 m when there are none)."""
+    z = np.concatenate([v.points[s.object_mask, 2] for v, s in zip(views, segs)])
+    return float(np.median(z)) if len(z) else 1.0
+
+
 def _refit_plane(points: np.ndarray, plane: np.ndarray) -> np.ndarray:
     """Least-squares plane (4,) through ``points`` (N, 3) [m], oriented like ``plane``."""
     c = points.mean(0)
@@ -179,8 +185,7 @@ class ReconstructionPipeline:
         rc = self.cfg.registration
         if not rc.global_adjust:
             return None
-        z_obj = np.concatenate([v.points[s.object_mask, 2] for v, s in zip(views, segs)])
-        z_ref = float(np.median(z_obj)) if len(z_obj) else 1.0
+        z_ref = _median_object_depth_m(views, segs)
         av = [AdjustView(*(r.mid_points, r.mid_normals) if r.mid_points is not None else (r.icp_points, r.icp_normals),
                          r.icp_points, r.icp_normals) for r in regs]
         with self.progress("global adjustment", None):
@@ -202,8 +207,7 @@ class ReconstructionPipeline:
 
     def fuse(self, views, segs, poses, intr):
         fc = self.cfg.fusion
-        z_obj = np.concatenate([v.points[s.object_mask, 2] for v, s in zip(views, segs)]) * 1e3
-        z_med = float(np.median(z_obj)) if len(z_obj) else 1000.0
+        z_med = _median_object_depth_m(views, segs) * 1e3
         voxel = fc.voxel_for(z_med, intr.fx)
         trunc = fc.trunc_for(z_med, voxel)
         tsdf = TSDFFusion(intr, voxel, trunc, depth_max_mm=self.cfg.preprocess.max_mm,
