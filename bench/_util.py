@@ -26,11 +26,33 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def memory_bandwidth_gbs(size_bytes: int = 1 << 30, repeat: int = 5) -> float:
-    """Copy bandwidth [GB/s]: bytes copied per second by ``np.copyto`` of a ``size_bytes`` array."""
-    import numpy as np
+class CopyReference:
+    """A large array copy, the memory-bandwidth reference: ``gbs()`` times one ``np.copyto`` of
+    ``size_bytes`` (one thread) and returns the bytes copied per second [GB/s];
+    ``gbs_threads()`` does the same copy split over the numba threads."""
 
-    src = np.ones(size_bytes, dtype=np.uint8)
-    dst = np.empty_like(src)
-    t = median_time(lambda: np.copyto(dst, src), repeat=repeat, warmup=1)
-    return size_bytes / t / 1e9
+    def __init__(self, size_bytes: int = 1 << 30) -> None:
+        import numpy as np
+
+        self.src = np.ones(size_bytes, dtype=np.uint8)
+        self.dst = np.empty_like(self.src)
+        np.copyto(self.dst, self.src)  # first touch: page faults are not bandwidth
+        self.size = size_bytes
+
+    def gbs(self) -> float:
+        import numpy as np
+
+        t0 = time.perf_counter()
+        np.copyto(self.dst, self.src)
+        return self.size / (time.perf_counter() - t0) / 1e9
+
+    def gbs_threads(self) -> float:
+        import numba
+
+        from bench._kernels import parallel_copy
+
+        n = numba.get_num_threads()
+        parallel_copy(self.dst[:4096], self.src[:4096], n)  # compile outside the timing
+        t0 = time.perf_counter()
+        parallel_copy(self.dst, self.src, n)
+        return self.size / (time.perf_counter() - t0) / 1e9

@@ -20,7 +20,7 @@ from tofmetry.calibrate import (
     load_calibration,
     save_calibration,
 )
-from tofmetry.calibrate._apply import FrameCorrector, _correct_backproject
+from tofmetry.calibrate._backproject import FrameCorrector, _correct_backproject
 from tofmetry.errors import FormatError, InputError, SensorMismatchError
 from tofmetry.pointcloud import depth_to_points
 
@@ -172,6 +172,46 @@ def test_backproject_blocks_and_buffers(small_intr):
     assert correct_and_backproject(np.zeros_like(d), cal, rays).shape == (0, 3)
     full = np.full_like(d, 1234)
     assert correct_and_backproject(full, cal, rays).shape == (d.size, 3)
+
+
+def test_backproject_stores_stay_inside_the_points(small_intr):
+    """Points are written with 16-byte stores whose 4th lane is scratch: it must never land
+    past the last point of a thread's block (another thread's points) or of the buffer; and
+    depth jittering around a node switches the coefficient plane from pixel to pixel."""
+    cal = _cal(small_intr)  # nodes at 900, 1500, 2400 mm
+    rays = small_intr.ray_table().astype(np.float32)
+    t = cal.tables
+    rng = np.random.default_rng(4)
+    base = np.maximum(_depth(small_intr, 3), 1)
+    size, shape = base.size, base.shape
+
+    def keep(mask):
+        return np.where(mask.reshape(shape), base, 0).astype(np.uint16)
+
+    jitter = np.where(rng.random(size) < 0.5, 1499, 1501).astype(np.uint16)  # a new plane at every other pixel
+    jitter_some = np.where(np.arange(size) % 512 < 20, jitter, 1700)
+    patterns = {"one valid pixel at the end": keep(np.arange(size) == size - 1),
+                "one valid pixel at the start": keep(np.arange(size) == 0),
+                "all valid": base, "1 % valid": keep(rng.random(size) < 0.01),
+                "valid runs": keep(np.repeat(rng.random(size // 64) < 0.5, 64)),
+                "jitter at a node": jitter.reshape(shape),
+                "jitter in the first pixels of each row": jitter_some.reshape(shape).astype(np.uint16),
+                "jitter with holes": np.where(rng.random(shape) < 0.2, 0, jitter.reshape(shape)).astype(np.uint16)}
+    for name, d in patterns.items():
+        n = int(np.count_nonzero(d))
+        z = apply_depth_calibration_reference(d, cal)[d > 0] * 1e-3
+        expect = np.column_stack([rays[d > 0] * z[:, None], z])
+        for nthreads in (1, 2, 3, 4):
+            guarded = np.full(3 * n + 8, np.nan, np.float32)  # exactly N points, then a guard zone
+            got = _correct_backproject(d.ravel(), t.lut_f, t.lut_i, t.coef, rays.ravel(), guarded, nthreads)
+            assert got == n, name
+            assert np.isnan(guarded[3 * n:]).all(), f"{name}, {nthreads} threads: wrote past the last point"
+            # float32 correction (< 2e-3 mm, see above) and float32 products: 1e-6 m
+            np.testing.assert_allclose(guarded[:3 * n].reshape(n, 3), expect, atol=1e-6, err_msg=name)
+            if nthreads == 1:
+                first = guarded[:3 * n].copy()
+            else:  # the same float32 operations whatever the split
+                np.testing.assert_array_equal(guarded[:3 * n], first, err_msg=name)
 
 
 def test_file_round_trip(tmp_path, small_intr):

@@ -2,6 +2,7 @@
 
 * :mod:`._model` — :class:`DepthCalibration` (the model, see its module docstring)
 * :mod:`._apply` — fused numba correction kernels + numpy reference
+* :mod:`._backproject` — streaming correction + undistorted back-projection (:class:`FrameCorrector`)
 * :mod:`._fit` — generic fit from :class:`DepthSample` (wall, board...)
 * :mod:`._surface` — smooth surfaces over the image (polynomial / tensor spline)
 * :mod:`._wall` — wall mode: station statistics, plane fit, wall samples
@@ -20,10 +21,8 @@ node in range; across the image, spline surfaces continue linearly (second-diffe
 penalty) and polynomial surfaces extrapolate as polynomials where a sample has no pixels.
 """
 
-from tofmetry.calibrate._apply import (
-    FrameCorrector, apply_depth_calibration, apply_depth_calibration_reference, correct_and_backproject,
-    count_outside_range,
-)
+from tofmetry.calibrate._apply import apply_depth_calibration, apply_depth_calibration_reference, count_outside_range
+from tofmetry.calibrate._backproject import FrameCorrector, correct_and_backproject
 from tofmetry.calibrate._fit import DepthCalibrationResult, DepthFitConfig, DepthSample, fit_depth_model, fit_range_curve
 from tofmetry.calibrate._intrinsics import (
     IntrinsicsResult, board_object_points, calibrate_intrinsics, corner_coverage, coverage_mask,
