@@ -1,8 +1,9 @@
 """Applying a :class:`DepthCalibration` to depth frames: fused numba kernels + numpy reference.
 
 uint16 kernels (see :class:`~tofmetry.calibrate._model.CorrectionTables`): per pixel ``p`` one
-8-byte entry of a 65 536-entry table (``R(d)`` and the offset of the linear-form plane of the
-node interval of ``d``) and one 8-byte ``(b, a)`` pair: ``corrected = d - (b d + (a + R(d)))``.
+16-byte entry of a 65 536-entry table (``d - R(d)``, the offset of the linear-form plane of the
+node interval of ``d``, and ``d`` as float) and one 8-byte ``(b, a)`` pair:
+``corrected = (d - R(d)) - (b d + a)``.
 No temporaries, ``parallel=True``. Float input (e.g. averaged depth) interpolates the range
 table linearly between integer mm (error < 1e-4 mm for any curve smooth at the mm scale)
 and computes the surface weight exactly.
@@ -23,11 +24,9 @@ from tofmetry.errors import InputError
 def _apply_u16(depth, lut_f, lut_i, coef, out):  # pragma: no cover - numba
     n = depth.shape[0]
     for i in nb.prange(n):
-        d = depth[i]
-        t2 = np.uint64(d) * np.uint64(2)
-        q = (np.uint64(lut_i[t2 + np.uint64(1)]) + np.uint64(i)) * np.uint64(2)
-        df = np.float32(d)
-        out[i] = df - (coef[q] * df + (coef[q + np.uint64(1)] + lut_f[t2]))
+        t4 = np.uint64(depth[i]) * np.uint64(4)
+        q = (np.uint64(lut_i[t4 + np.uint64(1)]) + np.uint64(i)) * np.uint64(2)
+        out[i] = lut_f[t4] - (coef[q] * lut_f[t4 + np.uint64(2)] + coef[q + np.uint64(1)])
 
 
 @nb.njit(parallel=True, cache=True)

@@ -40,12 +40,11 @@ def _count_valid(depth, p1):  # pragma: no cover - numba
 
 
 @nb.njit(inline="always")
-def _z(d, i, plane, lut_f, coef, t2):  # pragma: no cover - numba
-    """Corrected depth [m] of pixel ``i`` with raw depth ``d`` [mm] in linear-form plane ``plane``
-    (offset ``lut_i[t2 + 1]``, ``t2 = 2 d``): ``(d - (b d + (a + R(d)))) / 1000``."""
+def _z(i, plane, lut_f, coef, t4):  # pragma: no cover - numba
+    """Corrected depth [m] of pixel ``i`` with raw depth ``d`` [mm], ``t4 = 4 d``, in the
+    linear-form plane at offset ``plane`` (``lut_i[t4 + 1]``): ``((d - R(d)) - (b d + a)) / 1000``."""
     q = (plane + i) * np.uint64(2)
-    df = np.float32(d)
-    return (df - (coef[q] * df + (coef[q + np.uint64(1)] + lut_f[t2]))) * np.float32(0.001)
+    return (lut_f[t4] - (coef[q] * lut_f[t4 + np.uint64(2)] + coef[q + np.uint64(1)])) * np.float32(0.001)
 
 
 @nb.njit(fastmath=True, cache=True, inline="never")
@@ -69,15 +68,15 @@ def _correct_backproject_block(depth, lut_f, lut_i, coef, rays, out, p0, p1, j):
         d = depth[i]
         if d == 0:
             continue
-        t2 = np.uint64(d) * two
-        store_point4(out, j, rays, i * two, _z(d, i, np.uint64(lut_i[t2 + one]), lut_f, coef, t2))
+        t4 = np.uint64(d) * np.uint64(4)
+        store_point4(out, j, rays, i * two, _z(i, np.uint64(lut_i[t4 + one]), lut_f, coef, t4))
         j += np.uint64(3)
     for i in range(p_vec, p1):  # the last valid pixel (and the invalid ones after it)
         d = depth[i]
         if d == 0:
             continue
-        t2 = np.uint64(d) * two
-        z = _z(d, i, np.uint64(lut_i[t2 + one]), lut_f, coef, t2)
+        t4 = np.uint64(d) * np.uint64(4)
+        z = _z(i, np.uint64(lut_i[t4 + one]), lut_f, coef, t4)
         i2 = i * two
         out[j] = rays[i2] * z
         out[j + one] = rays[i2 + one] * z

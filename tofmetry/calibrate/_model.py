@@ -153,13 +153,15 @@ class CorrectionTables:
     * ``r``: range error ``R(d)`` [mm] (float32, 0 outside the valid range and for 0);
     * ``k0``/``k1``: bracketing surface indices (int32, ``k0 = -1`` outside the valid range or
       for 0); ``w``: weight of ``k1`` (float32). Used by the float-depth path.
-    * ``lut_f``/``lut_i``: two views (float32 / int32, 131 072 entries) of one buffer interleaving
-      ``lut_f[2 d] = R(d)`` [mm] and ``lut_i[2 d + 1] = plane(d) * H * W`` (the offset of the
-      linear-form plane of the node interval of ``d``): one cache line serves both.
+    * ``lut_f``/``lut_i``: two views (float32 / int32, 262 144 entries) of one buffer of 16-byte
+      entries: ``lut_f[4 d] = d - R(d)`` [mm] (rounded once from float64),
+      ``lut_i[4 d + 1] = plane(d) * H * W`` (the offset of the linear-form plane of the node
+      interval of ``d``), ``lut_f[4 d + 2] = d`` [mm] (saves the kernels an int-to-float
+      conversion), ``lut_f[4 d + 3] = 0``; one cache line serves a whole entry.
 
     Per-pixel linear form of the surface term (uint16 kernels): on each interval between two
-    nodes ``S(p, d) = a[k, p] + b[k, p] * d`` exactly, so with ``q = lut_i[2 d + 1] + p`` the
-    correction of pixel ``p`` is ``d - (b * d + (a + R(d)))``, ``b = coef[2 q]``, ``a = coef[2 q + 1]``.
+    nodes ``S(p, d) = a[k, p] + b[k, p] * d`` exactly, so with ``q = lut_i[4 d + 1] + p`` the
+    correction of pixel ``p`` is ``(d - R(d)) - (b * d + a)``, ``b = coef[2 q]``, ``a = coef[2 q + 1]``.
 
     * ``coef``: (2 * P * H * W,) float32, pairs ``(b [mm/mm], a [mm])``, pixel-minor within each
       plane. Planes ``0`` (below the first node: ``a = surfaces[0]``, ``b = 0``), ``1 .. K-1``
@@ -167,9 +169,10 @@ class CorrectionTables:
       ``K + 1`` (identity, ``a = b = 0``: depth 0 and depths outside ``valid_range_mm``).
       All arrays are flat so the kernels index with constant strides.
 
-    Rounding: ``a`` and ``b`` are rounded from float64 to float32; the error of ``a + b d`` is
-    below ``(|a| + |b| d) * 2**-24`` (< 1e-4 mm for surfaces of tens of mm), below the
-    float32 resolution of the corrected depth itself (2.4e-4 mm at 4 m).
+    Rounding: ``d - R(d)``, ``a`` and ``b`` are rounded from float64 to float32; the error of
+    the result is below ``(2 |result| + |a| + |b| d) * 2**-24`` plus the rounding of ``b d + a``
+    (< 1e-3 mm for surfaces of tens of mm), the float32 resolution of the corrected depth itself
+    (2.4e-4 mm at 4 m).
     """
 
     r: np.ndarray
@@ -218,8 +221,9 @@ def _build_tables(cal: DepthCalibration) -> CorrectionTables:
         coef[k, :, 1] = s0 - b * nodes[k - 1]
     coef[kk, :, 1] = s[kk - 1]
     plane = np.where(inside, np.searchsorted(nodes, d, side="right"), kk + 1)
-    lut = np.empty((65536, 2), np.int32)
-    lut[:, 0] = r.view(np.int32)
-    lut[:, 1] = plane * npix
-    lut = lut.reshape(-1)
-    return CorrectionTables(r=r, k0=k0, k1=k1, w=w, lut_f=lut.view(np.float32), lut_i=lut, coef=coef.reshape(-1))
+    lut = np.zeros((65536, 4), np.float32)
+    lut[:, 0] = d - np.where(inside, cal.range_error(d), 0.0)
+    lut[:, 2] = d
+    lut_i = lut.view(np.int32)
+    lut_i[:, 1] = plane * npix
+    return CorrectionTables(r=r, k0=k0, k1=k1, w=w, lut_f=lut.reshape(-1), lut_i=lut_i.reshape(-1), coef=coef.reshape(-1))
