@@ -2,7 +2,8 @@
 
 Writes ``results.json`` and ``results.md`` (a table with the machine description and date) into
 the output folder and prints the table. Each figure is the median of repeated runs after warm-up;
-references (numpy, Open3D, memory bandwidth) are measured in the same run.
+references (numpy, Open3D, memory bandwidth) are measured in the same run; the ratio to the memory
+bound is measured in paired rounds (copy, then kernel; see ``bench.frame_pipeline._paired_rounds``).
 """
 
 from __future__ import annotations
