@@ -20,7 +20,8 @@ from tofmetry.calibrate._model import DepthCalibration
 from tofmetry.errors import InputError
 
 # Relative cost of counting a pixel (vectorised) to correcting + writing it, measured on the
-# 2-core benchmark machine (~0.14 ns vs ~2 ns): used only to balance the blocks of the threads.
+# 2-core benchmark machine (~0.2 ns vs ~3 ns per pixel and thread): used only to balance the
+# blocks of the threads.
 _COUNT_COST = 0.07
 
 
@@ -57,7 +58,7 @@ def _correct_backproject_block(depth, lut_f, lut_i, coef, rays, out, p0, p1, j):
     this block overwrites; the last point is written with three 4-byte stores, so nothing lands
     past it (the next block belongs to another thread, the buffer may end there). A function
     of its own (not inlined into the parallel loop), so that LLVM keeps the base pointers in
-    registers: 17 instructions and one store per pixel.
+    registers: about 17 instructions and one store per pixel.
     """
     last = p1  # one past the last valid pixel of the block
     while last > p0 and depth[last - np.uint64(1)] == 0:
