@@ -46,6 +46,12 @@ def numpy_pipeline(depth: np.ndarray, cal, rays: np.ndarray) -> np.ndarray:
     return np.column_stack([r[:, 0] * zm, r[:, 1] * zm, zm])
 
 
+def bound_s(traffic_bytes: int, copy_gbs: float) -> float:
+    """Time [s] to move ``traffic_bytes`` at the memory bandwidth of a copy running at ``copy_gbs``
+    [GB/s]: a copy of S bytes reads S and writes S in S / B, i.e. moves 2 S, so traffic / (2 B)."""
+    return traffic_bytes / (2e9 * copy_gbs)
+
+
 def _paired_rounds(fn, copy: CopyReference, traffic: int, rounds: int, calls: int) -> dict:
     """The ratio to the bandwidth bound, measured in ``rounds`` pairs: one 1 GiB copy (one thread,
     then all threads), then ``calls`` timed calls of ``fn`` (after 20 untimed ones, since the copy
@@ -64,8 +70,8 @@ def _paired_rounds(fn, copy: CopyReference, traffic: int, rounds: int, calls: in
             fn()
             ts.append(time.perf_counter() - t0)
         t_k.append(statistics.median(ts))
-    r1 = sorted(t / (traffic / (2e9 * g)) for t, g in zip(t_k, gbs1))
-    r2 = sorted(t / (traffic / (2e9 * g)) for t, g in zip(t_k, gbs2))
+    r1 = sorted(t / bound_s(traffic, g) for t, g in zip(t_k, gbs1))
+    r2 = sorted(t / bound_s(traffic, g) for t, g in zip(t_k, gbs2))
 
     def q(v, f):
         return v[min(len(v) - 1, int(f * len(v)))]
@@ -98,8 +104,7 @@ def bench_frame_pipeline(repeat: int = 50, rounds: int = 25) -> dict:
     assert np.array_equal(correct_and_backproject(depth, cal, rays, out=buf), ours)
     assert np.array_equal(correct_and_backproject(depth, cal, rays), ours)
     n_valid = int((depth > 0).sum())
-    # memory traffic of one frame: read the uint16 depth, write float32 xyz. A copy of S bytes at
-    # "copy bandwidth" B reads S and writes S in S / B, i.e. moves 2 S: the bound is traffic / (2 B).
+    # memory traffic of one frame: read the uint16 depth, write float32 xyz (see bound_s)
     traffic = depth.nbytes + n_valid * 3 * 4
     paired = _paired_rounds(lambda: fc(depth), CopyReference(), traffic, rounds=rounds, calls=4 * repeat)
     t_ours = paired["t"]
@@ -121,7 +126,7 @@ def bench_frame_pipeline(repeat: int = 50, rounds: int = 25) -> dict:
     t_o3dt = median_time(lambda: o3d.t.geometry.PointCloud.create_from_depth_image(dimg, K, depth_scale=1000.0,
                                                                                    depth_max=10.0), repeat=repeat)
     gbs = paired["gbs"]
-    t_bound = traffic / (2.0 * gbs * 1e9)
+    t_bound = bound_s(traffic, gbs)
     return {
         "frame": f"{intr.width}x{intr.height}, {n_valid} valid pixels",
         "ours_ms": t_ours * 1e3, "ours_fps": 1.0 / t_ours, "ours_function_ms": t_func * 1e3,
