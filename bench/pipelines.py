@@ -22,7 +22,7 @@ def bench_depth_fit(n_stations: int = 15, n_frames: int = 50) -> dict:
         datasets.wall_dataset(Path(tmp) / "wall", distances_mm=dists, n_frames=n_frames, seed=1)
         t_sim = time.perf_counter() - t0
         # the fit runs in a child process so that its own peak memory is measured (not the simulator's)
-        code = ("import json, sys, time; from tofmetry.calibrate.pipelines import calibrate_depth_dataset; "
+        code = ("import json, sys, time; from tofmetry.pipelines import calibrate_depth_dataset; "
                 "t = time.perf_counter(); r = calibrate_depth_dataset(sys.argv[1], reference_offset_mm=20.0); "
                 "hwm = [l for l in open('/proc/self/status') if l.startswith('VmHWM')][0].split()[1]; "
                 "print(json.dumps({'seconds': time.perf_counter() - t, 'fit_only_seconds': r.seconds, "
@@ -40,7 +40,7 @@ def bench_depth_fit(n_stations: int = 15, n_frames: int = 50) -> dict:
 def bench_reconstruction() -> tuple[dict, dict]:
     """End-to-end reconstruction of the simulated 8-view scan (10 frames per view), by stage; TSDF frames/s."""
     from tofmetry.calibrate import load_calibration, save_calibration
-    from tofmetry.calibrate.pipelines import calibrate_depth_dataset
+    from tofmetry.pipelines import calibrate_depth_dataset
     from tofmetry.io import ScanDataset
     from tofmetry.reconstruct import ReconstructionConfig, ReconstructionPipeline, TSDFFusion, white_map_from_wall
     from tofmetry.simulate import datasets

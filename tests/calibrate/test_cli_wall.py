@@ -116,7 +116,7 @@ def test_calibration_for_other_resolution(walls, tmp_path, small_intr):
 
 
 def test_station_beyond_range_is_skipped_with_a_note(walls, tmp_path):
-    from tofmetry.calibrate.pipelines import calibrate_depth_dataset, write_depth_report
+    from tofmetry.pipelines import calibrate_depth_dataset, write_depth_report
     from tofmetry.io.images import write_png16
 
     train, _ = walls

@@ -50,7 +50,7 @@ def test_outlier_view_rejected_and_cross_validated():
 def test_simulated_default_set_meets_the_intrinsics_target(tmp_path):
     """Issue #4: 20 simulated IR images (noise, vignetting, anti-aliasing on) -> intrinsics within
     0.5 px of back-projection error over the covered image area."""
-    from tofmetry.calibrate.pipelines import intrinsics_from_images, write_intrinsics_report
+    from tofmetry.pipelines import intrinsics_from_images, write_intrinsics_report
     from tofmetry.sensor import CameraIntrinsics
     from tofmetry.simulate import datasets
 

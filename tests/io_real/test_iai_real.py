@@ -135,7 +135,7 @@ def test_import_recording_subset(recording, tmp_path):
 
 def test_calibrate_depth_board_mode_on_the_recording(shared_data, tmp_path):
     """``tofmetry calibrate depth`` dispatches a board dataset (board.json) to board mode."""
-    from tofmetry.calibrate.pipelines import calibrate_depth_dataset
+    from tofmetry.pipelines import calibrate_depth_dataset
     from tofmetry.io.board_dataset import BoardSpec, import_iai_kinect2
 
     import_iai_kinect2(shared_data / "kinect2-board-recording", tmp_path / "ds", BoardSpec(5, 7, 30.0))

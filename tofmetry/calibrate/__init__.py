@@ -10,8 +10,8 @@
 * :mod:`._intrinsics` — checkerboard intrinsics (the one implementation): detector, outlier-view
   rejection, stability analysis, k-fold pose-wise cross-validation
 * :mod:`.board` — board-based depth calibration (board planes as the reference)
-* :mod:`.pipelines` — dataset folders in, result objects out (used by the CLI and the study)
-* :mod:`._figures` — study-style figures (Figs. 7a/7b/8/9, validation, corner coverage)
+* pipelines (folders in, results out) live in :mod:`tofmetry.pipelines`
+* :mod:`.figures` — study-style figures (Figs. 7a/7b/8/9, validation, corner coverage)
 * file format: :mod:`tofmetry.io.calibration_file` (``.npz`` + JSON header, no pickle)
 
 Constraint where there is no data: the range curve is clamped (constant) outside the
@@ -25,7 +25,7 @@ from tofmetry.calibrate._apply import apply_depth_calibration, apply_depth_calib
 from tofmetry.calibrate._backproject import FrameCorrector, correct_and_backproject
 from tofmetry.calibrate._fit import DepthCalibrationResult, DepthFitConfig, DepthSample, fit_depth_model, fit_range_curve
 from tofmetry.calibrate._intrinsics import (
-    IntrinsicsResult, board_object_points, calibrate_intrinsics, corner_coverage, coverage_mask,
+    PARAMS, IntrinsicsResult, board_object_points, calibrate_intrinsics, corner_coverage, coverage_mask,
     cross_validate_intrinsics, detect_corners, normalize_ir, ray_difference_px, reprojection_rms_with,
     solve_board_pose,
 )
@@ -45,7 +45,7 @@ __all__ = [
     "DepthCalibrationResult", "DepthFitConfig", "DepthSample", "fit_depth_model", "fit_range_curve",
     "FORMAT_VERSION", "DepthCalibration", "SurfaceSpec", "fit_surface",
     "PlaneFit", "StationStats", "central_patch", "fit_plane", "station_statistics", "wall_reference", "wall_sample",
-    "IntrinsicsResult", "board_object_points", "calibrate_intrinsics", "corner_coverage", "coverage_mask",
+    "PARAMS", "IntrinsicsResult", "board_object_points", "calibrate_intrinsics", "corner_coverage", "coverage_mask",
     "detect_corners", "normalize_ir", "ray_difference_px", "cross_validate_intrinsics", "reprojection_rms_with",
     "solve_board_pose",
     "StationReport", "central_fraction_mask", "cross_validate", "evaluate_wall_station", "summarize", "with_surface",

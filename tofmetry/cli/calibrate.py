@@ -76,7 +76,8 @@ def intrinsics_cmd(
     uncertainties, leave-one-out stability, 5-fold held-out reprojection error)."""
     from rich.table import Table
 
-    from tofmetry.calibrate.pipelines import PARAMS, intrinsics_from_images, write_intrinsics_report
+    from tofmetry.calibrate import PARAMS
+    from tofmetry.pipelines import intrinsics_from_images, write_intrinsics_report
     from tofmetry.errors import InputError
     from tofmetry.io import write_intrinsics
     from tofmetry.io.board_dataset import BoardSpec
@@ -147,7 +148,7 @@ def depth(
     from rich.table import Table
 
     from tofmetry.calibrate import save_calibration
-    from tofmetry.calibrate.pipelines import calibrate_depth_dataset, write_depth_report
+    from tofmetry.pipelines import calibrate_depth_dataset, write_depth_report
     from tofmetry.errors import InputError
 
     if output.exists() and not force:
@@ -222,7 +223,7 @@ def validate(
 ) -> None:
     """Before/after metrics per station of a wall dataset (plus optional cross-validation)."""
     from tofmetry.calibrate import load_calibration
-    from tofmetry.calibrate.pipelines import validate_depth, write_validation_report
+    from tofmetry.pipelines import validate_depth, write_validation_report
     from tofmetry.errors import InputError
 
     if output is not None and (output / "validation.json").exists() and not force:

@@ -1,6 +1,6 @@
 """Study stages of section 4: IR intrinsics, depth calibration, validation on held-out data.
 
-They call :mod:`tofmetry.calibrate.pipelines` — the same functions as ``tofmetry calibrate ...``.
+They call :mod:`tofmetry.pipelines` — the same functions as ``tofmetry calibrate ...``.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ def _figs(paths, prefix: str = "") -> list[tuple[str, Path]]:
 
 def stage_intrinsics(ctx: StudyContext, out: StageOutcome) -> None:
     """Brown model of the IR camera from checkerboard images, with stability analysis (§4.1)."""
-    from tofmetry.calibrate.pipelines import intrinsics_from_images, write_intrinsics_report
+    from tofmetry.pipelines import intrinsics_from_images, write_intrinsics_report
 
     folder = ctx.input("checkerboard", "IR images of a planar checkerboard")
     c = ctx.config.intrinsics
@@ -73,7 +73,7 @@ def stage_depth(ctx: StudyContext, out: StageOutcome) -> None:
     """Range-error B-spline + per-pixel deformation surfaces from the wall stations (§4.2),
     validated on held-out stations never used for fitting (beyond §4.3)."""
     from tofmetry.calibrate import save_calibration
-    from tofmetry.calibrate.pipelines import calibrate_depth_dataset, validate_depth, write_depth_report, write_validation_report
+    from tofmetry.pipelines import calibrate_depth_dataset, validate_depth, write_depth_report, write_validation_report
 
     wall = ctx.input("wall", "a wall dataset: stations.csv + one capture per station")
     d = ctx.stage_dir("depth")
