@@ -1,7 +1,9 @@
 """CLI commands: ``tofmetry simulate {wall,wall-dataset,checkerboard,scan,warmup,noise,materials,outdoor}``.
 
 Every command writes a simulated dataset folder (contract captures + truth files at the
-root) and refuses to overwrite an existing folder without ``--force``.
+root) and refuses to overwrite an existing folder without ``--force``. ``--sensor random``
+draws a whole Kinect-v2-class sensor (lens and errors) from ``--seed``
+(:func:`tofmetry.simulate.family.random_sensor`); ``truth.json`` records the draw.
 """
 
 from __future__ import annotations
@@ -13,6 +15,9 @@ import typer
 
 from tofmetry.cli._common import console, progress
 
+#: Default ``--tilt-jitter-deg`` of ``wall-dataset --sensor random`` [deg] (walls are never exactly frontal).
+RANDOM_TILT_JITTER_DEG = 1.5
+
 sim_app = typer.Typer(name="simulate", help="Simulated Kinect v2 datasets (virtual sensor with the paper's errors).",
                       no_args_is_help=True)
 
@@ -22,19 +27,25 @@ _NOERR = typer.Option(False, "--no-errors", help="Ideal sensor: every error term
 _WITHOUT = typer.Option(None, "--without", help="Switch an error term off (repeatable): wiggling, deformation, "
                         "amplitude_bias, noise, flying, invalid, warmup, mounting_offset.")
 _FORCE = typer.Option(False, "--force", help="Replace an existing output folder.")
+_SENSOR = typer.Option("kinect_v2", "--sensor", help="kinect_v2: the simulator's Kinect v2; random: a whole "
+                       "Kinect-v2-class sensor (lens + errors) drawn from --seed (recorded in truth.json).")
 
 
-def _errors(no_errors: bool, without: Optional[List[str]]):
-    from tofmetry.simulate import ErrorModel
+def _sensor(sensor: str, seed: int, no_errors: bool = False, without: Optional[List[str]] = None):
+    """The SensorDraw of ``--sensor`` / ``--seed`` with ``--no-errors`` / ``--without`` applied."""
+    from tofmetry.simulate.family import sensor_by_kind
 
-    em = ErrorModel.none() if no_errors else ErrorModel()
+    draw = sensor_by_kind(sensor, seed)
+    em = draw.errors
+    if no_errors:
+        em = em.without(*(em.enabled - {"quantize"}))
     if without:
         if "quantize" in without:
             from tofmetry.errors import InputError
 
             raise InputError("--without quantize: dataset files hold whole millimetres (uint16); quantisation cannot be off")
         em = em.without(*without)
-    return em
+    return draw.with_errors(em)
 
 
 def _done(path: Path, what: str) -> None:
@@ -47,13 +58,14 @@ def wall(output: Path = _OUT, distance_mm: float = typer.Option(1000.0, "--dista
          tilt_x: float = typer.Option(0.0, "--tilt-x", help="Wall tilt about x [deg]."),
          tilt_y: float = typer.Option(0.0, "--tilt-y", help="Wall tilt about y [deg]."),
          seed: int = _SEED, no_errors: bool = _NOERR, without: Optional[List[str]] = _WITHOUT,
-         force: bool = _FORCE) -> None:
+         sensor: str = _SENSOR, force: bool = _FORCE) -> None:
     """A single wall capture at one distance: OUTPUT/capture + OUTPUT/truth.json."""
     from tofmetry.simulate import datasets
 
+    draw = _sensor(sensor, seed, no_errors, without)
     with progress("simulating wall frames", frames) as adv:
-        p = datasets.wall_capture(output, distance_mm, frames, _errors(no_errors, without), seed, (tilt_x, tilt_y),
-                                  force=force, progress=adv)
+        p = datasets.wall_capture(output, distance_mm, frames, None, seed, (tilt_x, tilt_y),
+                                  force=force, progress=adv, sensor=draw)
     _done(p, "wall capture (capture/ sub-folder)")
 
 
@@ -64,15 +76,20 @@ def wall_dataset(output: Path = _OUT,
                  frames: int = typer.Option(50, "--frames", help="Frames per station."),
                  tilt_x: float = typer.Option(0.0, "--tilt-x", help="Wall tilt about x [deg]."),
                  tilt_y: float = typer.Option(0.0, "--tilt-y", help="Wall tilt about y [deg]."),
+                 tilt_jitter_deg: Optional[float] = typer.Option(
+                     None, "--tilt-jitter-deg", help="Random extra wall tilt per station, up to this angle [deg] "
+                     "(drawn from --seed); default 0 for --sensor kinect_v2, 1.5 for random."),
                  seed: int = _SEED, no_errors: bool = _NOERR, without: Optional[List[str]] = _WITHOUT,
-                 force: bool = _FORCE) -> None:
+                 sensor: str = _SENSOR, force: bool = _FORCE) -> None:
     """Wall dataset for depth calibration: stations.csv + one capture per station (paper §4.2)."""
     from tofmetry.simulate import datasets
 
+    draw = _sensor(sensor, seed, no_errors, without)
+    jitter = tilt_jitter_deg if tilt_jitter_deg is not None else (0.0 if sensor == "kinect_v2" else RANDOM_TILT_JITTER_DEG)
     dists = sorted(distance_mm) if distance_mm else list(datasets.DEFAULT_DISTANCES_MM)
     with progress(f"simulating {len(dists)} stations", frames * len(dists)) as adv:
-        p = datasets.wall_dataset(output, dists, frames, _errors(no_errors, without), seed, (tilt_x, tilt_y),
-                                  force=force, progress=adv)
+        p = datasets.wall_dataset(output, dists, frames, None, seed, (tilt_x, tilt_y),
+                                  force=force, progress=adv, sensor=draw, tilt_jitter_deg=jitter)
     _done(p, f"wall dataset ({len(dists)} stations)")
 
 
@@ -81,12 +98,14 @@ def checkerboard(output: Path = _OUT, images: int = typer.Option(20, "--images",
                  cols: int = typer.Option(9, "--cols", help="Inner corners along a row."),
                  rows: int = typer.Option(6, "--rows", help="Inner corners along a column."),
                  square_mm: float = typer.Option(50.0, "--square-mm", help="Square size [mm] (default: the simulated board's 50 mm)."),
-                 seed: int = _SEED, force: bool = _FORCE) -> None:
+                 seed: int = _SEED, sensor: str = _SENSOR, force: bool = _FORCE) -> None:
     """IR images of a checkerboard for intrinsic calibration (+ board.json, truth.json)."""
     from tofmetry.simulate import datasets
 
+    draw = _sensor(sensor, seed)
     with progress("rendering checkerboard images", images) as adv:
-        p = datasets.checkerboard_images(output, images, (cols, rows), square_mm, seed, force=force, progress=adv)
+        p = datasets.checkerboard_images(output, images, (cols, rows), square_mm, seed, force=force, progress=adv,
+                                         sensor=draw)
     _done(p, f"{images} checkerboard IR images")
 
 
@@ -97,13 +116,14 @@ def scan(output: Path = _OUT, views: int = typer.Option(8, "--views", help="Numb
          mesh: Optional[Path] = typer.Option(None, "--mesh", help="Object mesh PLY (metres); default: a balustrade."),
          elevation: float = typer.Option(30.0, "--elevation-deg", help="Camera elevation above horizontal [deg]."),
          seed: int = _SEED, no_errors: bool = _NOERR, without: Optional[List[str]] = _WITHOUT,
-         force: bool = _FORCE) -> None:
+         sensor: str = _SENSOR, force: bool = _FORCE) -> None:
     """Scan dataset: views/NN captures around an object, reference.ply, true poses in truth.json."""
     from tofmetry.simulate import datasets
 
+    draw = _sensor(sensor, seed, no_errors, without)
     with progress(f"simulating {views} views", views * frames) as adv:
-        p = datasets.scan(output, views, radius_m, frames, mesh, _errors(no_errors, without), seed, elevation,
-                          force=force, progress=adv)
+        p = datasets.scan(output, views, radius_m, frames, mesh, None, seed, elevation,
+                          force=force, progress=adv, sensor=draw)
     _done(p, f"scan dataset ({views} views)")
 
 
@@ -112,14 +132,15 @@ def warmup(output: Path = _OUT, duration_s: float = typer.Option(5400.0, "--dura
            interval_s: float = typer.Option(15.0, "--interval-s", help="Time between frames [s]."),
            distance_m: float = typer.Option(1.36, "--distance-m", help="Wall distance [m]."),
            seed: int = _SEED, no_errors: bool = _NOERR, without: Optional[List[str]] = _WITHOUT,
-           force: bool = _FORCE) -> None:
+           sensor: str = _SENSOR, force: bool = _FORCE) -> None:
     """Warm-up experiment: one frame every 15 s from power-on (paper §3.2)."""
     from tofmetry.simulate import datasets
 
+    draw = _sensor(sensor, seed, no_errors, without)
     n = int(duration_s // interval_s) + 1
     with progress("simulating warm-up frames", n) as adv:
-        p = datasets.warmup(output, duration_s, interval_s, distance_m, _errors(no_errors, without), seed,
-                            force=force, progress=adv)
+        p = datasets.warmup(output, duration_s, interval_s, distance_m, None, seed,
+                            force=force, progress=adv, sensor=draw)
     _done(p, f"warm-up capture ({n} frames)")
 
 
@@ -127,12 +148,13 @@ def warmup(output: Path = _OUT, duration_s: float = typer.Option(5400.0, "--dura
 def noise(output: Path = _OUT, frames: int = typer.Option(100, "--frames", help="Number of frames."),
           distance_m: float = typer.Option(1.15, "--distance-m", help="Wall distance [m]."),
           seed: int = _SEED, no_errors: bool = _NOERR, without: Optional[List[str]] = _WITHOUT,
-          force: bool = _FORCE) -> None:
+          sensor: str = _SENSOR, force: bool = _FORCE) -> None:
     """Noise experiment: many frames of a wall (paper §3.2, Fig. 3)."""
     from tofmetry.simulate import datasets
 
+    draw = _sensor(sensor, seed, no_errors, without)
     with progress("simulating frames", frames) as adv:
-        p = datasets.noise(output, frames, distance_m, _errors(no_errors, without), seed, force=force, progress=adv)
+        p = datasets.noise(output, frames, distance_m, None, seed, force=force, progress=adv, sensor=draw)
     _done(p, "noise capture")
 
 
@@ -141,13 +163,14 @@ def materials(output: Path = _OUT, board: str = typer.Option("grey", "--board", 
               frames: int = typer.Option(20, "--frames", help="Number of frames."),
               distance_m: float = typer.Option(1.0, "--distance-m", help="Board distance [m]."),
               seed: int = _SEED, no_errors: bool = _NOERR, without: Optional[List[str]] = _WITHOUT,
-              force: bool = _FORCE) -> None:
+              sensor: str = _SENSOR, force: bool = _FORCE) -> None:
     """Materials / grey-level board capture + regions.json (paper §3.3.1)."""
     from tofmetry.simulate import datasets
 
+    draw = _sensor(sensor, seed, no_errors, without)
     with progress("simulating frames", frames) as adv:
-        p = datasets.materials(output, board, frames, distance_m, _errors(no_errors, without), seed,
-                               force=force, progress=adv)
+        p = datasets.materials(output, board, frames, distance_m, None, seed,
+                               force=force, progress=adv, sensor=draw)
     _done(p, f"{board} board capture (+ regions.json)")
 
 
@@ -155,12 +178,13 @@ def materials(output: Path = _OUT, board: str = typer.Option("grey", "--board", 
 def outdoor(output: Path = _OUT, frames: int = typer.Option(10, "--frames", help="Number of frames."),
             ambient: float = typer.Option(1.0, "--ambient", help="Ambient (sun) light 0..1."),
             seed: int = _SEED, no_errors: bool = _NOERR, without: Optional[List[str]] = _WITHOUT,
-            force: bool = _FORCE) -> None:
+            sensor: str = _SENSOR, force: bool = _FORCE) -> None:
     """Sunny outdoor scene: table with a box, far background (paper §3.3.2)."""
     from tofmetry.simulate import datasets
 
+    draw = _sensor(sensor, seed, no_errors, without)
     with progress("simulating frames", frames) as adv:
-        p = datasets.outdoor(output, frames, ambient, _errors(no_errors, without), seed, force=force, progress=adv)
+        p = datasets.outdoor(output, frames, ambient, None, seed, force=force, progress=adv, sensor=draw)
     _done(p, "outdoor capture")
 
 

@@ -24,7 +24,7 @@ from tofmetry.simulate.surfaces import Scene
 @dataclass
 class Frame:
     """One simulated frame: depth (H, W) uint16 [mm] (float64 if quantisation is off),
-    ir (H, W) uint16, flying (H, W) bool labels, timestamp_s (since power-on)."""
+    ir (H, W) uint16 (None when not asked for), flying (H, W) bool labels, timestamp_s (since power-on)."""
 
     depth: np.ndarray
     ir: np.ndarray
@@ -65,6 +65,9 @@ class Frames:
 class VirtualKinect:
     """Simulated Kinect v2 depth/IR camera.
 
+    Another sensor of the class (lens + errors) comes from the family:
+    ``tofmetry.simulate.random_sensor(seed).camera(seed=0)``.
+
     Parameters
     ----------
     errors : ErrorModel, default ``ErrorModel()`` (all terms on)
@@ -88,24 +91,31 @@ class VirtualKinect:
         return render(scene, self.intrinsics, pose, self.errors, supersample or self.supersample)
 
     def systematic_mm(self, rd: Rendering) -> np.ndarray:
-        """Static systematic bias map [mm] of a rendering: wiggling + deformation + amplitude bias."""
+        """Static systematic bias map (H, W) [mm] of a rendering: wiggling + deformation + amplitude bias."""
         em = self.errors
         z = rd.depth0
         bias = np.zeros_like(z)
         if em.on("wiggling"):
-            bias += E.wiggling_mm(z, em)
+            bias += E.wiggling_mm(z, em, rd.xy)
         if em.on("deformation"):
             bias += E.deformation_mm(rd.xy, z, em)
         if em.on("amplitude_bias"):
             bias += np.where(z > 0, E.amplitude_bias_mm(rd.rel_reflectance, em), 0.0)
+            if em.amp_bias_abs_mm_per_ln != 0.0:
+                bias += np.where(z > 0, E.amplitude_bias_abs_mm(rd.amplitude, em), 0.0)
             bias += np.where(rd.reflective, rd.refl_bias_mm, 0.0)
         return bias
 
     # ----------------------------------------------------------- frames
     def iter_frames(self, scene: Scene, n_frames: int = 50, pose: np.ndarray | None = None, t0_s: float = 3600.0,
                     dt_s: float = 1.0, rendering: Rendering | None = None,
-                    timestamps_s: np.ndarray | None = None) -> Iterator[Frame]:
-        """Generate frames one by one (constant memory); see :meth:`capture`."""
+                    timestamps_s: np.ndarray | None = None, *, with_ir: bool = True) -> Iterator[Frame]:
+        """Generate frames one by one (constant memory); see :meth:`capture`.
+
+        ``with_ir=False`` leaves ``Frame.ir`` None (the IR noise is still drawn, so that the
+        depth frames are the same as with IR). The arithmetic is done in place but is
+        element for element the same as the plain expressions in the comments.
+        """
         if n_frames < 1:
             raise InputError(f"capture: n_frames must be >= 1, found {n_frames}")
         rd = rendering if rendering is not None else self.render(scene, pose)
@@ -122,6 +132,7 @@ class VirtualKinect:
         sigma = E.noise_sigma_mm(rd.amplitude, rd.depth0, em) if em.on("noise") else None
         amp_thr = em.min_amplitude + em.ambient * em.ambient_amp_threshold
         low_amp = rd.amplitude < amp_thr
+        static_ok = hit & ~low_amp if em.on("invalid") else hit
         spray_p = None
         if em.on("flying") and em.ambient > 0:
             # outdoors: spurious flying pixels, more toward the edges of the field of view
@@ -131,6 +142,7 @@ class VirtualKinect:
         mix = rd.mixed_idx if em.on("flying") else np.zeros(0, np.int64)
         mz, ma = rd.mixed_z, rd.mixed_a
         mz0 = np.nan_to_num(mz)
+        noise = np.empty((H, W))
         for k in range(n_frames):
             z = base.copy()
             flying = np.zeros((H, W), bool)
@@ -145,25 +157,37 @@ class VirtualKinect:
                 z += float(E.warmup_mm(ts[k], em))
             if refl_idx.size:
                 zf[refl_idx] += em.reflective_jitter_mm * rng.standard_normal(refl_idx.size)
-            if sigma is not None:
-                z += sigma * rng.standard_normal((H, W))
-            valid = hit.copy()
+            if sigma is not None:  # z += sigma * N(0, 1)
+                rng.standard_normal(out=noise)
+                noise *= sigma
+                z += noise
             if spray_p is not None:
                 spray = (rng.random((H, W)) < spray_p) & hit
                 z = np.where(spray, z * rng.uniform(0.35, 0.95, (H, W)), z)
                 flying |= spray
-            if em.on("invalid"):
-                valid &= ~low_amp & (z >= em.min_range_mm) & (z <= em.max_range_mm)
-            if em.on("quantize"):
+            valid = static_ok & (z >= em.min_range_mm) & (z <= em.max_range_mm) if em.on("invalid") else hit.copy()
+            if em.on("quantize"):  # where(valid, clip(rint(z), 0, 65535), 0) as uint16
                 valid &= z >= 0.5
-                depth = np.where(valid, np.clip(np.rint(z), 0, 65535), 0).astype(np.uint16)
+                np.rint(z, out=z)
+                np.clip(z, 0, 65535, out=z)
+                depth = z.astype(np.uint16)
+                depth[~valid] = 0
             else:
                 depth = np.where(valid, z, 0.0)
             flying &= valid
-            a = rd.amplitude
-            if em.on("noise"):
-                a = a * (1.0 + em.amp_noise_rel * rng.standard_normal((H, W)))
-            ir = np.clip(np.rint(a), 0, 65535).astype(np.uint16)
+            if em.on("noise"):  # a = amplitude * (1 + rel N(0, 1))
+                rng.standard_normal(out=noise)
+                noise *= em.amp_noise_rel
+                noise += 1.0
+                noise *= rd.amplitude
+                a = noise
+            else:
+                a = rd.amplitude.copy()
+            ir = None
+            if with_ir:  # clip(rint(a), 0, 65535) as uint16
+                np.rint(a, out=a)
+                np.clip(a, 0, 65535, out=a)
+                ir = a.astype(np.uint16)
             yield Frame(depth, ir, flying, float(ts[k]))
 
     def capture(self, scene: Scene, n_frames: int = 50, pose: np.ndarray | None = None, t0_s: float = 3600.0,

@@ -5,6 +5,11 @@ Every writer puts the data in the contract layout (``capture.json`` sensor
 writes ``truth.json`` (and ``truth.npz`` for arrays) *next to* the captures, never inside
 them; processing must never read them. The true intrinsics go into ``truth.json``, not
 into ``capture.json`` (the user is expected to calibrate).
+
+Every writer takes an optional ``sensor`` (:class:`~tofmetry.simulate.family.SensorDraw`: lens
+and error model, e.g. ``random_sensor(seed)``); ``errors``, when also given, replaces the
+sensor's error model. A random sensor is another Kinect-v2-class device: its captures still
+say ``"kinect_v2"``; ``truth.json`` records the whole draw under ``"sensor"``.
 """
 
 from __future__ import annotations
@@ -21,11 +26,13 @@ from tofmetry.io import CaptureMeta, CaptureWriter, atomic_dir, atomic_write_byt
 from tofmetry.simulate import scenes
 from tofmetry.simulate.camera import VirtualKinect
 from tofmetry.simulate.errors import ErrorModel
+from tofmetry.simulate.family import SensorDraw, default_sensor
+from tofmetry.simulate.walls import DEFAULT_DISTANCES_MM, iter_wall_stations, plan_wall_stations, resolve_tilts
 
 Progress = Callable[[int], None] | None
 
-#: Default wall stations [mm]: 0.8 m, then 1 m to 4.5 m every 25 cm (paper §4.2.1, cut at 4.5 m).
-DEFAULT_DISTANCES_MM = (800,) + tuple(range(1000, 4501, 250))
+__all__ = ["DEFAULT_DISTANCES_MM", "wall_capture", "wall_dataset", "checkerboard_images", "scan", "warmup", "noise",
+           "materials", "outdoor", "write_frames"]
 
 
 def _write_npz(path: Path, **arrays) -> Path:
@@ -34,17 +41,22 @@ def _write_npz(path: Path, **arrays) -> Path:
     return atomic_write_bytes(path, buf.getvalue())
 
 
-def _truth_common(vk: VirtualKinect, seed: int) -> dict:
+def _truth_common(vk: VirtualKinect, seed: int, sensor: SensorDraw) -> dict:
     return {"simulated": True, "seed": seed, "true_intrinsics": vk.intrinsics.to_dict(),
-            "error_model": vk.errors.to_dict(),
+            "error_model": vk.errors.to_dict(), "sensor": sensor.to_dict(),
             "note": "ground truth of a simulated dataset: processing must never read this file"}
 
 
-def _em(errors: ErrorModel | None) -> ErrorModel:
-    em = errors if errors is not None else ErrorModel()
-    if not em.on("quantize"):
+def _sensor(errors: ErrorModel | None, sensor: SensorDraw | None, quantize: bool = True) -> SensorDraw:
+    """The sensor to simulate: ``sensor`` (default Kinect v2) with ``errors`` replacing its error model."""
+    if sensor is not None and not isinstance(sensor, SensorDraw):
+        raise InputError(f"sensor: expected a SensorDraw (tofmetry.simulate.family), found {type(sensor).__name__}")
+    s = sensor if sensor is not None else default_sensor()
+    if errors is not None:
+        s = s.with_errors(errors)
+    if quantize and not s.errors.on("quantize"):
         raise InputError("dataset writers need quantised depth (uint16 mm): enable the 'quantize' term")
-    return em
+    return s
 
 
 def write_frames(path: Path, frames_iter, meta: CaptureMeta, force: bool = False, progress: Progress = None,
@@ -72,19 +84,21 @@ def _write_static_capture(path: Path, vk: VirtualKinect, scene, rd, n_frames: in
 
 def wall_capture(out: str | os.PathLike, distance_mm: float = 1000.0, n_frames: int = 50,
                  errors: ErrorModel | None = None, seed: int = 0, tilt_deg: tuple = (0.0, 0.0),
-                 t0_s: float = 3600.0, force: bool = False, progress: Progress = None) -> Path:
+                 t0_s: float = 3600.0, force: bool = False, progress: Progress = None,
+                 sensor: SensorDraw | None = None) -> Path:
     """One capture of a white wall at ``distance_mm`` from the optical centre; ``truth.json`` inside
     ``out/`` next to the capture sub-folder ``out/capture``.
 
     Returns the dataset folder ``out``; the capture is ``out/capture``.
     """
     out = Path(out)
-    vk = VirtualKinect(_em(errors), seed=seed)
+    sensor = _sensor(errors, sensor)
+    vk = sensor.camera(seed)
     scene = scenes.wall(distance_mm / 1000.0, tilt_deg)
     rd = vk.render(scene)
     with atomic_dir(out, force=force) as tmp:
         _write_static_capture(tmp / "capture", vk, scene, rd, n_frames, progress, t0_s=t0_s)
-        truth = _truth_common(vk, seed) | {"dataset": "wall", "scene": scene.info,
+        truth = _truth_common(vk, seed, sensor) | {"dataset": "wall", "scene": scene.info,
                                            "optical_centre_distance_mm": float(distance_mm)}
         atomic_write_json(tmp / "truth.json", truth)
         _write_npz(tmp / "truth.npz", true_depth_mm=rd.true_depth)
@@ -93,50 +107,49 @@ def wall_capture(out: str | os.PathLike, distance_mm: float = 1000.0, n_frames: 
 
 def wall_dataset(out: str | os.PathLike, distances_mm: Sequence[float] = DEFAULT_DISTANCES_MM, n_frames: int = 50,
                  errors: ErrorModel | None = None, seed: int = 0, tilt_deg: tuple = (0.0, 0.0),
-                 force: bool = False, progress: Progress = None) -> Path:
+                 force: bool = False, progress: Progress = None, sensor: SensorDraw | None = None,
+                 tilt_jitter_deg: float = 0.0, tilts_deg=None) -> Path:
     """Wall dataset for depth calibration (paper §4.2.1).
 
     ``stations.csv`` gives, per station, the distance from the tripod *reference point* to
-    the wall, as a tachymeter would; the optical centre is ``mounting_offset_mm`` (20 mm)
-    closer to the wall, so the true optical-centre distance = csv distance - offset
-    (recorded in ``truth.json`` ``stations[*].optical_centre_mm``). Frames are 1 s apart,
-    sensor warm (t >= 3600 s).
+    the wall, as a tachymeter would; the optical centre is ``mounting_offset_mm`` (20 mm for
+    the default sensor) closer to the wall, so the true optical-centre distance = csv distance
+    - offset (recorded in ``truth.json`` ``stations[*].optical_centre_mm``). Frames are 1 s
+    apart, sensor warm (t >= 3600 s). The wall is tilted by ``tilt_deg`` plus, per station, a
+    random tilt of up to ``tilt_jitter_deg`` (:func:`~tofmetry.simulate.family.station_tilts`,
+    drawn from ``seed``), or by the explicit per-station ``tilts_deg`` (S, 2) [deg].
 
-    Writes ``out/stations.csv``, ``out/d<distance>/`` captures, ``out/truth.json`` and
+    Writes ``out/stations.csv``, ``out/d<distance>/`` captures, ``out/truth.json`` (the sensor
+    draw; per station the tilt and the true plane ``n . p = d`` in the camera frame, metres) and
     ``out/truth.npz`` (``true_depth_<name>`` (H, W) [mm]). Returns ``out``.
+    :func:`tofmetry.simulate.walls.wall_station_means` gives the same frames' statistics in memory.
     """
-    em = _em(errors)
+    sensor = _sensor(errors, sensor)
+    em = sensor.errors
     d = [float(x) for x in distances_mm]
-    if not d or any(not x > 0 for x in d) or any(b <= a for a, b in zip(d, d[1:])):
-        raise InputError(f"wall_dataset: distances_mm must be positive and strictly increasing, found {d}")
-    if n_frames < 1:
-        raise InputError(f"wall_dataset: n_frames must be >= 1, found {n_frames}")
-    out = Path(out)
-    vk = VirtualKinect(em, seed=seed)
     offset = em.mounting_offset_mm if em.on("mounting_offset") else 0.0
+    tilts = resolve_tilts(len(d), tilt_deg, tilt_jitter_deg, seed, tilts_deg)
+    plan = plan_wall_stations(d, n_frames, offset, tilts)
+    out = Path(out)
+    vk = sensor.camera(seed)
     stations, truth_st, arrays = [], [], {}
     with atomic_dir(out, force=force) as tmp:
-        t = 3600.0
-        for dist in d:
-            name = f"d{int(round(dist)):04d}"
-            oc = dist - offset
-            scene = scenes.wall(oc / 1000.0, tilt_deg)
-            rd = vk.render(scene)
-            ts = t + np.arange(n_frames, dtype=float)
-            t = ts[-1] + 120.0  # moving the tripod takes ~2 min
-            meta = CaptureMeta(sensor="kinect_v2", timestamps_s=ts.tolist())
-            write_frames(tmp / name, vk.iter_frames(scene, n_frames, rendering=rd, timestamps_s=ts), meta,
-                         progress=progress)
-            stations.append((name, dist))
-            truth_st.append({"capture": name, "distance_mm": dist, "optical_centre_mm": oc,
-                             "plane_normal": scene.info["plane_normal"], "plane_d_m": scene.info["plane_d_m"]})
-            arrays[f"true_depth_{name}"] = rd.true_depth.astype(np.float32)
+        for st, scene, rd, frames in iter_wall_stations(vk, plan):
+            meta = CaptureMeta(sensor="kinect_v2", timestamps_s=st.timestamps_s.tolist())
+            write_frames(tmp / st.name, frames, meta, progress=progress)
+            stations.append((st.name, st.distance_mm))
+            truth_st.append({"capture": st.name, "distance_mm": st.distance_mm, "optical_centre_mm": st.optical_centre_mm,
+                             "tilt_deg": list(st.tilt_deg), "plane_normal": scene.info["plane_normal"],
+                             "plane_d_m": scene.info["plane_d_m"], "plane_point_m": scene.info["plane_point_m"]})
+            arrays[f"true_depth_{st.name}"] = rd.true_depth.astype(np.float32)
         write_stations_csv(tmp / "stations.csv", stations)
-        truth = _truth_common(vk, seed) | {
+        truth = _truth_common(vk, seed, sensor) | {
             "dataset": "wall", "n_frames": n_frames, "tilt_deg": list(tilt_deg),
+            "tilt_jitter_deg": float(tilt_jitter_deg) if tilts_deg is None else None,
             "mounting_offset_mm": offset,
             "mounting_offset_note": "optical centre is this far in front of the tripod reference point: "
                                     "true optical-centre distance = stations.csv distance - offset",
+            "plane_note": "camera frame at the station (x right, y down, z forward), metres: plane_normal . p = plane_d_m",
             "stations": truth_st}
         atomic_write_json(tmp / "truth.json", truth)
         _write_npz(tmp / "truth.npz", **arrays)
@@ -145,7 +158,8 @@ def wall_dataset(out: str | os.PathLike, distances_mm: Sequence[float] = DEFAULT
 
 def checkerboard_images(out: str | os.PathLike, n_images: int = 20, board: tuple[int, int] = (9, 6),
                         square_mm: float = 50.0, seed: int = 0, errors: ErrorModel | None = None,
-                        supersample: int = 4, force: bool = False, progress: Progress = None) -> Path:
+                        supersample: int = 4, force: bool = False, progress: Progress = None,
+        sensor: SensorDraw | None = None) -> Path:
     """IR images (16-bit PNG) of a checkerboard for intrinsic calibration (paper §4.1).
 
     A 50 cm x 35 cm board (9 x 6 inner corners, 50 mm squares) at 0.55-1.0 m, tilted by
@@ -164,8 +178,8 @@ def checkerboard_images(out: str | os.PathLike, n_images: int = 20, board: tuple
     cols, rows = int(board[0]), int(board[1])
     if n_images < 1:
         raise InputError(f"checkerboard_images: n_images must be >= 1, found {n_images}")
-    em = errors if errors is not None else ErrorModel()
-    vk = VirtualKinect(em, seed=seed, supersample=supersample)
+    sensor = _sensor(errors, sensor, quantize=False)
+    vk = sensor.camera(seed, supersample)
     rng = np.random.default_rng([seed, 7])
     sq = square_mm / 1000.0
     poses = board_poses(n_images, vk.intrinsics, cols, rows, sq, rng)
@@ -181,7 +195,7 @@ def checkerboard_images(out: str | os.PathLike, n_images: int = 20, board: tuple
             if progress is not None:
                 progress(1)
         atomic_write_json(tmp / "board.json", {"cols": cols, "rows": rows, "square_mm": float(square_mm)})
-        truth = _truth_common(vk, seed) | {
+        truth = _truth_common(vk, seed, sensor) | {
             "dataset": "checkerboard_images", "board": {"cols": cols, "rows": rows, "square_mm": float(square_mm)},
             "board_frame": "origin at the first inner corner, x along columns, y along rows, z into the board",
             "images": [{"file": n, "board_to_camera": T} for n, T in zip(names, poses)]}
@@ -206,7 +220,8 @@ def _load_mesh(mesh) -> tuple[np.ndarray, np.ndarray]:
 
 def scan(out: str | os.PathLike, n_views: int = 8, radius_m: float = 1.0, n_frames: int = 10, mesh=None,
          errors: ErrorModel | None = None, seed: int = 0, elevation_deg: float = 30.0,
-         force: bool = False, progress: Progress = None) -> Path:
+         force: bool = False, progress: Progress = None,
+        sensor: SensorDraw | None = None) -> Path:
     """Scan dataset of an object on the ground (paper §5): ``n_views`` views on a circle.
 
     Cameras ``radius_m`` (slant range) from the object centre, ``elevation_deg`` above the
@@ -218,13 +233,13 @@ def scan(out: str | os.PathLike, n_views: int = 8, radius_m: float = 1.0, n_fram
     from tofmetry.io import write_ply
     from tofmetry.simulate.poses import orbit_poses
 
-    em = _em(errors)
+    sensor = _sensor(errors, sensor)
     v, f = _load_mesh(mesh)
     scene = scenes.mesh_on_ground(v, f)
     vw = scene.info["mesh_vertices_world"]
     target = np.array([0.0, 0.0, (vw[:, 2].max()) / 2])
     poses = orbit_poses(n_views, radius_m, elevation_deg, target)
-    vk = VirtualKinect(em, seed=seed)
+    vk = sensor.camera(seed)
     out = Path(out)
     with atomic_dir(out, force=force) as tmp:
         views = []
@@ -236,7 +251,7 @@ def scan(out: str | os.PathLike, n_views: int = 8, radius_m: float = 1.0, n_fram
                          progress=progress)
             views.append({"name": name, "camera_to_world": T})
         write_ply(tmp / "reference.ply", vw, faces=scene.info["mesh_triangles"])
-        truth = _truth_common(vk, seed) | {
+        truth = _truth_common(vk, seed, sensor) | {
             "dataset": "scan", "world": "z up, ground plane z = 0, object centred on the z axis",
             "radius_m": radius_m, "elevation_deg": elevation_deg, "target_m": target, "views": views}
         atomic_write_json(tmp / "truth.json", truth)
@@ -245,7 +260,8 @@ def scan(out: str | os.PathLike, n_views: int = 8, radius_m: float = 1.0, n_fram
 
 def warmup(out: str | os.PathLike, duration_s: float = 5400.0, interval_s: float = 15.0, distance_m: float = 1.36,
            errors: ErrorModel | None = None, seed: int = 0, tilt_deg: tuple = (1.5, -2.0),
-           force: bool = False, progress: Progress = None) -> Path:
+           force: bool = False, progress: Progress = None,
+        sensor: SensorDraw | None = None) -> Path:
     """Warm-up experiment (paper §3.2): wall ~1.36 m, slightly tilted, one frame every 15 s
     from power-on (``timestamps_s`` from 0) for 1.5 h. Writes ``out/capture`` and
     ``out/truth.json`` (true drift per frame). Returns ``out``."""
@@ -253,9 +269,10 @@ def warmup(out: str | os.PathLike, duration_s: float = 5400.0, interval_s: float
 
     if not interval_s > 0 or not duration_s >= 0:
         raise InputError(f"warmup: need interval_s > 0 and duration_s >= 0, found {interval_s}, {duration_s}")
-    em = _em(errors)
+    sensor = _sensor(errors, sensor)
+    em = sensor.errors
     ts = np.arange(0.0, duration_s + 1e-9, interval_s)
-    vk = VirtualKinect(em, seed=seed)
+    vk = sensor.camera(seed)
     scene = scenes.wall(distance_m, tilt_deg)
     rd = vk.render(scene)
     out = Path(out)
@@ -264,7 +281,7 @@ def warmup(out: str | os.PathLike, duration_s: float = 5400.0, interval_s: float
         write_frames(tmp / "capture", vk.iter_frames(scene, len(ts), rendering=rd, timestamps_s=ts), meta,
                      progress=progress)
         drift = warmup_mm(ts, em) if em.on("warmup") else np.zeros_like(ts)
-        truth = _truth_common(vk, seed) | {"dataset": "warmup", "scene": scene.info, "timestamps_s": ts,
+        truth = _truth_common(vk, seed, sensor) | {"dataset": "warmup", "scene": scene.info, "timestamps_s": ts,
                                            "true_drift_mm": drift}
         atomic_write_json(tmp / "truth.json", truth)
         _write_npz(tmp / "truth.npz", true_depth_mm=rd.true_depth)
@@ -272,21 +289,23 @@ def warmup(out: str | os.PathLike, duration_s: float = 5400.0, interval_s: float
 
 
 def noise(out: str | os.PathLike, n_frames: int = 100, distance_m: float = 1.15, errors: ErrorModel | None = None,
-          seed: int = 0, force: bool = False, progress: Progress = None) -> Path:
+          seed: int = 0, force: bool = False, progress: Progress = None,
+        sensor: SensorDraw | None = None) -> Path:
     """Noise experiment (paper §3.2, Fig. 3): ``n_frames`` of a wall at 1.15 m. Writes
     ``out/capture``, ``out/truth.json`` and ``out/truth.npz`` (``noise_sigma_mm`` (H, W),
     ``true_depth_mm``). Returns ``out``."""
     from tofmetry.simulate.errors import noise_sigma_mm
 
-    em = _em(errors)
-    vk = VirtualKinect(em, seed=seed)
+    sensor = _sensor(errors, sensor)
+    em = sensor.errors
+    vk = sensor.camera(seed)
     scene = scenes.wall(distance_m)
     rd = vk.render(scene)
     out = Path(out)
     with atomic_dir(out, force=force) as tmp:
         _write_static_capture(tmp / "capture", vk, scene, rd, n_frames, progress)
         sig = noise_sigma_mm(rd.amplitude, rd.depth0, em) if em.on("noise") else np.zeros_like(rd.depth0)
-        atomic_write_json(tmp / "truth.json", _truth_common(vk, seed) | {"dataset": "noise", "scene": scene.info})
+        atomic_write_json(tmp / "truth.json", _truth_common(vk, seed, sensor) | {"dataset": "noise", "scene": scene.info})
         _write_npz(tmp / "truth.npz", noise_sigma_mm=sig.astype(np.float32), true_depth_mm=rd.true_depth)
     return out
 
@@ -302,7 +321,8 @@ def _label_rect(labels: np.ndarray, lab: int, inset: int) -> tuple[list, list] |
 
 def materials(out: str | os.PathLike, board: str = "grey", n_frames: int = 20, distance_m: float = 1.0,
               errors: ErrorModel | None = None, seed: int = 0, inset_px: int = 3,
-              force: bool = False, progress: Progress = None) -> Path:
+              force: bool = False, progress: Progress = None,
+        sensor: SensorDraw | None = None) -> Path:
     """Material / grey-level experiment (paper §3.3.1, Fig. 4).
 
     ``board="grey"``: grey-level checkerboard; ``"samples"``: material samples incl. a
@@ -314,9 +334,9 @@ def materials(out: str | os.PathLike, board: str = "grey", n_frames: int = 20, d
     """
     if board not in ("grey", "samples"):
         raise InputError(f"materials: board must be 'grey' or 'samples', found {board!r}")
-    em = _em(errors)
+    sensor = _sensor(errors, sensor)
     scene = scenes.grey_board(distance_m) if board == "grey" else scenes.material_board(distance_m)
-    vk = VirtualKinect(em, seed=seed)
+    vk = sensor.camera(seed)
     rd = vk.render(scene)
     regions, samples = [], []
     for s in scene.info["samples"]:
@@ -330,7 +350,7 @@ def materials(out: str | os.PathLike, board: str = "grey", n_frames: int = 20, d
         _write_static_capture(tmp / "capture", vk, scene, rd, n_frames, progress)
         atomic_write_json(tmp / "regions.json", {"rect_convention": "[u0, v0, u1, v1] pixels, u1 and v1 exclusive",
                                                  "regions": regions})
-        atomic_write_json(tmp / "truth.json", _truth_common(vk, seed) | {
+        atomic_write_json(tmp / "truth.json", _truth_common(vk, seed, sensor) | {
             "dataset": "materials", "board": board, "scene": {k: v for k, v in scene.info.items() if k != "samples"},
             "samples": samples, "labels": {int(k): v for k, v in scene.labels.items()}})
         _write_npz(tmp / "truth.npz", labels=rd.labels, true_depth_mm=rd.true_depth)
@@ -343,22 +363,24 @@ OUTDOOR_TARGET = (0.0, 2.2, 0.75)
 
 
 def outdoor(out: str | os.PathLike, n_frames: int = 10, ambient: float = 1.0, errors: ErrorModel | None = None,
-            seed: int = 0, force: bool = False, progress: Progress = None) -> Path:
+            seed: int = 0, force: bool = False, progress: Progress = None,
+        sensor: SensorDraw | None = None) -> Path:
     """Sunny outdoor acquisition (paper §3.3.2, Fig. 5): a table with a box, far background,
     ``ambient`` = 1. About 20 % of the 217 088 pixels stay valid, ~2 % of them flying, more
     toward the edges of the field of view. Writes ``out/capture`` (depth + IR),
     ``out/truth.json`` and ``out/truth.npz`` (``flying`` (T, H, W), ``labels``). Returns ``out``."""
     from tofmetry.simulate.poses import look_at
 
-    em = _em(errors).with_(ambient=float(ambient))
-    vk = VirtualKinect(em, seed=seed)
+    sensor = _sensor(errors, sensor)
+    sensor = sensor.with_errors(sensor.errors.with_(ambient=float(ambient)))
+    vk = sensor.camera(seed)
     scene = scenes.outdoor_table()
     T = look_at(OUTDOOR_POSITION, OUTDOOR_TARGET)
     rd = vk.render(scene, T)
     out = Path(out)
     with atomic_dir(out, force=force) as tmp:
         _, fly = _write_static_capture(tmp / "capture", vk, scene, rd, n_frames, progress, pose=T)
-        atomic_write_json(tmp / "truth.json", _truth_common(vk, seed) | {
+        atomic_write_json(tmp / "truth.json", _truth_common(vk, seed, sensor) | {
             "dataset": "outdoor", "ambient": ambient, "camera_to_world": T, "scene": scene.info,
             "labels": {int(k): v for k, v in scene.labels.items()}})
         _write_npz(tmp / "truth.npz", flying=np.stack(fly), labels=rd.labels, true_depth_mm=rd.true_depth)

@@ -2,14 +2,20 @@
 
 Each term is a pure function of arrays and an :class:`ErrorModel` holding its parameters.
 Signs: a *bias* is ``measured - true`` [mm]; positive = the sensor reads too long.
-Magnitudes are tied to the study (``shared/reference/kinect-v2-assessment-paper.txt``):
+``ErrorModel()`` is the simulator's Kinect v2; its magnitudes are tied to the study
+(``shared/reference/kinect-v2-assessment-paper.txt``). Other sensors of the same class
+(:mod:`tofmetry.simulate.family`) change the parameters; every field's default is this sensor.
 
 =================  ==========================================================================
 term               paper
 =================  ==========================================================================
 wiggling           §4.2.2, Fig. 7a: central deviation -15 mm .. +7 mm for 0.8-4.5 m, strong past 4.5
+                   (:mod:`~tofmetry.simulate.range_error`: trend + periodic components, of Z or
+                   of the radial range, applied in Z or along the ray)
 deformation        §4.2.3, Fig. 8: curved residual surface, ~1 cm in the corners, growing with range
-amplitude_bias     §3.3.1: black (1/6 of white amplitude) reads up to 12 mm long; CD up to 6 cm, uneven
+                   (:mod:`~tofmetry.simulate.deformation`)
+amplitude_bias     §3.3.1: black (1/6 of white amplitude) reads up to 12 mm long; CD up to 6 cm, uneven;
+                   optionally also a term in the absolute amplitude (range, vignetting)
 noise              §3.2 / Fig. 3, 7b: ~1 mm at ~1 m centre, growing with range and toward corners
 flying             §3.3.2: mixed pixels at depth edges; outdoors ~2 % of the valid points
 invalid            §3.1 / §3.3.2: 0.5-4.5 m; outdoors only ~20 % of the 217 088 pixels valid
@@ -28,6 +34,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tofmetry.errors import InputError
+from tofmetry.simulate.deformation import (  # noqa: F401  (re-exported: the terms live in their modules)
+    RANGE_KINDS, corner_scale, corner_shape, deformation_mm, deformation_scale, deformation_shape,
+)
+from tofmetry.simulate.range_error import range_error_curve_mm, ray_factor, wiggling_mm  # noqa: F401
 
 #: Names of the switchable error terms.
 TERMS: tuple[str, ...] = (
@@ -38,6 +48,10 @@ TERMS: tuple[str, ...] = (
 #: Half modulation wavelength of the 80 MHz Kinect v2 carrier: c / (2 f) [m].
 HALF_WAVELENGTH_M = 299_792_458.0 / (2 * 80e6)
 
+#: Range variables and applications of the range error (``ErrorModel.range_variable`` / ``range_apply``).
+RANGE_VARIABLES = ("z", "radial")
+RANGE_APPLY = ("z", "ray")
+
 
 @dataclass(frozen=True)
 class ErrorModel:
@@ -45,7 +59,8 @@ class ErrorModel:
 
     Build with ``ErrorModel()`` (everything on), ``ErrorModel.none()`` (ideal sensor,
     still quantised), ``ErrorModel().without("noise", "flying")`` or
-    ``ErrorModel.only("wiggling")`` (+ quantisation; ``quantize=False`` for float depth). Parameters can be changed with :meth:`with_`.
+    ``ErrorModel.only("wiggling")`` (+ quantisation; ``quantize=False`` for float depth).
+    Parameters can be changed with :meth:`with_`. Every default is the simulator's Kinect v2.
 
     Attributes
     ----------
@@ -59,12 +74,35 @@ class ErrorModel:
     vignetting_power : float
         Illumination/lens falloff ``cos(off-axis angle) ** p``.
     wiggle_* :
-        Wiggling = linear trend + 3 harmonics of the 80 MHz half wavelength + steep growth
-        past ``wiggle_steep_start_m`` (see :func:`wiggling_mm`).
+        Range error curve (see :mod:`tofmetry.simulate.range_error`): ``offset`` [mm],
+        ``slope`` [mm/m] and ``quad`` [mm/m^2] about 0.8 m, ``gain`` (scale error, mm per mm),
+        periodic components of periods ``wiggle_periods_m`` [m] whose harmonics 1..n_c
+        (``wiggle_harmonics``, one count per period; None = one component holding all
+        amplitudes) have amplitudes ``wiggle_amps_mm`` [mm] and phases ``wiggle_phases``
+        [rad] (flat, component after component), and a steep growth
+        ``steep_mm max(0, d - steep_start_m)^steep_power``. Default: linear trend + 3 harmonics
+        of the 80 MHz half wavelength + steep growth past 4.4 m.
+    range_variable : {"z", "radial"}
+        The range error is a function of Z (default) or of the radial range ``Z sqrt(1+x^2+y^2)``.
+    range_apply : {"z", "ray"}
+        The range error is added to Z (default) or to the radial range, i.e. ``W / rho`` in Z.
     deform_* :
-        Per-pixel surface (see :func:`deformation_mm`).
+        Per-pixel surface (see :mod:`tofmetry.simulate.deformation`): the exponential bowl
+        (``corner``/``centre`` values at 1 m [mm], ``sharpness`` > 0, ``radius``,
+        ``centre_shift``, ``aspect``, ``skew``), ``deform_tilt_mm_1m`` (mm per unit of x and
+        of y at 1 m), ``deform_modes`` ((amp_mm, kx, ky, phase), ...) Fourier modes,
+        ``deform_bumps`` ((amp_mm, x0, y0, sigma), ...) Gaussian bumps (normalised units),
+        the range dependence ``deform_range_kind`` in :data:`RANGE_KINDS` with
+        ``deform_range_gain`` / ``deform_range_decay_m`` [m], the corner fall-off
+        (``deform_corner_falloff_mm_1m`` at the corner, ``deform_corner_start`` 0.71..1,
+        ``deform_corner_power``, range growth ``(1 - g) + g Z^n`` with
+        ``deform_corner_range_gain`` and ``deform_corner_range_power``) and
+        ``deform_corner_xy``, the normalised ray coordinates of the image corners.
     amp_bias_mm_per_ln : float
         Amplitude bias ``k * ln(A_white / A)``; 12 mm / ln 6 = 6.7 mm (paper §3.3.1).
+    amp_bias_abs_mm_per_ln, amp_bias_abs_ref : float
+        Bias in the *absolute* amplitude ``k_abs ln(A_ref / A)`` [mm] (default off): a white
+        wall shows it too, growing with range and toward the vignetted corners.
     reflective_max_mm, reflective_jitter_mm : float
         Extra, spatially uneven bias of reflective samples (CD: up to 6 cm) and its per-frame jitter.
     noise_sigma_mm : float
@@ -99,13 +137,20 @@ class ErrorModel:
     albedo_white: float = 0.8
     vignetting_power: float = 3.0
     amp_noise_rel: float = 0.01
-    # (a) wiggling
+    # (a) wiggling / range error
     wiggle_offset_mm: float = -10.0
     wiggle_slope_mm_per_m: float = 3.0
     wiggle_amps_mm: tuple = (4.5, 2.5, 0.8)
     wiggle_phases: tuple = (0.02, 3.69, 6.15)
     wiggle_steep_start_m: float = 4.4
     wiggle_steep_mm: float = 30.0
+    wiggle_quad_mm_per_m2: float = 0.0
+    wiggle_gain: float = 0.0
+    wiggle_periods_m: tuple = (HALF_WAVELENGTH_M,)
+    wiggle_harmonics: tuple | None = None
+    wiggle_steep_power: float = 1.5
+    range_variable: str = "z"
+    range_apply: str = "z"
     # (b) deformation
     deform_corner_mm_1m: float = 10.5
     deform_centre_mm_1m: float = -2.0
@@ -115,8 +160,21 @@ class ErrorModel:
     deform_centre_shift: tuple = (0.01, -0.005)
     deform_aspect: float = 1.08
     deform_skew_mm_1m: float = 0.5
+    deform_range_kind: str = "linear"
+    deform_range_decay_m: float = 2.0
+    deform_tilt_mm_1m: tuple = (0.0, 0.0)
+    deform_modes: tuple = ()
+    deform_bumps: tuple = ()
+    deform_corner_falloff_mm_1m: float = 0.0
+    deform_corner_start: float = 0.8
+    deform_corner_power: float = 2.0
+    deform_corner_range_gain: float = 0.0
+    deform_corner_range_power: float = 1.0
+    deform_corner_xy: tuple = (0.77, 0.64)
     # (c) amplitude bias
     amp_bias_mm_per_ln: float = 12.0 / math.log(6.0)
+    amp_bias_abs_mm_per_ln: float = 0.0
+    amp_bias_abs_ref: float = 12_000.0
     reflective_max_mm: float = 60.0
     reflective_jitter_mm: float = 6.0
     # (d) noise
@@ -153,8 +211,14 @@ class ErrorModel:
         if unknown:
             raise InputError(f"ErrorModel: unknown error term(s) {unknown}; known terms: {list(TERMS)}")
         object.__setattr__(self, "enabled", en)
+        for name in ("wiggle_amps_mm", "wiggle_phases", "wiggle_periods_m", "deform_centre_shift",
+                     "deform_tilt_mm_1m", "deform_modes", "deform_bumps", "deform_corner_xy", "wiggle_harmonics"):
+            v = getattr(self, name)
+            if v is not None:
+                object.__setattr__(self, name, _tuplify(v))
         if not 0.0 <= self.ambient <= 1.0:
             raise InputError(f"ErrorModel: ambient must be within 0..1, found {self.ambient}")
+        _validate(self)
 
     # ------------------------------------------------------------ switches
     @classmethod
@@ -188,18 +252,76 @@ class ErrorModel:
         return term in self.enabled
 
     def to_dict(self) -> dict:
+        """JSON-able dict of every field (``enabled`` as a sorted list)."""
         d = dataclasses.asdict(self)
         d["enabled"] = sorted(self.enabled)
         return d
 
     @classmethod
     def from_dict(cls, d: dict) -> "ErrorModel":
+        """Inverse of :meth:`to_dict` (lists, also nested ones, become tuples); unknown keys raise."""
         d = dict(d)
+        unknown = sorted(set(d) - {f.name for f in dataclasses.fields(cls)})
+        if unknown:
+            raise InputError(f"ErrorModel.from_dict: unknown field(s) {unknown}")
         d["enabled"] = frozenset(d.get("enabled", TERMS))
         for k, v in list(d.items()):
             if isinstance(v, list):
-                d[k] = tuple(v)
+                d[k] = _tuplify(v)
         return cls(**d)
+
+
+def _tuplify(v):
+    """Lists/tuples (nested) -> tuples of floats/ints/str."""
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return tuple(_tuplify(x) for x in v)
+    if isinstance(v, np.generic):
+        return v.item()
+    return v
+
+
+def _validate(em: ErrorModel) -> None:
+    """Raise :class:`InputError` naming the first inconsistent parameter of ``em``."""
+    def bad(name, expected, found):
+        raise InputError(f"ErrorModel: {name} must be {expected}, found {found!r}")
+
+    if em.range_variable not in RANGE_VARIABLES:
+        bad("range_variable", f"one of {RANGE_VARIABLES}", em.range_variable)
+    if em.range_apply not in RANGE_APPLY:
+        bad("range_apply", f"one of {RANGE_APPLY}", em.range_apply)
+    if em.deform_range_kind not in RANGE_KINDS:
+        bad("deform_range_kind", f"one of {RANGE_KINDS}", em.deform_range_kind)
+    if len(em.wiggle_amps_mm) != len(em.wiggle_phases):
+        bad("wiggle_phases", f"as long as wiggle_amps_mm ({len(em.wiggle_amps_mm)})", em.wiggle_phases)
+    if not em.wiggle_periods_m or any(not (p > 0 and math.isfinite(p)) for p in em.wiggle_periods_m):
+        bad("wiggle_periods_m", "a non-empty tuple of positive periods [m]", em.wiggle_periods_m)
+    if em.wiggle_harmonics is None:
+        if len(em.wiggle_periods_m) != 1:
+            bad("wiggle_harmonics", "one harmonic count per period when there are several periods",
+                em.wiggle_harmonics)
+    else:
+        h = em.wiggle_harmonics
+        if len(h) != len(em.wiggle_periods_m) or any(int(n) != n or n < 0 for n in h):
+            bad("wiggle_harmonics", f"{len(em.wiggle_periods_m)} non-negative integer counts (one per period)", h)
+        if sum(h) != len(em.wiggle_amps_mm):
+            bad("wiggle_harmonics", f"counts summing to len(wiggle_amps_mm) = {len(em.wiggle_amps_mm)}", h)
+    if not em.deform_sharpness > 0:
+        bad("deform_sharpness", "> 0", em.deform_sharpness)
+    if em.deform_range_kind == "decay" and not em.deform_range_decay_m > 0:
+        bad("deform_range_decay_m", "> 0 for deform_range_kind='decay'", em.deform_range_decay_m)
+    if len(em.deform_corner_xy) != 2 or not all(v > 0 for v in em.deform_corner_xy):
+        bad("deform_corner_xy", "two positive normalised corner coordinates (x_c, y_c)", em.deform_corner_xy)
+    if not 0.0 <= em.deform_corner_start < 1.0:
+        bad("deform_corner_start", "within [0, 1)", em.deform_corner_start)
+    for name, n in (("deform_modes", 4), ("deform_bumps", 4)):
+        if any(len(m) != n for m in getattr(em, name)):
+            bad(name, f"a tuple of {n}-tuples", getattr(em, name))
+    if any(not b[3] > 0 for b in em.deform_bumps):
+        bad("deform_bumps", "bumps with sigma > 0", em.deform_bumps)
+    if len(em.deform_tilt_mm_1m) != 2:
+        bad("deform_tilt_mm_1m", "(t_x, t_y)", em.deform_tilt_mm_1m)
+    if not em.amp_bias_abs_ref > 0:
+        bad("amp_bias_abs_ref", "> 0", em.amp_bias_abs_ref)
 
 
 def _check_terms(terms) -> None:
@@ -209,69 +331,6 @@ def _check_terms(terms) -> None:
 
 
 # ---------------------------------------------------------------------- terms
-def wiggling_mm(z_mm: np.ndarray, em: ErrorModel) -> np.ndarray:
-    """(a) Range-dependent systematic error ("wiggling") [mm].
-
-    ``w(z) = o + s (z - 0.8) + sum_k a_k sin(2 pi k z / L + phi_k) + g max(0, z - z_s)^1.5``
-    with ``L`` = 1.874 m, the half wavelength of the 80 MHz modulation (harmonics
-    k = 1, 2, 3 of a not perfectly sinusoidal modulation, paper §2.3) and a steep growth
-    past ``z_s`` = 4.4 m. Between 0.8 and 4.5 m it spans -15 .. +7 mm (paper Fig. 7a).
-
-    Parameters
-    ----------
-    z_mm : array of float [mm]
-        Depth Z (the Kinect delivers Z; the residual is modelled as a function of Z).
-
-    Returns
-    -------
-    Bias array of the same shape [mm].
-    """
-    z = np.asarray(z_mm, dtype=np.float64) * 1e-3
-    w = em.wiggle_offset_mm + em.wiggle_slope_mm_per_m * (z - 0.8)
-    for k, (a, p) in enumerate(zip(em.wiggle_amps_mm, em.wiggle_phases), start=1):
-        w = w + a * np.sin(2 * np.pi * k * z / HALF_WAVELENGTH_M + p)
-    w = w + em.wiggle_steep_mm * np.maximum(z - em.wiggle_steep_start_m, 0.0) ** 1.5
-    return w
-
-
-def deformation_shape(xy: np.ndarray, em: ErrorModel) -> np.ndarray:
-    """(b) Per-pixel deformation pattern at 1 m [mm] from normalised rays.
-
-    An exponential bowl in an off-centre, slightly elliptic radius, plus a small skew:
-    negative in a central disc (``deform_centre_mm_1m`` = -2 mm), +10.4 .. +15 mm in the four
-    corner 10x10 patches of the Kinect v2 at 1 m (paper Fig. 8: ~1 cm), not radially
-    symmetric and not a polynomial.
-
-    Parameters
-    ----------
-    xy : (..., 2) float64
-        Undistorted normalised ray coordinates (``intr.ray_table()``).
-
-    Returns
-    -------
-    (...) float64 [mm] at 1 m.
-    """
-    x = xy[..., 0] - em.deform_centre_shift[0]
-    y = xy[..., 1] - em.deform_centre_shift[1]
-    q = ((x * em.deform_aspect) ** 2 + y ** 2) / em.deform_radius ** 2  # ~1 in the Kinect v2 corners
-    a = em.deform_sharpness
-    span = em.deform_corner_mm_1m - em.deform_centre_mm_1m
-    bowl = em.deform_centre_mm_1m + span * (np.exp(a * q) - 1.0) / (math.exp(a) - 1.0)
-    skew = em.deform_skew_mm_1m * np.tanh(2.0 * x * y / 0.4)
-    return bowl + skew
-
-
-def deformation_scale(z_mm: np.ndarray, em: ErrorModel) -> np.ndarray:
-    """Range growth of the deformation: ``(1 - g) + g z[m]`` (1 at 1 m; 2 at 3 m for g = 0.5)."""
-    z = np.asarray(z_mm, dtype=np.float64) * 1e-3
-    return (1.0 - em.deform_range_gain) + em.deform_range_gain * z
-
-
-def deformation_mm(xy: np.ndarray, z_mm: np.ndarray, em: ErrorModel) -> np.ndarray:
-    """(b) Per-pixel surface deformation [mm] = :func:`deformation_shape` x :func:`deformation_scale`."""
-    return deformation_shape(xy, em) * deformation_scale(z_mm, em)
-
-
 def amplitude_bias_mm(rel_reflectance: np.ndarray, em: ErrorModel) -> np.ndarray:
     """(c) Amplitude-related bias [mm]: ``k ln(A_white / A)``, dark surfaces read long.
 
@@ -283,6 +342,25 @@ def amplitude_bias_mm(rel_reflectance: np.ndarray, em: ErrorModel) -> np.ndarray
     """
     r = np.clip(np.asarray(rel_reflectance, dtype=np.float64), 1e-3, None)
     return em.amp_bias_mm_per_ln * np.log(1.0 / r)
+
+
+def amplitude_bias_abs_mm(amplitude_: np.ndarray, em: ErrorModel) -> np.ndarray:
+    """(c) Bias in the absolute amplitude [mm]: ``k_abs ln(A_ref / A)`` (``amp_bias_abs_*``).
+
+    Unlike :func:`amplitude_bias_mm` a white wall shows it: it grows with range (A ~ 1/r^2:
+    ``2 k_abs ln(r / 1 m)`` on the axis) and toward the vignetted corners.
+
+    Parameters
+    ----------
+    amplitude_ : array
+        Noise-free IR amplitude (clipped at 1).
+
+    Returns
+    -------
+    Array of the same shape [mm] (zeros when ``amp_bias_abs_mm_per_ln`` is 0).
+    """
+    a = np.maximum(np.asarray(amplitude_, dtype=np.float64), 1.0)
+    return em.amp_bias_abs_mm_per_ln * np.log(em.amp_bias_abs_ref / a)
 
 
 def noise_sigma_mm(amplitude: np.ndarray, z_mm: np.ndarray, em: ErrorModel) -> np.ndarray:

@@ -5,11 +5,17 @@ normalised ``(x, y)`` and the camera-frame direction is ``(x, y, 1)``, so the hi
 of a ray is directly its depth Z. Each pixel is also supersampled ``n x n`` (sub-pixel rays
 from the local Jacobian of the ray table) to anti-alias the IR amplitude and to find mixed
 ("flying") pixels at depth discontinuities.
+
+A bare wall (:func:`tofmetry.simulate.scenes.wall`: one infinite, uniform plane) takes an
+analytic path, :func:`render_wall`: the same arithmetic as the ray cast, element for element
+(so the same :class:`Rendering`, bit for bit; ``tests/simulate`` checks it), without the generic
+machinery, and with the per-lens ray quantities cached. It is about 5-10x cheaper.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -59,8 +65,12 @@ def _sub_offsets(n: int) -> np.ndarray:
     return np.column_stack([du.ravel(), dv.ravel()])  # (S, 2)
 
 
+#: Rays per chunk of the ray cast (the analytic wall path uses the same chunks).
+CHUNK = 1 << 17
+
+
 def _cast(scene: Scene, R: np.ndarray, o: np.ndarray, sx: np.ndarray, sy: np.ndarray, em: E.ErrorModel,
-          chunk: int = 1 << 17):
+          chunk: int = CHUNK):
     """Cast rays of normalised camera directions (sx, sy) (N,): Z [mm] (NaN = miss), amplitude, hits."""
     n = sx.size
     z = np.full(n, np.nan)
@@ -83,10 +93,12 @@ def _cast(scene: Scene, R: np.ndarray, o: np.ndarray, sx: np.ndarray, sy: np.nda
     return z, a, lab, rb, refl
 
 
-def render(scene: Scene, intr: CameraIntrinsics, pose: np.ndarray, em: E.ErrorModel, supersample: int = 3) -> Rendering:
+def render(scene: Scene, intr: CameraIntrinsics, pose: np.ndarray, em: E.ErrorModel, supersample: int = 3,
+           analytic_wall: bool = True) -> Rendering:
     """Raycast ``scene`` from camera-to-world ``pose`` (4x4, metres).
 
-    One ray per pixel centre first; pixels whose 3x3 neighbourhood shows an edge (label,
+    A bare wall goes through :func:`render_wall` (same result, cheaper) unless
+    ``analytic_wall`` is False. Otherwise one ray per pixel centre first; pixels whose 3x3 neighbourhood shows an edge (label,
     hit/miss, albedo or a depth step > ``flying_gap_mm`` / 2) are then supersampled with
     ``supersample x supersample`` sub-rays (adaptive anti-aliasing; features thinner than
     about one pixel between two pixel centres can be missed).
@@ -103,6 +115,8 @@ def render(scene: Scene, intr: CameraIntrinsics, pose: np.ndarray, em: E.ErrorMo
         raise InputError(f"render: pose must be a finite 4x4 camera-to-world matrix, found shape {pose.shape}")
     if supersample < 1:
         raise InputError(f"render: supersample must be >= 1, found {supersample}")
+    if analytic_wall and is_bare_wall(scene):
+        return render_wall(scene, intr, pose, em, supersample)
     H, W = intr.shape
     R, o = pose[:3, :3], pose[:3, 3]
     xy = np.asarray(intr.ray_table(True))
@@ -150,4 +164,95 @@ def render(scene: Scene, intr: CameraIntrinsics, pose: np.ndarray, em: E.ErrorMo
         true_depth=z_c, depth0=depth0, amplitude=amp, rel_reflectance=np.nan_to_num(rel), labels=lab,
         refl_bias_mm=rb, reflective=refl, mixed=mixed, mixed_idx=eidx[emixed],
         mixed_z=zs[emixed], mixed_a=as_[emixed], xy=xy,
+    )
+
+
+# ---------------------------------------------------------------- analytic wall
+def is_bare_wall(scene: Scene) -> bool:
+    """Whether ``scene`` is a :func:`~tofmetry.simulate.scenes.wall`: one infinite plane of one albedo."""
+    from tofmetry.simulate.surfaces import PlaneSurface
+
+    return (scene.smooth and scene.info.get("type") == "wall" and len(scene.surfaces) == 1
+            and isinstance(scene.surfaces[0], PlaneSurface) and scene.surfaces[0].extent is None
+            and "albedo" in scene.info)
+
+
+@lru_cache(maxsize=4)
+def _wall_rays(key: tuple, rot: bytes, vignetting_power: float):
+    """Per-lens, per-orientation ray quantities of :func:`render_wall` (read-only), computed as in :func:`_cast`."""
+    intr = CameraIntrinsics(*key)
+    R = np.frombuffer(rot, np.float64).reshape(3, 3)
+    xy = np.asarray(intr.ray_table(True))
+    xs, ys = xy[..., 0].ravel(), xy[..., 1].ravel()
+    n = xs.size
+    dirs, norm = np.empty((n, 3)), np.empty(n)
+    for k0 in range(0, n, CHUNK):
+        k1 = min(n, k0 + CHUNK)
+        x, y = xs[k0:k1], ys[k0:k1]
+        d = np.stack([x, y, np.ones_like(x)], axis=1) @ R.T
+        dirs[k0:k1] = d
+        norm[k0:k1] = np.sqrt(np.einsum("ij,ij->i", d, d))
+    rho_cast = np.sqrt(xs * xs + ys * ys + 1.0)
+    rho = np.sqrt(1.0 + xy[..., 0] ** 2 + xy[..., 1] ** 2)
+    vig = (1.0 / rho) ** vignetting_power
+    out = (dirs, norm, rho_cast, rho, vig)
+    for a in out:
+        a.setflags(write=False)
+    return out
+
+
+def render_wall(scene: Scene, intr: CameraIntrinsics, pose: np.ndarray, em: E.ErrorModel,
+                supersample: int = 3) -> Rendering:
+    """Analytic rendering of a bare wall (:func:`is_bare_wall`), equal to the ray cast of :func:`render`.
+
+    Every quantity is computed with the same floating-point operations as the ray cast
+    (plane intersection ``t = ((p0 - o) . n) / (d . n)`` per chunk of rays, amplitude
+    ``A_white,1m cos(theta)^p / r^2 (albedo / albedo_white) cos(i)``), so the fields are
+    identical; a smooth scene is never supersampled, so ``mixed`` is empty.
+
+    Parameters
+    ----------
+    scene : Scene, a bare wall; intr : CameraIntrinsics; pose : (4, 4) camera-to-world [m];
+    supersample : int, only sets the (empty) ``mixed_z`` / ``mixed_a`` width ``supersample^2``.
+
+    Returns
+    -------
+    Rendering
+    """
+    if not is_bare_wall(scene):
+        raise InputError(f"render_wall: scene must be a bare wall (scenes.wall), found {scene.name!r}")
+    pose = np.asarray(pose, np.float64)
+    H, W = intr.shape
+    R, o = np.ascontiguousarray(pose[:3, :3]), pose[:3, 3]
+    dirs, norm, rho_cast, rho, vig = _wall_rays(intr._key(), R.tobytes(), float(em.vignetting_power))
+    surf = scene.surfaces[0]
+    nrm = surf.normal
+    num = (surf.origin - o) @ nrm
+    n = dirs.shape[0]
+    dn = np.empty(n)
+    for k0 in range(0, n, CHUNK):
+        k1 = min(n, k0 + CHUNK)
+        dn[k0:k1] = dirs[k0:k1] @ nrm
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = num / dn
+    ok = np.isfinite(t) & (t > 1e-9)
+    t = np.where(ok, t, 0.0)
+    vig_f = vig.reshape(-1)
+    cos_inc = np.where(ok, np.abs(dn) / norm, 0.0)
+    rng_m = np.where(ok, t * rho_cast, 1.0)
+    wa = em.amp_white_1m * vig_f / np.maximum(rng_m, 1e-3) ** 2
+    amp = np.where(ok, wa * (float(scene.info["albedo"]) / em.albedo_white) * np.clip(cos_inc, 0.0, 1.0), 0.0)
+    z_c = np.where(ok, t * 1e3, 0.0).reshape(H, W)
+    amp = amp.reshape(H, W)
+    hit = ok.reshape(H, W)
+    rng_c = z_c * 1e-3 * rho
+    with np.errstate(invalid="ignore", divide="ignore"):
+        wa_c = em.amp_white_1m * vig / np.maximum(np.where(hit, rng_c, 1.0), 1e-3) ** 2
+        rel = np.where(hit, amp / wa_c, 0.0)
+    S = supersample * supersample
+    return Rendering(
+        true_depth=z_c, depth0=z_c.copy(), amplitude=amp, rel_reflectance=np.nan_to_num(rel),
+        labels=np.where(hit, 1, -1).astype(np.int32), refl_bias_mm=np.zeros((H, W)),
+        reflective=np.zeros((H, W), bool), mixed=np.zeros((H, W), bool), mixed_idx=np.zeros(0, np.int64),
+        mixed_z=np.zeros((0, S)), mixed_a=np.zeros((0, S)), xy=np.asarray(intr.ray_table(True)),
     )
