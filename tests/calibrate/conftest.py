@@ -36,3 +36,21 @@ def render_wall(intr, distance_mm, normal=None):
 @pytest.fixture(scope="session")
 def small_intr():
     return SMALL
+
+
+def ray_error_mm(intr, z):
+    """Truth range error [mm] of a continuous-wave ToF camera: a function of the ray length
+    ``r = z rho`` (offset, slope, a 600 mm wiggle and its harmonic), seen in Z divided by ``rho``."""
+    rays = intr.ray_table()
+    rho = np.sqrt(1.0 + rays[..., 0] ** 2 + rays[..., 1] ** 2)
+    r = np.asarray(z, float) * rho
+    w = -9.0 + 1.5 * (r / 1000.0) + 2.5 * np.sin(2 * np.pi * r / 600.0 + 1.1) + 0.8 * np.sin(4 * np.pi * r / 600.0)
+    return w / rho
+
+
+def render_wall_ray(intr, distance_mm, normal=None):
+    """Measured (float) depth of a wall with the ray-length range error and the deformation (no noise)."""
+    from tofmetry.calibrate import wall_reference
+
+    z = wall_reference(intr, distance_mm, normal)
+    return z + ray_error_mm(intr, z) + deformation_mm(intr, z)

@@ -17,9 +17,8 @@ from tofmetry.calibrate import (
     correct_and_backproject,
     count_outside_range,
     fit_range_curve,
-    load_calibration,
-    save_calibration,
 )
+from tofmetry.pipelines import load_calibration, save_calibration
 from tofmetry.calibrate._backproject import FrameCorrector, _correct_backproject
 from tofmetry.errors import FormatError, InputError, SensorMismatchError
 from tofmetry.pointcloud import depth_to_points

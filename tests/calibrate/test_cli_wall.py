@@ -101,7 +101,8 @@ def test_bad_wall_datasets(walls, tmp_path):
 
 
 def test_calibration_for_other_resolution(walls, tmp_path, small_intr):
-    from tofmetry.calibrate import DepthCalibration, fit_range_curve, save_calibration
+    from tofmetry.calibrate import DepthCalibration, fit_range_curve
+    from tofmetry.pipelines import save_calibration
 
     x = np.linspace(800, 3000, 8)
     sp = fit_range_curve(x, np.zeros_like(x))

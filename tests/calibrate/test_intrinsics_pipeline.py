@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from tofmetry.calibrate._intrinsics import (
+from tofmetry.calibrate import (
     board_object_points, calibrate_intrinsics, coverage_mask, cross_validate_intrinsics, ray_difference_px,
 )
 from tofmetry.sensor import KINECT_V2
@@ -48,8 +48,10 @@ def test_outlier_view_rejected_and_cross_validated():
 
 
 def test_simulated_default_set_meets_the_intrinsics_target(tmp_path):
-    """Issue #4: 20 simulated IR images (noise, vignetting, anti-aliasing on) -> intrinsics within
-    0.5 px of back-projection error over the covered image area."""
+    """Issue #4 and its part 2: 20 simulated IR images (noise, vignetting, anti-aliasing on) ->
+    ray error over the FULL image grid (corners included) well within 0.5 px, the image corners
+    that no board reached reported, with the ray error predicted there."""
+    from tofmetry.calibrate import ray_error_px
     from tofmetry.pipelines import intrinsics_from_images, write_intrinsics_report
     from tofmetry.sensor import CameraIntrinsics
     from tofmetry.simulate import datasets
@@ -59,15 +61,37 @@ def test_simulated_default_set_meets_the_intrinsics_target(tmp_path):
     true = CameraIntrinsics.from_dict(truth["true_intrinsics"])
     run = intrinsics_from_images(out, BOARD, SQ, leave_one_out=False)
     res = run.result
-    assert len(res.used) >= 18 and not res.warnings       # the boards cover the image: no coverage warning
+    assert len(res.used) == 20 and not run.rejected
+    # X-junction fit on every corner but where the renderer's 4x4 supersampling leaves an edge
+    # unblurred (axis-aligned): there cornerSubPix takes over (measured: 1 corner of 1080)
+    frac = [d["model_fraction"] for d in run.detections.values()]
+    assert np.median(frac) == 1.0 and min(frac) > 0.9
+    assert all(d["dtype"] == "uint16" for d in run.detections.values())
+    # the boards are pushed against the image corners, but their inner corners stay ~1.5 squares
+    # inside: the 10 % corner regions are extrapolated, and the only warning says so
+    assert res.uncovered_corners == ["top-left", "top-right", "bottom-left", "bottom-right"]
+    assert len(res.warnings) == 1 and "no board reached the image corner" in res.warnings[0]
     covered = coverage_mask([c for n, c in zip(run.names, run.corners) if n in res.used], true.shape)
-    d = ray_difference_px(true, res.intrinsics, covered)
-    # The target itself (issue #4) is 0.5 px, read as the RMS over the covered area. Measured on
-    # this default set: RMS 0.24 px, max 0.34 px (seeds 0-2 and 15/20/25 images: RMS 0.03-0.46 px,
-    # see the report); the corner error is ~0.1 px per corner, the rest is its propagation.
-    assert np.sqrt(np.nanmean(d ** 2)) < 0.5
     assert covered.mean() > 0.5
-    # held-out views (5-fold): corner noise ~0.1 px dominates
-    assert run.cv["rms_px"] < 0.15
+    err = ray_error_px(true, res.intrinsics)
+    # measured: RMS 0.10 px, p90 0.10 px over the full grid (before the X-junction fit: 0.24 px RMS
+    # over the covered area alone), 0.93 px at the very corner pixel, where the lens is extrapolated
+    # (predicted there: up to 0.7 px). Target 0.5 px RMS; margins: the family's spread
+    # (tests/calibrate/test_intrinsics_family.py, p90 0.13-0.22 px) and 2x the prediction in the corners
+    pr = res.predicted_ray
+    assert err.rms_px < 0.25 and err.corners_max_px < max(1.0, 2 * pr.corners_max_px)
+    # the prediction (parameter covariance) is of the same size, and larger in the corners
+    assert 0.2 < err.rms_px / pr.rms_px < 3.0 and pr.corners_max_px > 2 * pr.rms_px
+    ref = ray_difference_px(true, res.intrinsics, covered)
+    assert np.nanmax(ref) < 0.3
+    # held-out views (5-fold): corner errors ~0.03 px
+    assert run.cv["rms_px"] < 0.08
     files = write_intrinsics_report(run, tmp_path / "rep")
     assert {f.name for f in files} == {"intrinsics_report.json", "coverage.png", "per_image.png"}
+    rep = json.loads((tmp_path / "rep" / "intrinsics_report.json").read_text())
+    p = rep["predicted_ray_error"]
+    assert set(p["per_corner_max_px"]) == set(res.uncovered_corners) and p["rms_px"] == pytest.approx(pr.rms_px)
+    assert np.array(p["map16_px"]).shape == (len(p["map16_v_px"]), len(p["map16_u_px"])) == (28, 33)
+    assert rep["corner_regions"]["uncovered"] == res.uncovered_corners
+    assert rep["covariance"]["diagonal_matches_opencv_std"] and len(rep["covariance"]["matrix"]) == 9
+    assert (tmp_path / "rep" / "coverage.png").stat().st_size > 20_000

@@ -37,9 +37,10 @@ def test_only_wiggling_centre_bias_is_the_documented_function():
     for dist in (1.0, 2.6):
         fr = VirtualKinect(em).capture(scenes.wall(dist), n_frames=2)
         bias = fr.depth[0] - fr.true_depth
-        np.testing.assert_allclose(bias[C], E.wiggling_mm(fr.true_depth[C], em), atol=1e-6)
-        # same everywhere for a function of Z only
-        np.testing.assert_allclose(bias, E.wiggling_mm(fr.true_depth, em), atol=1e-6)
+        xy = np.asarray(VirtualKinect(em).intrinsics.ray_table())
+        np.testing.assert_allclose(bias[C], E.wiggling_mm(fr.true_depth[C], em, xy[C]), atol=1e-6)
+        # everywhere: a function of the ray length, applied along the ray (W / rho in Z)
+        np.testing.assert_allclose(bias, E.wiggling_mm(fr.true_depth, em, xy), atol=1e-6)
 
 
 def test_only_deformation_is_the_documented_surface():

@@ -31,14 +31,15 @@ def test_switches():
 def test_wiggling_span_matches_paper_fig7a():
     em = ErrorModel()
     z = np.linspace(800, 4500, 3000)
-    w = E.wiggling_mm(z, em)
+    axis = np.zeros((len(z), 2))  # on the optical axis the ray length is Z: the study's Fig. 7a
+    w = E.wiggling_mm(z, em, axis)
     # paper §4.2.2: -1.5 cm .. +7 mm between 0.8 and 4.5 m
     assert -15.5 < w.min() < -13.0
     assert 5.5 < w.max() < 7.5
     # not monotone / not a low-order shape: several sign changes of the slope
     assert np.count_nonzero(np.diff(np.sign(np.diff(w)))) >= 4
     # steep growth past 4.5 m
-    assert E.wiggling_mm(5500.0, em) - E.wiggling_mm(4500.0, em) > 15.0
+    assert E.wiggling_mm(5500.0, em, np.zeros(2)) - E.wiggling_mm(4500.0, em, np.zeros(2)) > 15.0
 
 
 def test_deformation_shape_and_growth():

@@ -1,12 +1,12 @@
 """Applying a :class:`DepthCalibration` to depth frames: fused numba kernels + numpy reference.
 
-uint16 kernels (see :class:`~tofmetry.calibrate._model.CorrectionTables`): per pixel ``p`` one
-16-byte entry of a 65 536-entry table (``d - R(d)``, the offset of the linear-form plane of the
-node interval of ``d``, and ``d`` as float) and one 8-byte ``(b, a)`` pair:
-``corrected = (d - R(d)) - (b d + a)``.
-No temporaries, ``parallel=True``. Float input (e.g. averaged depth) interpolates the range
-table linearly between integer mm (error < 1e-4 mm for any curve smooth at the mm scale)
-and computes the surface weight exactly.
+uint16 kernels (see :mod:`._tables`): per pixel ``p`` one 16-byte entry of a 65 536-entry table
+(``d - R(dh)``, the offset of the linear-form plane of ``dh``'s node interval, ``dh`` as float,
+the ray-term switch) and one 8-byte ``(b, a)`` pair: ``corrected = (d - R(dh)) - (b dh + a)``,
+minus ``W(dh rho) rho**-gamma`` for a calibration with a ray term (one more 8-byte table entry,
+cache resident, and the pixel's ``(rho, rho**-gamma)``). No temporaries, ``parallel=True``.
+Float input (e.g. averaged depth) is corrected with the model's numpy definition
+(:meth:`DepthCalibration.correction`).
 
 The fused correction + back-projection of a frame stream is in :mod:`._backproject`.
 """
@@ -29,36 +29,27 @@ def _apply_u16(depth, lut_f, lut_i, coef, out):  # pragma: no cover - numba
         out[i] = lut_f[t4] - (coef[q] * lut_f[t4 + np.uint64(2)] + coef[q + np.uint64(1)])
 
 
-@nb.njit(parallel=True, cache=True)
-def _apply_float(depth, r, k0t, k1t, nodes, lo, hi, surf, out):  # pragma: no cover - numba
+@nb.njit(inline="always")
+def ray_term(k, dh, ray_w, q0, nmax, pix):  # pragma: no cover - numba
+    """``W(dh rho) rho**-gamma`` [mm] from the tables, ``(rho, rho**-gamma)`` at ``pix[k], pix[k + 1]``
+    (linear in each mm of ray length, clamped). Signed 32-bit conversions: one instruction each
+    way on x86, where unsigned 64-bit ones are not."""
+    t = min(max(dh * pix[k] - q0, np.float32(0.0)), nmax)
+    j = np.int32(t)
+    f = t - np.float32(j)
+    j2 = np.int64(j) * 2
+    return (ray_w[j2] + f * ray_w[j2 + 1]) * pix[k + np.uint64(1)]
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def _apply_u16_ray(depth, lut_f, lut_i, coef, ray_w, q0, nmax, pix, out):  # pragma: no cover - numba
     n = depth.shape[0]
-    kk = nodes.shape[0]
     for i in nb.prange(n):
-        d = depth[i]
-        if not (d > 0.0):  # 0 or NaN: invalid, kept as is
-            out[i] = d
-            continue
-        if d < lo or d > hi:
-            out[i] = d
-            continue
-        j = int(np.floor(d))
-        f = d - j
-        j1 = j + 1 if j < 65535 else j
-        rr = (1.0 - f) * r[j] + f * r[j1]
-        if kk == 1:
-            s = surf[0, i]
-        else:
-            jr = int(d + 0.5)
-            k0 = k0t[jr] if k0t[jr] >= 0 else max(k0t[j], 0)
-            # exact bracketing for non-integer d
-            while k0 > 0 and d < nodes[k0]:
-                k0 -= 1
-            while k0 < kk - 2 and d >= nodes[k0 + 1]:
-                k0 += 1
-            w = (d - nodes[k0]) / (nodes[k0 + 1] - nodes[k0])
-            w = min(max(w, 0.0), 1.0)
-            s = (1.0 - w) * surf[k0, i] + w * surf[k0 + 1, i]
-        out[i] = d - rr - s
+        t4 = np.uint64(depth[i]) * np.uint64(4)
+        q = (np.uint64(lut_i[t4 + np.uint64(1)]) + np.uint64(i)) * np.uint64(2)
+        dh = lut_f[t4 + np.uint64(2)]
+        z = lut_f[t4] - (coef[q] * dh + coef[q + np.uint64(1)])
+        out[i] = z - lut_f[t4 + np.uint64(3)] * ray_term(np.uint64(i) * np.uint64(2), dh, ray_w, q0, nmax, pix)
 
 
 def _check(depth: np.ndarray, cal: DepthCalibration) -> np.ndarray:
@@ -83,47 +74,42 @@ def apply_depth_calibration(depth: np.ndarray, cal: DepthCalibration) -> np.ndar
     0 (or NaN); pixels outside ``cal.valid_range_mm`` are returned unchanged.
     """
     depth = _check(depth, cal)
-    t = cal.tables
     if depth.dtype == np.uint16:
+        t = cal.tables
         flat = np.ascontiguousarray(depth).reshape(-1)
         out = np.empty(flat.shape, np.float32)
-        _apply_u16(flat, t.lut_f, t.lut_i, t.coef, out)
+        if t.has_ray:
+            _apply_u16_ray(flat, t.lut_f, t.lut_i, t.coef, t.ray_w, np.float32(t.ray_q0), t.ray_tmax, t.pix_rho, out)
+        else:
+            _apply_u16(flat, t.lut_f, t.lut_i, t.coef, out)
         return out.reshape(depth.shape)
     if not np.issubdtype(depth.dtype, np.floating):
         if np.issubdtype(depth.dtype, np.integer):
             depth = depth.astype(np.float64)
         else:
             raise InputError(f"depth must be uint16 or float [mm], found dtype {depth.dtype}")
-    flat = np.ascontiguousarray(depth, dtype=np.float64).reshape(-1)
-    out = np.empty(flat.shape, np.float64)
-    surf = cal.surfaces.reshape(cal.surfaces.shape[0], -1)
-    lo, hi = cal.valid_range_mm
-    _apply_float(flat, t.r, t.k0, t.k1, cal.node_mm, float(lo), float(hi), surf, out)
-    return out.reshape(depth.shape)
+    d = np.asarray(depth, np.float64)
+    corr, _ = cal.correction(d)
+    with np.errstate(invalid="ignore"):
+        return np.where(np.isfinite(d) & (d > 0), d - corr, d)
 
 
 def apply_depth_calibration_reference(depth: np.ndarray, cal: DepthCalibration) -> np.ndarray:
-    """Straightforward numpy version of :func:`apply_depth_calibration` (for tests).
-
-    Evaluates the B-spline directly. Returns (H, W) float64 [mm].
-    """
+    """Straightforward numpy version of :func:`apply_depth_calibration` (for tests): the model's
+    definition :meth:`DepthCalibration.correction`. Returns (H, W) float64 [mm]."""
     depth = _check(depth, cal)
     d = depth.astype(np.float64)
-    valid = d > 0
-    lo, hi = cal.valid_range_mm
-    inside = valid & (d >= lo) & (d <= hi)
-    out = d.copy()
-    di = d[inside]
-    k0, k1, w = cal.surface_weights(di)
-    iy, ix = np.nonzero(inside)
-    s = (1 - w) * cal.surfaces[k0, iy, ix].astype(np.float64) + w * cal.surfaces[k1, iy, ix].astype(np.float64)
-    out[inside] = di - cal.range_error(di) - s
-    return out
+    corr, _ = cal.correction(d)
+    return np.where(d > 0, d - corr, d)
 
 
 def count_outside_range(depth: np.ndarray, cal: DepthCalibration) -> int:
-    """Number of valid pixels whose depth lies outside ``cal.valid_range_mm`` (left uncorrected)."""
+    """Number of valid pixels (depth > 0) outside the calibration's support: outside the pixel's
+    supported depth interval, or outside ``valid_range_mm`` for a calibration without a support.
+    These pixels get the fallback (or no correction)."""
     d = np.asarray(depth)
+    if cal.support is not None:
+        return cal.support.count_outside(d)
     lo, hi = cal.valid_range_mm
     with np.errstate(invalid="ignore"):
         return int(np.count_nonzero((d > 0) & ((d < lo) | (d > hi))))

@@ -14,8 +14,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from tofmetry._intrinsics import store_point4
-from tofmetry.calibrate._apply import _check
+from tofmetry.calibrate._simd_store import store_point4
+from tofmetry.calibrate._apply import _check, ray_term
 from tofmetry.calibrate._model import DepthCalibration
 from tofmetry.errors import InputError
 
@@ -54,7 +54,7 @@ def _correct_backproject_block(depth, lut_f, lut_i, coef, rays, out, p0, p1, j):
     returns the index after the last value written.
 
     Every point but the block's last is written by one 16-byte store
-    (:func:`~tofmetry._intrinsics.store_point4`), whose scratch fourth lane the next point of
+    (:func:`~tofmetry.calibrate._simd_store.store_point4`), whose scratch fourth lane the next point of
     this block overwrites; the last point is written with three 4-byte stores, so nothing lands
     past it (the next block belongs to another thread, the buffer may end there). A function
     of its own (not inlined into the parallel loop), so that LLVM keeps the base pointers in
@@ -84,6 +84,83 @@ def _correct_backproject_block(depth, lut_f, lut_i, coef, rays, out, p0, p1, j):
         out[j + two] = z
         j += np.uint64(3)
     return j
+
+
+@nb.njit(inline="always")
+def _z_ray(i, d, lut_f, lut_i, coef, ray_w, q0, nmax, rays4):  # pragma: no cover - numba
+    """:func:`_z` minus the ray term, for raw depth ``d`` [mm] of pixel ``i``; ``rays4`` holds
+    ``(x, y, rho, rho**-gamma)`` per pixel (one 16-byte record)."""
+    t4 = np.uint64(d) * np.uint64(4)
+    dh = lut_f[t4 + np.uint64(2)]
+    z = _z(i, np.uint64(lut_i[t4 + np.uint64(1)]), lut_f, coef, t4)
+    w = ray_term(i * np.uint64(4) + np.uint64(2), dh, ray_w, q0, nmax, rays4)
+    return z - lut_f[t4 + np.uint64(3)] * w * np.float32(0.001)
+
+
+@nb.njit(fastmath=True, cache=True, inline="never")
+def _correct_backproject_block_ray(depth, lut_f, lut_i, coef, rays4, out, p0, p1, j, ray_w, q0,
+                                   nmax):  # pragma: no cover - numba
+    """:func:`_correct_backproject_block` for a calibration with a ray term (see :mod:`._tables`):
+    ``rays4`` (4 H W,) float32 holds ``(x, y, rho, rho**-gamma)`` per pixel, one 16-byte record.
+
+    ``ray_term`` is imported from :mod:`._apply`: numba caches a kernel by its own file, so after
+    editing ``ray_term`` touch this file too (or clear ``__pycache__``)."""
+    last = p1
+    while last > p0 and depth[last - np.uint64(1)] == 0:
+        last -= np.uint64(1)
+    p_vec = last - np.uint64(1) if last > p0 else p0
+    one, two, four = np.uint64(1), np.uint64(2), np.uint64(4)
+    for i in range(p0, p_vec):
+        d = depth[i]
+        if d == 0:
+            continue
+        store_point4(out, j, rays4, i * four, _z_ray(i, d, lut_f, lut_i, coef, ray_w, q0, nmax, rays4))
+        j += np.uint64(3)
+    for i in range(p_vec, p1):  # the last valid pixel (and the invalid ones after it)
+        d = depth[i]
+        if d == 0:
+            continue
+        z = _z_ray(i, d, lut_f, lut_i, coef, ray_w, q0, nmax, rays4)
+        i4 = i * four
+        out[j] = rays4[i4] * z
+        out[j + one] = rays4[i4 + one] * z
+        out[j + two] = z
+        j += np.uint64(3)
+    return j
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def _correct_backproject_ray(depth, lut_f, lut_i, coef, rays4, out, nthreads, ray_w, q0,
+                             nmax):  # pragma: no cover - numba
+    """:func:`_correct_backproject` for a calibration with a ray term."""
+    npix = depth.shape[0]
+    nb_ = max(1, min(nthreads, 64, npix // 4096 + 1))
+    ends = np.empty(nb_, np.uint64)
+    keep = 1.0 - _COUNT_COST
+    for c in nb.prange(nb_):
+        p0 = np.uint64(npix * (1.0 - keep ** c) / (1.0 - keep ** nb_)) if c > 0 else np.uint64(0)
+        p1 = np.uint64(npix * (1.0 - keep ** (c + 1)) / (1.0 - keep ** nb_)) if c < nb_ - 1 else np.uint64(npix)
+        j = _count_valid(depth, p0) * np.uint64(3)
+        ends[c] = _correct_backproject_block_ray(depth, lut_f, lut_i, coef, rays4, out, p0, p1, j, ray_w, q0, nmax)
+    return ends[nb_ - 1] // np.uint64(3)
+
+
+def _rays4(rays: np.ndarray, t) -> np.ndarray:
+    """(4 H W,) float32 ``(x, y, rho, rho**-gamma)`` records from interleaved rays and the tables."""
+    r4 = np.empty((len(rays) // 2, 4), np.float32)
+    r4[:, :2] = rays.reshape(-1, 2)
+    r4[:, 2:] = t.pix_rho.reshape(-1, 2)
+    return r4.reshape(-1)
+
+
+def _run_kernel(flat, t, rays, out, nthreads, rays4=None) -> int:
+    """Dispatch to the kernel of the calibration's tables; returns the number of points.
+    ``rays4``: the ray-term records (:func:`_rays4`), built here when not given."""
+    if t.has_ray:
+        r4 = rays4 if rays4 is not None else _rays4(rays, t)
+        return int(_correct_backproject_ray(flat, t.lut_f, t.lut_i, t.coef, r4, out, nthreads, t.ray_w,
+                                            np.float32(t.ray_q0), t.ray_tmax))
+    return int(_correct_backproject(flat, t.lut_f, t.lut_i, t.coef, rays, out, nthreads))
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
@@ -154,8 +231,7 @@ def correct_and_backproject(depth: np.ndarray, cal: DepthCalibration, ray_table:
     else:  # a buffer of H*W rows always suffices; a smaller one needs the count
         big = isinstance(out, np.ndarray) and out.ndim == 2 and out.shape[0] >= flat.shape[0]
         _check_out(out, 0 if big else int(np.count_nonzero(flat)))
-    t = cal.tables
-    n = int(_correct_backproject(flat, t.lut_f, t.lut_i, t.coef, rays, out.reshape(-1), nb.get_num_threads()))
+    n = _run_kernel(flat, cal.tables, rays, out.reshape(-1), nb.get_num_threads())
     return out[:n]
 
 
@@ -194,8 +270,8 @@ class FrameCorrector:
         if ray_table is None:
             ray_table = cal.intrinsics.ray_table()
         self.rays = _check_rays(np.asarray(ray_table), self.shape).copy()
-        t = cal.tables
-        self._lut_f, self._lut_i, self._coef = t.lut_f, t.lut_i, t.coef
+        self._tables = cal.tables
+        self._rays4 = _rays4(self.rays, self._tables) if self._tables.has_ray else None
         self.buffer = np.empty((self.shape[0] * self.shape[1], 3), np.float32)
         # blocks per frame (one per thread); numba.get_num_threads() costs ~2 us per call
         self.n_threads = nb.get_num_threads()
@@ -222,6 +298,5 @@ class FrameCorrector:
             _check_out(out, depth.size)
         if not depth.flags.c_contiguous:
             depth = np.ascontiguousarray(depth)
-        n = _correct_backproject(depth.reshape(-1), self._lut_f, self._lut_i, self._coef, self.rays, out.reshape(-1),
-                                 self.n_threads)
+        n = _run_kernel(depth.reshape(-1), self._tables, self.rays, out.reshape(-1), self.n_threads, self._rays4)
         return out[:n]

@@ -1,9 +1,8 @@
-"""Generic depth-calibration fit from (measured, reference) samples.
+"""The study's depth-calibration method, kept as a baseline to compare with (study §4.2-4.3).
 
-A :class:`DepthSample` is one averaged depth image with a per-pixel reference depth where it
-is known (a wall at a known distance, a board plane from PnP...). Coverage may be partial.
-
-The fit alternates (``config.iterations`` times) between
+tofmetry's own method is :func:`tofmetry.calibrate.fit_depth_model`. This one reproduces
+what the study did by hand, on the same :class:`~tofmetry.calibrate._fit.DepthSample` input:
+a range curve of the central deviations and one surface per station. It alternates (``config.iterations`` times) between
 
 1. the range curve ``R``: for each sample, the mean of ``measured - reference - S`` over the
    ``center_pixels`` valid pixels nearest the principal point, against the median measured
@@ -25,42 +24,23 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from tofmetry.calibrate._sample import DepthSample
 from tofmetry.calibrate._model import DepthCalibration, _node_weights
-from tofmetry.calibrate._range import select_range_curve
+from tofmetry.calibrate._range import fit_range_curve
 from tofmetry.calibrate._surface import SurfaceSpec, fit_surface
 from tofmetry.errors import EstimationError, InputError
-from tofmetry.sensor import PROFILES, CameraIntrinsics
-
-
-@dataclass(frozen=True, eq=False)
-class DepthSample:
-    """One calibration sample.
-
-    Attributes
-    ----------
-    measured_mm : (H, W) float [mm], NaN or 0 = invalid (e.g. a temporal mean)
-    reference_mm : (H, W) float [mm], NaN where the true depth is unknown
-    weight : (H, W) float >= 0 or None (uniform)
-    name : str
-    """
-
-    measured_mm: np.ndarray
-    reference_mm: np.ndarray
-    weight: np.ndarray | None = None
-    name: str = ""
+from tofmetry.sensor import CameraIntrinsics
 
 
 @dataclass(frozen=True)
-class DepthFitConfig:
-    """Options of :func:`fit_depth_model` (defaults suit a Kinect-v2-like sensor)."""
+class StudyFitConfig:
+    """Options of :func:`fit_study_model` (the study's method; ``surface=SurfaceSpec("poly", 3)``
+    is the study's cubic polynomial, the default a tensor spline)."""
 
     surface: SurfaceSpec = field(default_factory=SurfaceSpec)
     center_pixels: int = 100          # pixels nearest the principal point for the range data
     center_radius_px: float = 6.0     # disc on which each surface is forced to zero mean
     range_smoothing: float | None = None  # make_smoothing_spline lam; None = GCV
-    range_model: str = "auto"         # "spline" (study), "harmonic" or "auto" (leave-one-out choice, see _range)
-    modulation_mhz: tuple[float, ...] | None = None  # None = the sensor profile's (empty for unknown sensors)
-    max_harmonic: int = 3             # harmonics of each modulation half wavelength in the harmonic models
     range_margin_mm: float = 50.0     # corrected range = data range +- margin (R clamped there)
     nodes_mm: tuple[float, ...] | None = None  # surface nodes; None = one per distinct sample distance
     node_merge_mm: float = 1.0        # samples closer than this share a node
@@ -73,8 +53,8 @@ class DepthFitConfig:
 
 
 @dataclass(eq=False)
-class DepthCalibrationResult:
-    """Result of :func:`fit_depth_model`.
+class StudyFitResult:
+    """Result of :func:`fit_study_model`.
 
     Attributes
     ----------
@@ -99,22 +79,6 @@ def _center_order(shape, cx, cy) -> np.ndarray:
     return np.argsort(((u - cx) ** 2 + (v - cy) ** 2).ravel(), kind="stable")
 
 
-def fit_range_curve(x: np.ndarray, y: np.ndarray, lam: float | None = None, merge_mm: float = 1.0):
-    """Cubic smoothing B-spline of deviation ``y`` [mm] against measured distance ``x`` [mm].
-
-    Points closer than ``merge_mm`` in ``x`` are averaged first (weight = their count).
-    Fewer than 5 distinct distances: interpolating spline of degree ``min(3, n - 1)``.
-    Returns a ``scipy.interpolate.BSpline``. (The study's model; :func:`fit_depth_model`
-    chooses between it and harmonic models with :func:`select_range_curve`.)
-    """
-    return select_range_curve(x, y, lam, merge_mm, model="spline").spline
-
-
-def _profile_modulation(sensor: str) -> tuple:
-    prof = PROFILES.get(sensor)
-    return tuple(prof.modulation_mhz) if prof is not None else ()
-
-
 def _nodes_from(centers: np.ndarray, merge_mm: float) -> np.ndarray:
     c = np.sort(centers)
     groups = [[c[0]]]
@@ -126,8 +90,8 @@ def _nodes_from(centers: np.ndarray, merge_mm: float) -> np.ndarray:
     return np.array([np.mean(g) for g in groups])
 
 
-def fit_depth_model(samples: list[DepthSample], intrinsics: CameraIntrinsics, config: DepthFitConfig | None = None,
-                    sensor: str = "unknown", provenance: dict | None = None) -> DepthCalibrationResult:
+def fit_study_model(samples: list[DepthSample], intrinsics: CameraIntrinsics, config: StudyFitConfig | None = None,
+                    sensor: str = "unknown", provenance: dict | None = None) -> StudyFitResult:
     """Fit range curve + per-pixel surfaces to calibration samples.
 
     Parameters
@@ -139,7 +103,7 @@ def fit_depth_model(samples: list[DepthSample], intrinsics: CameraIntrinsics, co
 
     Returns
     -------
-    DepthCalibrationResult
+    StudyFitResult
 
     Raises
     ------
@@ -149,7 +113,7 @@ def fit_depth_model(samples: list[DepthSample], intrinsics: CameraIntrinsics, co
         A sample without enough valid pixels near the centre or for its surface.
     """
     t0 = time.perf_counter()
-    cfg = config or DepthFitConfig()
+    cfg = config or StudyFitConfig()
     if len(samples) < 2:
         raise InputError(f"depth calibration needs at least 2 samples (stations), found {len(samples)}")
     shape = intrinsics.shape
@@ -184,7 +148,6 @@ def fit_depth_model(samples: list[DepthSample], intrinsics: CameraIntrinsics, co
     if len(np.unique(centers.round(3))) < 2:
         raise InputError("depth calibration needs samples at 2 or more distinct distances")
     k0, k1, hw = _node_weights(nodes, centers)
-    modulation = cfg.modulation_mhz if cfg.modulation_mhz is not None else _profile_modulation(sensor)
     n_nodes = len(nodes)
     surfaces = np.zeros((n_nodes, *shape))
     bad = [np.zeros(shape, bool) for _ in samples]
@@ -199,9 +162,7 @@ def fit_depth_model(samples: list[DepthSample], intrinsics: CameraIntrinsics, co
             ci = cidx[j]
             ww = wts[j].ravel()[ci] * ~bad[j].ravel()[ci]
             y[j] = np.sum((err[j].ravel()[ci] - s_j.ravel()[ci]) * ww) / max(ww.sum(), 1e-12)
-        choice = select_range_curve(centers, y, cfg.range_smoothing, cfg.node_merge_mm, cfg.range_model,
-                                    modulation, cfg.max_harmonic)
-        spline = choice.spline
+        spline = fit_range_curve(centers, y, cfg.range_smoothing, cfg.node_merge_mm)
         history.append(float(np.max(np.abs(y - prev_y))) if prev_y is not None else float("nan"))
         prev_y = y
         if cfg.surface.model == "none":
@@ -263,9 +224,8 @@ def fit_depth_model(samples: list[DepthSample], intrinsics: CameraIntrinsics, co
             "n_valid": int(good.sum()), "n_outliers": int(bad[j].sum()),
         })
     cal.diagnostics.update({"samples": table, "offset_mm": offset, "history": history,
-                            "range_model": choice.name, "range_model_cv_rms_mm": choice.cv_rms_mm,
-                            "modulation_mhz": list(modulation)})
-    return DepthCalibrationResult(
+                            "model": f"study: smoothing spline + {cfg.surface.label} per station"})
+    return StudyFitResult(
         calibration=cal, samples=table, range_points=np.column_stack([centers, prev_y]), history=history,
         seconds=time.perf_counter() - t0,
     )

@@ -1,21 +1,31 @@
-"""The depth calibration model: a range curve plus per-pixel surfaces interpolated in range.
+"""The depth calibration model: range terms plus per-pixel surfaces interpolated in range.
 
 Model (all values in mm)::
 
-    corrected(p) = d(p) - R(d(p)) - S(p, d(p))
+    corrected(p) = d - R(d) - W(d rho(p)) / rho(p)**gamma - S(p, d)        d = d(p)
 
-* ``d(p)`` is the depth the sensor reports at pixel ``p`` (Z along the optical axis).
-* ``R(d)`` is the range error: a cubic B-spline of the *measured* distance, fitted to the
-  deviations of pixels near the principal point. It includes the constant offset between
-  the reference point of the distances and the optical centre (reported as ``offset_mm``).
-  Between ``range_data_mm`` and the edges of ``valid_range_mm`` it is clamped (constant).
+* ``d(p)`` is the depth the sensor reports at pixel ``p`` (Z along the optical axis);
+  ``rho(p) = sqrt(1 + x^2 + y^2)`` for the pixel's undistorted normalised ray, so ``d rho`` is
+  the measured ray length.
+* ``R(d)`` is a range error in Z: a cubic B-spline of the *measured* distance (a constant when
+  the range error is modelled along the ray). It includes the constant offset between the
+  reference point of the distances and the optical centre (reported as ``offset_mm``).
+  Clamped (constant) outside ``range_data_mm``.
+* ``W(q)`` (optional, ``ray_knots``/``ray_coeffs``): the range error of a continuous-wave ToF
+  camera as a function of the measured ray length ``q``, seen in Z as ``W / rho**gamma``
+  (``gamma = 1``: the error lies along the ray). Clamped outside ``ray_data_mm``.
 * ``S(p, d)`` is the per-pixel deformation: K full-resolution maps ``surfaces[k]`` fitted at
-  the nodes ``node_mm[k]`` (measured central distance of each station), linearly
-  interpolated between the two nodes bracketing the pixel's own measured distance and
-  clamped to the first/last map outside the nodes. By construction each map is zero on
-  average near the principal point (the range curve owns that part).
-* Depths outside ``valid_range_mm`` are returned unchanged (counted by
-  :func:`count_outside_range`); invalid depths (0 / NaN) stay invalid.
+  the nodes ``node_mm[k]``, linearly interpolated between the two nodes bracketing the pixel's
+  own measured distance and clamped to the first/last map outside the nodes.
+* **Support** (optional, :class:`~tofmetry.calibrate._support.CalibrationSupport`): the depth
+  interval fitted at each pixel. Outside it the ``fallback`` applies: ``"hold"`` evaluates
+  the correction at the nearest supported depth (no extrapolation of any curve), ``"trend"``
+  applies the low-order part ``a + b d`` only. Pixels of image cells that were never seen keep
+  the surfaces' smooth continuation and are counted as outside the support. Files without a support (format version 1) keep the old rule:
+  depths outside ``valid_range_mm`` are returned unchanged (``fallback = "unchanged"``).
+* Invalid depths (0 / NaN) stay invalid.
+* ``prediction`` (optional): the calibration's own predicted error on new data, from its
+  blocked validation (see :mod:`tofmetry.calibrate._prediction`).
 """
 
 from __future__ import annotations
@@ -26,11 +36,13 @@ from functools import cached_property
 import numpy as np
 from scipy.interpolate import BSpline
 
+from tofmetry.calibrate._support import CalibrationSupport
+from tofmetry.calibrate._tables import CorrectionTables, build_tables
 from tofmetry.errors import InputError, SensorMismatchError
 from tofmetry.sensor import CameraIntrinsics
 
-FORMAT_NAME = "tofmetry-depth-calibration"
-FORMAT_VERSION = 1
+#: fallback rules outside the support (see the module docstring)
+FALLBACKS = ("hold", "trend", "unchanged")
 
 
 @dataclass(frozen=True, eq=False)
@@ -61,6 +73,22 @@ class DepthCalibration:
         How the file was produced (tool version, command, data, config, time).
     diagnostics : dict
         Small summary of the fit (per-station residuals...).
+    ray_knots, ray_coeffs : (n,) float64 or None
+        B-spline ``W`` [mm] of the measured ray length [mm] (None: no ray term).
+    ray_degree : int
+        Degree of that B-spline (3; 1 for a piecewise-linear term such as the board model's).
+    ray_gamma : float
+        ``W`` is divided by ``rho**ray_gamma``.
+    ray_data_mm : (2,) float64
+        Ray lengths [mm] spanned by the data; ``W`` is clamped outside.
+    support : CalibrationSupport or None
+        Per-pixel supported depth interval (None: ``valid_range_mm`` everywhere).
+    fallback : str
+        Rule outside the support: ``"hold"``, ``"trend"`` or ``"unchanged"``.
+    trend_mm : (2,) float64
+        ``(a [mm], b [mm/mm])`` of the ``"trend"`` fallback ``a + b d``.
+    prediction : dict
+        Predicted error on new data with intervals (empty when not validated).
     """
 
     sensor: str
@@ -76,6 +104,15 @@ class DepthCalibration:
     surface_model: str = "spline"
     provenance: dict = field(default_factory=dict)
     diagnostics: dict = field(default_factory=dict)
+    ray_knots: np.ndarray | None = None
+    ray_coeffs: np.ndarray | None = None
+    ray_degree: int = 3
+    ray_gamma: float = 1.0
+    ray_data_mm: np.ndarray | None = None
+    support: CalibrationSupport | None = None
+    fallback: str = "unchanged"
+    trend_mm: tuple = (0.0, 0.0)
+    prediction: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         h, w = self.intrinsics.shape
@@ -97,6 +134,26 @@ class DepthCalibration:
         object.__setattr__(self, "range_knots", np.asarray(self.range_knots, np.float64).ravel())
         object.__setattr__(self, "range_coeffs", np.asarray(self.range_coeffs, np.float64).ravel())
         object.__setattr__(self, "range_degree", int(self.range_degree))
+        if self.fallback not in FALLBACKS:
+            raise InputError(f"calibration: fallback must be one of {FALLBACKS}, found {self.fallback!r}")
+        if (self.ray_knots is None) != (self.ray_coeffs is None):
+            raise InputError("calibration: ray_knots and ray_coeffs must be given together")
+        if self.ray_knots is not None:
+            rk = np.asarray(self.ray_knots, np.float64).ravel()
+            rc = np.asarray(self.ray_coeffs, np.float64).ravel()
+            if self.ray_degree not in (1, 3) or len(rk) != len(rc) + self.ray_degree + 1:
+                raise InputError(f"calibration: {len(rk)} ray knots for {len(rc)} coefficients of degree {self.ray_degree} "
+                                 f"(expected n + degree + 1, degree 1 or 3)")
+            object.__setattr__(self, "ray_knots", rk)
+            object.__setattr__(self, "ray_coeffs", rc)
+            kd = int(self.ray_degree)
+            rd = np.asarray(self.ray_data_mm if self.ray_data_mm is not None else (rk[kd], rk[-kd - 1]), np.float64).ravel()
+            object.__setattr__(self, "ray_data_mm", rd)
+        if self.support is not None and tuple(self.support.shape) != (h, w):
+            raise InputError(f"calibration: support shape {tuple(self.support.shape)} differs from the intrinsics {(h, w)}")
+        if self.fallback != "unchanged" and self.support is None:
+            raise InputError(f"calibration: fallback {self.fallback!r} needs a support map")
+        object.__setattr__(self, "trend_mm", tuple(float(x) for x in self.trend_mm))
 
     # ------------------------------------------------------------------ API
     @property
@@ -122,6 +179,97 @@ class DepthCalibration:
         d = np.clip(np.asarray(d_mm, dtype=np.float64), lo, hi)
         return self._spline(d)
 
+    def ray_error(self, q_mm: np.ndarray) -> np.ndarray:
+        """``W(q)`` [mm] at measured ray lengths ``q_mm`` (any shape), clamped to the data; 0 without a ray term."""
+        q = np.asarray(q_mm, dtype=np.float64)
+        if self.ray_knots is None:
+            return np.zeros(q.shape)
+        lo, hi = self.ray_data_mm
+        return self._ray_spline(np.clip(q, lo, hi))
+
+    @cached_property
+    def rho(self) -> np.ndarray:
+        """(H, W) float64 ray length per unit depth ``sqrt(1 + x^2 + y^2)`` of each pixel."""
+        r = self.intrinsics.ray_table()
+        return np.sqrt(1.0 + r[..., 0] ** 2 + r[..., 1] ** 2)
+
+    def correction(self, depth_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Correction [mm] to subtract from a depth image, and where it is supported.
+
+        The plain numpy definition of the model (see :meth:`correction_at`); the kernels of
+        :mod:`._apply` and :mod:`._backproject` compute the same through :mod:`._tables`.
+
+        Parameters
+        ----------
+        depth_mm : (H, W) float or uint16 [mm], 0 / NaN = invalid
+
+        Returns
+        -------
+        corr : (H, W) float64 [mm] (0 where invalid or left unchanged), inside : (H, W) bool
+        """
+        d = np.asarray(depth_mm, np.float64)
+        self.check_compatible(shape=d.shape)
+        v, u = np.indices(d.shape)
+        return self.correction_at(u, v, d)
+
+    def correction_at(self, u: np.ndarray, v: np.ndarray, d_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Correction [mm] at integer pixels ``(u, v)`` for measured depths ``d_mm`` (same shapes).
+
+        With a support, depths within its overall range ``[lo, hi]`` get the full model (the
+        surfaces continue smoothly over image cells the fit never saw, as they were fitted);
+        outside it the
+        ``fallback``: ``"hold"`` = the full model at the nearest of ``lo``/``hi``, ``"trend"`` =
+        ``a + b d``, ``"unchanged"`` = no correction. ``inside`` is the per-pixel test against
+        the pixel's own supported interval (what is reported as extrapolated). Without a
+        support (format version 1) depths outside ``valid_range_mm`` are left unchanged.
+
+        Returns
+        -------
+        corr : float64 [mm] (0 where invalid or left unchanged), inside : bool
+        """
+        u = np.asarray(u, np.intp)
+        v = np.asarray(v, np.intp)
+        d = np.asarray(d_mm, np.float64)
+        with np.errstate(invalid="ignore"):
+            valid = np.isfinite(d) & (d > 0)
+        dv = np.where(valid, d, 0.0)
+        if self.support is None:
+            lo, hi = self.valid_range_mm
+            inside = valid & (dv >= lo) & (dv <= hi)
+            return np.where(inside, self._full(u, v, dv), 0.0), inside
+        sup = self.support
+        inside = valid & (dv >= sup.lo_mm[v, u]) & (dv <= sup.hi_mm[v, u])
+        lo, hi = self.support_range_mm
+        in_range = (dv >= lo) & (dv <= hi)
+        if self.fallback == "hold":
+            corr = self._full(u, v, np.clip(dv, lo, hi))
+        elif self.fallback == "trend":
+            a, b = self.trend_mm
+            corr = np.where(in_range, self._full(u, v, dv), a + b * dv)
+        else:
+            corr = np.where(in_range, self._full(u, v, dv), 0.0)
+        return np.where(valid, corr, 0.0), inside
+
+    @property
+    def support_range_mm(self) -> tuple[float, float]:
+        """Overall depth range [mm] the correction is evaluated in (support's, else ``valid_range_mm``)."""
+        if self.support is None:
+            return float(self.valid_range_mm[0]), float(self.valid_range_mm[1])
+        lo, hi = self.support.range_mm
+        if not np.isfinite(lo):
+            return float(self.range_data_mm[0]), float(self.range_data_mm[-1])
+        return lo, hi
+
+    def _full(self, u: np.ndarray, v: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """``R(d) + W(d rho) / rho**gamma + S(p, d)`` at pixels ``(u, v)``."""
+        out = self.range_error(d)
+        if self.ray_knots is not None:
+            rho = self.rho[v, u]
+            out = out + self.ray_error(d * rho) / rho ** self.ray_gamma
+        k0, k1, w = self.surface_weights(d)
+        s = (1 - w) * self.surfaces[k0, v, u] + w * self.surfaces[k1, v, u]
+        return out + s
+
     def surface_weights(self, d_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Bracketing node indices ``k0, k1`` and weight ``w`` of ``k1`` for distances ``d_mm``."""
         return _node_weights(self.node_mm, np.asarray(d_mm, dtype=np.float64))
@@ -131,57 +279,27 @@ class DepthCalibration:
         return BSpline(self.range_knots, self.range_coeffs, self.range_degree, extrapolate=True)
 
     @cached_property
-    def tables(self) -> "CorrectionTables":
-        """Exact 65 536-entry lookup tables for integer-mm depth (built once)."""
-        return _build_tables(self)
+    def _ray_spline(self) -> BSpline:
+        return BSpline(self.ray_knots, self.ray_coeffs, int(self.ray_degree), extrapolate=True)
+
+    @cached_property
+    def tables(self) -> CorrectionTables:
+        """Kernel-ready lookup tables (:mod:`tofmetry.calibrate._tables`, built once)."""
+        return build_tables(self)
 
     def summary(self) -> dict:
         """Small JSON-able description (for printing / reports)."""
-        return {
+        out = {
             "sensor": self.sensor, "shape": list(self.shape), "offset_mm": self.offset_mm,
             "valid_range_mm": self.valid_range_mm.tolist(), "nodes_mm": self.node_mm.tolist(),
-            "surface_model": self.surface_model,
+            "surface_model": self.surface_model, "ray_term": self.ray_knots is not None,
+            "ray_gamma": self.ray_gamma if self.ray_knots is not None else None, "fallback": self.fallback,
         }
-
-
-@dataclass(frozen=True)
-class CorrectionTables:
-    """Kernel-ready lookup tables of a :class:`DepthCalibration` (built once per calibration).
-
-    Tables indexed by integer depth ``d`` [mm] (65 536 entries each):
-
-    * ``r``: range error ``R(d)`` [mm] (float32, 0 outside the valid range and for 0);
-    * ``k0``/``k1``: bracketing surface indices (int32, ``k0 = -1`` outside the valid range or
-      for 0); ``w``: weight of ``k1`` (float32). Used by the float-depth path.
-    * ``lut_f``/``lut_i``: two views (float32 / int32, 262 144 entries) of one buffer of 16-byte
-      entries: ``lut_f[4 d] = d - R(d)`` [mm] (rounded once from float64),
-      ``lut_i[4 d + 1] = plane(d) * H * W`` (the offset of the linear-form plane of the node
-      interval of ``d``), ``lut_f[4 d + 2] = d`` [mm] (saves the kernels an int-to-float
-      conversion), ``lut_f[4 d + 3] = 0``; one cache line serves a whole entry.
-
-    Per-pixel linear form of the surface term (uint16 kernels): on each interval between two
-    nodes ``S(p, d) = a[k, p] + b[k, p] * d`` exactly, so with ``q = lut_i[4 d + 1] + p`` the
-    correction of pixel ``p`` is ``(d - R(d)) - (b * d + a)``, ``b = coef[2 q]``, ``a = coef[2 q + 1]``.
-
-    * ``coef``: (2 * P * H * W,) float32, pairs ``(b [mm/mm], a [mm])``, pixel-minor within each
-      plane. Planes ``0`` (below the first node: ``a = surfaces[0]``, ``b = 0``), ``1 .. K-1``
-      (between nodes ``k-1`` and ``k``), ``K`` (above the last node: ``a = surfaces[K-1]``) and
-      ``K + 1`` (identity, ``a = b = 0``: depth 0 and depths outside ``valid_range_mm``).
-      All arrays are flat so the kernels index with constant strides.
-
-    Rounding: ``d - R(d)``, ``a`` and ``b`` are rounded from float64 to float32; the error of
-    the result is below ``(2 |result| + |a| + |b| d) * 2**-24`` plus the rounding of ``b d + a``
-    (< 1e-3 mm for surfaces of tens of mm), the float32 resolution of the corrected depth itself
-    (2.4e-4 mm at 4 m).
-    """
-
-    r: np.ndarray
-    k0: np.ndarray
-    k1: np.ndarray
-    w: np.ndarray
-    lut_f: np.ndarray
-    lut_i: np.ndarray
-    coef: np.ndarray
+        if self.support is not None:
+            out["support"] = self.support.summary()
+        if self.prediction:
+            out["prediction"] = self.prediction
+        return out
 
 
 def _node_weights(nodes: np.ndarray, d: np.ndarray):
@@ -194,36 +312,3 @@ def _node_weights(nodes: np.ndarray, d: np.ndarray):
     with np.errstate(invalid="ignore"):
         w = np.clip((d - nodes[k0]) / (nodes[k1] - nodes[k0]), 0.0, 1.0)
     return k0, k1, w
-
-
-def _build_tables(cal: DepthCalibration) -> CorrectionTables:
-    d = np.arange(65536, dtype=np.float64)
-    lo, hi = cal.valid_range_mm
-    inside = (d >= lo) & (d <= hi) & (d > 0)
-    r = np.where(inside, cal.range_error(d), 0.0).astype(np.float32)
-    k0, k1, w = cal.surface_weights(d)
-    k0 = np.where(inside, k0, -1).astype(np.int32)
-    k1 = np.where(inside, k1, 0).astype(np.int32)
-    w = np.where(inside, w, 0.0).astype(np.float32)
-    # linear form, planes 0 (below), 1..K-1 (intervals), K (above), K+1 (identity)
-    nodes = cal.node_mm
-    kk = len(nodes)
-    s = cal.surfaces.reshape(kk, -1)
-    npix = s.shape[1]
-    if (kk + 2) * npix > np.iinfo(np.int32).max:
-        raise InputError(f"calibration: {kk} surfaces of {npix} pixels are too many for int32 table offsets")
-    coef = np.zeros((kk + 2, npix, 2), np.float32)
-    coef[0, :, 1] = s[0]
-    for k in range(1, kk):
-        s0 = s[k - 1].astype(np.float64)
-        b = (s[k].astype(np.float64) - s0) / (nodes[k] - nodes[k - 1])
-        coef[k, :, 0] = b
-        coef[k, :, 1] = s0 - b * nodes[k - 1]
-    coef[kk, :, 1] = s[kk - 1]
-    plane = np.where(inside, np.searchsorted(nodes, d, side="right"), kk + 1)
-    lut = np.zeros((65536, 4), np.float32)
-    lut[:, 0] = d - np.where(inside, cal.range_error(d), 0.0)
-    lut[:, 2] = d
-    lut_i = lut.view(np.int32)
-    lut_i[:, 1] = plane * npix
-    return CorrectionTables(r=r, k0=k0, k1=k1, w=w, lut_f=lut.reshape(-1), lut_i=lut_i.reshape(-1), coef=coef.reshape(-1))

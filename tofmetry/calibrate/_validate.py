@@ -20,12 +20,15 @@ Metrics for a wall station at reference distance ``D`` (all [mm]):
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from tofmetry.calibrate._apply import apply_depth_calibration, count_outside_range
-from tofmetry.calibrate._fit import DepthFitConfig, DepthSample, fit_depth_model
+from tofmetry.calibrate._fit import DepthFitConfig, fit_depth_model
+from tofmetry.calibrate._sample import DepthSample
+from tofmetry.calibrate._fit_study import StudyFitConfig, fit_study_model
+from tofmetry.calibrate._surface import SurfaceSpec
 from tofmetry.calibrate._model import DepthCalibration
 from tofmetry.calibrate._wall import central_patch, fit_plane, wall_reference
 from tofmetry.sensor import CameraIntrinsics
@@ -115,8 +118,25 @@ def evaluate_wall_station(mean_mm: np.ndarray, distance_mm: float, cal: DepthCal
     return rep, maps
 
 
+#: Methods compared by :func:`cross_validate`: tofmetry's joint model and the study's method with
+#: its two surface models.
+METHODS = {
+    "tofmetry": lambda: DepthFitConfig(predict=False),
+    "study": lambda: StudyFitConfig(surface=SurfaceSpec("spline")),
+    "study-poly3": lambda: StudyFitConfig(surface=SurfaceSpec("poly", degree=3)),
+}
+
+
+def fit_any(samples: list[DepthSample], intrinsics: CameraIntrinsics, config, sensor: str = "unknown",
+            provenance: dict | None = None):
+    """Fit with tofmetry's method (:class:`DepthFitConfig`) or the study's (:class:`StudyFitConfig`)."""
+    if isinstance(config, StudyFitConfig):
+        return fit_study_model(samples, intrinsics, config, sensor=sensor, provenance=provenance)
+    return fit_depth_model(samples, intrinsics, config, sensor=sensor, provenance=provenance)
+
+
 def cross_validate(samples: list[DepthSample], distances_mm: list[float], intrinsics: CameraIntrinsics,
-                   config: DepthFitConfig | None = None, frontal: bool = True, sensor: str = "unknown",
+                   config: DepthFitConfig | StudyFitConfig | None = None, frontal: bool = True, sensor: str = "unknown",
                    advance=None) -> list[StationReport]:
     """Leave-one-station-out cross-validation on wall samples.
 
@@ -127,18 +147,19 @@ def cross_validate(samples: list[DepthSample], distances_mm: list[float], intrin
     ----------
     samples : wall samples (see :func:`wall_sample`), in distance order
     distances_mm : their reference distances [mm]
-    config : fit options (e.g. another surface model to compare)
+    config : fit options: :class:`DepthFitConfig` (tofmetry, default without its own internal
+        prediction) or :class:`StudyFitConfig` (the study's method), see :data:`METHODS`
     advance : optional callable run after each fold (progress)
 
     Returns
     -------
     list of StationReport (``held_out=True``), one per interior station.
     """
-    cfg = config or DepthFitConfig()
+    cfg = config or DepthFitConfig(predict=False)
     out = []
     for j in range(1, len(samples) - 1):
         train = samples[:j] + samples[j + 1:]
-        cal = fit_depth_model(train, intrinsics, cfg, sensor=sensor).calibration
+        cal = fit_any(train, intrinsics, cfg, sensor=sensor).calibration
         rep, _ = evaluate_wall_station(samples[j].measured_mm, distances_mm[j], cal, intrinsics,
                                        name=samples[j].name, frontal=frontal)
         out.append(rep)
@@ -172,8 +193,3 @@ def _min_sys(reports) -> float:
         if np.isfinite(r.rms_noise_mm) and r.rms_after_systematic_mm > 0:
             out.append(np.sqrt(max(r.rms_before_mm ** 2 - r.rms_noise_mm ** 2, 0.0)) / r.rms_after_systematic_mm)
     return float(min(out)) if out else float("nan")
-
-
-def with_surface(config: DepthFitConfig, model: str, **kw) -> DepthFitConfig:
-    """A copy of ``config`` with another surface model (``"spline"``, ``"poly"``, ``"none"``)."""
-    return replace(config, surface=replace(config.surface, model=model, **kw))

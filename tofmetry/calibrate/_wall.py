@@ -15,7 +15,8 @@ import numpy as np
 
 import numba as nb
 
-from tofmetry.calibrate._fit import DepthSample
+from tofmetry._shared.geometry import principal_axes
+from tofmetry.calibrate._sample import DepthSample
 from tofmetry.errors import EstimationError, InputError
 from tofmetry.sensor import CameraIntrinsics
 
@@ -49,12 +50,16 @@ class StationStats:
     std_mm : (H, W) float64 [mm] temporal std per pixel
     n_frames : int
     frame_center_mm : (T,) float64 [mm] per-frame mean of the central patch
+    valid_fraction : (H, W) float64, fraction of the frames in which each pixel was valid (a pixel
+        that drops out in some frames, e.g. at the sensor's maximum range, has a biased mean:
+        the frames that read long are the ones lost)
     """
 
     mean_mm: np.ndarray
     std_mm: np.ndarray
     n_frames: int
     frame_center_mm: np.ndarray
+    valid_fraction: np.ndarray | None = None
 
     @property
     def center_std_mm(self) -> float:
@@ -112,7 +117,7 @@ def station_statistics(frames: Iterable[np.ndarray], shape: tuple[int, int], cx:
         mean = np.where(c >= max(1.0, min_valid_fraction * n), shift + m1, np.nan)
         std = np.where(c > 1, np.sqrt(np.maximum((s2 - c * m1 * m1) / (c - 1), 0.0)), np.nan)
     return StationStats(mean_mm=mean.reshape(shape), std_mm=std.reshape(shape), n_frames=n,
-                        frame_center_mm=np.array(cen))
+                        frame_center_mm=np.array(cen), valid_fraction=(c / n).reshape(shape))
 
 
 @dataclass(eq=False)
@@ -141,12 +146,9 @@ class PlaneFit:
 
 
 def _plane(X: np.ndarray):
-    """Unit normal (n_z > 0) and centroid of the least-squares plane of (N, 3) points (3x3 eigen)."""
-    c0 = X.mean(axis=0)
-    Y = X - c0
-    S = np.einsum("ni,nj->ij", Y, Y)
-    _, vec = np.linalg.eigh(S)
-    n = vec[:, 0]
+    """Unit normal (n_z > 0) and centroid of the least-squares plane of (N, 3) points."""
+    c0, axes = principal_axes(X)
+    n = axes[2]
     return (n if n[2] > 0 else -n), c0
 
 
@@ -203,7 +205,8 @@ def wall_reference(intrinsics: CameraIntrinsics, distance_mm: float, normal: np.
 
 
 def wall_sample(mean_mm: np.ndarray, distance_mm: float, intrinsics: CameraIntrinsics, name: str = "",
-                frontal: bool = False) -> tuple[DepthSample, PlaneFit]:
+                frontal: bool = False, sem_mm: np.ndarray | None = None,
+                valid_fraction: np.ndarray | None = None, min_valid_fraction: float = 0.95) -> tuple[DepthSample, PlaneFit]:
     """Build a :class:`DepthSample` from a station's averaged depth.
 
     Pixels rejected by the robust plane fit (edges, flying pixels) keep their reference but
@@ -214,7 +217,11 @@ def wall_sample(mean_mm: np.ndarray, distance_mm: float, intrinsics: CameraIntri
     ----------
     mean_mm : (H, W) float [mm], NaN/0 invalid
     distance_mm : reference distance along the optical axis [mm]
-    frontal : if True the wall is taken perpendicular to the optical axis (no tilt fitted)
+    frontal : if True the wall is taken perpendicular to the optical axis (no tilt fitted);
+        otherwise its orientation is fitted here and refined by the calibration (``free_tilt``)
+    sem_mm : (H, W) float [mm], optional standard error of ``mean_mm`` (std / sqrt(frames))
+    valid_fraction : (H, W) float, optional fraction of frames in which each pixel was valid;
+        pixels below ``min_valid_fraction`` get weight 0 (their mean is biased by the frames lost)
     """
     pf = fit_plane(mean_mm, intrinsics)
     ref = wall_reference(intrinsics, distance_mm, None if frontal else pf.normal)
@@ -225,4 +232,7 @@ def wall_sample(mean_mm: np.ndarray, distance_mm: float, intrinsics: CameraIntri
     sig = 1.4826 * np.median(np.abs(r[pf.inliers] - med)) + 1e-6
     gross = fin & (np.abs(r - med) > max(10 * sig, 50.0 + 0.02 * distance_mm))
     w = np.where(fin & ~gross, 1.0, 0.0)
-    return DepthSample(measured_mm=np.where(fin, m, np.nan), reference_mm=ref, weight=w, name=name), pf
+    if valid_fraction is not None:
+        w = np.where(np.asarray(valid_fraction) >= min_valid_fraction, w, 0.0)
+    return DepthSample(measured_mm=np.where(fin, m, np.nan), reference_mm=ref, weight=w, name=name, sem_mm=sem_mm,
+                       free_tilt=not frontal), pf

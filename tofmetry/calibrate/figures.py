@@ -12,16 +12,17 @@ from tofmetry.calibrate._model import DepthCalibration  # noqa: E402
 
 
 def _range_label(cal) -> str:
-    name = cal.diagnostics.get("range_model", "spline")
-    if name == "spline":
-        return "smoothing B-spline"
-    cv = cal.diagnostics.get("range_model_cv_rms_mm", {})
-    return f"{name} (left-out RMS {cv.get(name, float('nan')):.2f} mm; spline {cv.get('spline', float('nan')):.2f} mm)"
+    model = cal.diagnostics.get("model")
+    if model:
+        return model if len(model) < 60 else model[:57] + "..."
+    return "smoothing B-spline (the study's)"
 
 
 def fig_range_curve(cal: DepthCalibration, points_mm: np.ndarray, frame_points: list | None = None,
                     held_out: list | None = None):
-    """Study Fig. 7a: central deviation [mm] against measured range [m], with the fitted spline.
+    """Study Fig. 7a: central deviation [mm] against measured range [m], with the fitted correction
+    on the optical axis (``R + W``) and, for a calibration with a ray term, ``W`` over every ray
+    length the off-axis pixels sampled.
 
     Parameters
     ----------
@@ -37,7 +38,12 @@ def fig_range_curve(cal: DepthCalibration, points_mm: np.ndarray, frame_points: 
     ax.plot(points_mm[:, 0] / 1000.0, points_mm[:, 1] - off, "o", color="C0", label="stations (central patch)")
     lo, hi = cal.range_data_mm
     x = np.linspace(lo, hi, 400)
-    ax.plot(x / 1000.0, cal.range_error(x) - off, "-", color="C1", label=_range_label(cal))
+    ax.plot(x / 1000.0, cal.range_error(x) + cal.ray_error(x) - off, "-", color="C1", label=_range_label(cal))
+    if cal.ray_knots is not None:
+        q = np.linspace(*cal.ray_data_mm, 600)
+        ax.plot(q / 1000.0, cal.range_error(np.clip(q, lo, hi)) + cal.ray_error(q) - off, ":", color="C1", lw=1,
+                label="range error along the ray (off-axis pixels sample it up to "
+                      f"{cal.ray_data_mm[1] / 1000:.1f} m)")
     if held_out:
         h = np.asarray(held_out, float)
         ax.plot(h[:, 0] / 1000.0, h[:, 1], "s", mfc="none", color="C3", label="held-out stations")
@@ -109,12 +115,27 @@ def fig_validation(reports) -> "plt.Figure":
     return fig
 
 
-def fig_coverage(corners_px: list, shape: tuple[int, int], title: str = "Checkerboard corner coverage"):
-    """Coverage map of detected corners over the image (count per cell) with the corners."""
+def fig_coverage(corners_px: list, shape: tuple[int, int], title: str = "Checkerboard corner coverage", *,
+                 corner_regions: dict | None = None, predicted_ray=None, corner_frac: float = 0.1):
+    """Coverage map of detected corners over the image (count per cell) with the corners.
+
+    Parameters
+    ----------
+    corners_px : list of (N, 2) [px]; shape : (H, W)
+    corner_regions : optional dict region name (``top-left`` ...) -> covered fraction: the four
+        image-corner regions (``corner_frac`` of width and height) are outlined, red where no
+        board reached them (fraction < 0.1), green otherwise
+    predicted_ray : optional ``RayError`` (``IntrinsicsResult.predicted_ray``): adds a panel with
+        the predicted ray-error map [px] from the parameter covariance
+    """
+    from matplotlib.patches import Rectangle
+
     h, w = shape
     cell = 32
     grid = np.zeros((-(-h // cell), -(-w // cell)))
-    fig, ax = plt.subplots(figsize=(7, 5.2))
+    panels = 2 if predicted_ray is not None else 1
+    fig, axes = plt.subplots(1, panels, figsize=(7 * panels, 5.2), squeeze=False)
+    ax = axes[0, 0]
     for c in corners_px:
         c = np.asarray(c).reshape(-1, 2)
         iu = np.clip((c[:, 0] // cell).astype(int), 0, grid.shape[1] - 1)
@@ -126,8 +147,45 @@ def fig_coverage(corners_px: list, shape: tuple[int, int], title: str = "Checker
         ax.plot(c[:, 0], c[:, 1], ".", ms=1.5, color="w")
     ax.set_xlabel("u [px]")
     ax.set_ylabel("v [px]")
-    ax.set_title(title)
+    ax.set_title(title, fontsize=9)
     fig.colorbar(im, ax=ax, label=f"corners per {cell}x{cell} px cell")
+    rw, rh = corner_frac * w, corner_frac * h
+    origins = {"top-left": (-0.5, -0.5), "top-right": (w - 0.5 - rw, -0.5), "bottom-left": (-0.5, h - 0.5 - rh),
+               "bottom-right": (w - 0.5 - rw, h - 0.5 - rh)}
+
+    def outline(a, label_values=None):
+        for name, frac in (corner_regions or {}).items():
+            x0, y0 = origins[name]
+            bad = frac < 0.1
+            a.add_patch(Rectangle((x0, y0), rw, rh, fill=False, lw=2, ec="red" if bad else "lime"))
+            txt = "no board" if bad else f"{100 * frac:.0f} % covered"
+            if label_values is not None:
+                txt += f"\n{label_values[name]:.2f} px"
+            a.text(x0 + rw / 2, y0 + rh / 2, txt, color="red" if bad else "green", ha="center", va="center",
+                   fontsize=7, fontweight="bold", bbox={"facecolor": "white", "alpha": 0.75, "lw": 0, "pad": 1})
+
+    outline(ax)
+    if predicted_ray is not None:
+        pr = predicted_ray
+        ax2 = axes[0, 1]
+        m = pr.map_px
+        from matplotlib.colors import PowerNorm
+
+        im2 = ax2.pcolormesh(pr.u_px, pr.v_px, m, cmap="magma", shading="gouraud",
+                             norm=PowerNorm(0.5, vmin=0.0, vmax=float(np.nanmax(m))))
+        nice = np.array([0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0])
+        levels = nice[(nice > np.nanmin(m)) & (nice < np.nanmax(m))]
+        if levels.size:
+            cs = ax2.contour(pr.u_px, pr.v_px, m, levels=levels, colors="w", linewidths=0.6)
+            ax2.clabel(cs, fontsize=6, fmt="%g px")
+        outline(ax2, pr.per_corner_max_px)
+        ax2.set_xlim(-0.5, w - 0.5)
+        ax2.set_ylim(h - 0.5, -0.5)
+        ax2.set_xlabel("u [px]")
+        ax2.set_ylabel("v [px]")
+        ax2.set_title(f"Predicted ray error (from the parameter covariance): RMS {pr.rms_px:.2f} px, "
+                      f"corners up to {pr.corners_max_px:.2f} px", fontsize=9)
+        fig.colorbar(im2, ax=ax2, label="predicted ray error, 1 sigma [px]")
     fig.tight_layout()
     return fig
 
@@ -169,43 +227,63 @@ def fig_intrinsics_per_image(run):
 
 
 def fig_board_calibration(res):
-    """Board-based depth calibration: range term, surface term (board support outlined) and
-    held-out error per pose for each case (none / iai shift / constant refit / model)."""
+    """Board-based depth calibration (:class:`tofmetry.calibrate.board.BoardCalibrationResult`):
+    range term over its training range, surface term (board support outlined), the model
+    selection on blocked folds (held-out RMS per candidate and design) and the dark-square
+    bias measured against the dark squares' IR amplitude."""
     m = res.model
-    fig, ax = plt.subplots(1, 3, figsize=(16, 4.6))
-    if hasattr(m, "z_knots_mm"):
-        z = np.linspace(m.z_knots_mm[0] - 100, m.z_knots_mm[-1] + 100, 200)
-        ax[0].plot(z, np.interp(z, m.z_knots_mm, m.range_mm), "-", label="a(Z)")
-        ax[0].plot(m.z_knots_mm, m.range_mm, "o", label="knots")
-        img = m.surface_image()
-    else:  # core DepthCalibration: correction = -(R + S)
-        lo, hi = m.range_data_mm
-        z = np.linspace(lo, hi, 200)
-        ax[0].plot(z, -m.range_error(z), "-", label="-R(Z)")
-        img = -np.asarray(m.surfaces[0], float)
-    ax[0].set_xlabel("measured Z [mm]")
-    ax[0].set_ylabel("range correction a(Z) [mm]")
+    fig, ax = plt.subplots(2, 2, figsize=(14, 9.5))
+    ax = ax.ravel()
+    lo, hi = m.x_support_mm
+    x = np.linspace(lo - 0.15 * (hi - lo + 1), hi + 0.15 * (hi - lo + 1), 300)
+    ax[0].plot(x, m.range_term(x), "-", label="a(x), constant beyond the training range")
+    if len(m.x_knots_mm) > 1:
+        ax[0].plot(m.x_knots_mm, m.range_mm, "o", label="knots")
+    ax[0].axvspan(lo, hi, color="0.9", label="training range")
+    ax[0].set_xlabel(("radial path length" if m.range_variable == "radial" else "measured Z") + " x [mm]")
+    ax[0].set_ylabel("range correction a(x) [mm]")
     ax[0].set_title("Range term (added to measured depth)")
-    ax[0].legend()
+    ax[0].legend(fontsize=8)
     ax[0].grid(alpha=0.3)
+    img = m.surface_image()
     lim = float(np.max(np.abs(img))) or 1.0
     im = ax[1].imshow(img, cmap="RdBu_r", vmin=-lim, vmax=lim)
-    if hasattr(m, "support"):
+    if m.support.size and np.any(m.support > 0) and np.any(m.support == 0):
         ax[1].contour(m.grid_u, m.grid_v, (m.support > 0).astype(float), levels=[0.5], colors="k", linewidths=1)
-    ax[1].set_title("Surface term s(u, v)\n(black line: limit of board coverage)")
+    ax[1].set_title(f"Surface term s(u, v) [{m.describe()}]\n(black line: limit of board coverage)", fontsize=9)
     ax[1].set_xlabel("u [px]")
     ax[1].set_ylabel("v [px]")
     fig.colorbar(im, ax=ax[1], label="s [mm]")
-    for case, st in res.cv.items():
-        ax[2].plot([], [], " ", label=f"{case}: RMS {st['rms_mm']:.1f}, P95 {st['p95_abs_mm']:.1f} mm")
-    per = res.cv_per_pose
-    vals = [v[np.isfinite(v)] for v in per.values()]
-    top = max(50.0, float(np.nanmax(np.concatenate(vals)))) if vals and sum(len(v) for v in vals) else 50.0
-    ax[2].hist(vals, bins=np.linspace(0, top, 26), label=list(per), alpha=0.8)
-    ax[2].set_xlabel("held-out RMS per pose [mm]")
-    ax[2].set_ylabel("poses")
-    ax[2].set_title(f"Held-out board-plane error ({res.k_folds}-fold over poses)")
-    ax[2].legend(fontsize=7)
-    fig.suptitle(f"Board-based depth calibration ({res.squares} squares)")
+    sel = res.selection
+    designs = [d for d in ("time", "range", "region") if sel and f"{d}_rms_mm" in sel[0]]
+    yy = np.arange(len(sel))
+    for j, d in enumerate(designs):
+        ax[2].barh(yy + (j - 1) * 0.27, [r[f"{d}_rms_mm"] for r in sel], height=0.27, label=d)
+    ax[2].set_yticks(yy)
+    ax[2].set_yticklabels([r["name"] + (" +dark" if r["use_dark_views"] else "") + (" <- chosen" if r.get("chosen")
+                                                                                     else "") for r in sel], fontsize=7)
+    ax[2].invert_yaxis()
+    ax[2].set_xlabel("held-out RMS [mm] (white squares)")
+    ax[2].set_title("Model selection on blocked folds\n(time: pose blocks in recording order; range bins; image regions)",
+                    fontsize=9)
+    ax[2].legend(fontsize=8)
+    ax[2].grid(alpha=0.3, axis="x")
+    db = res.dark_bias
+    if len(db.contrast_mm):
+        ax[3].plot(np.exp(db.ln_amplitude), db.contrast_mm, "o", ms=4, label="views: median dark - median white")
+        if db.known:
+            a = np.exp(np.linspace(db.ln_amplitude.min(), db.ln_amplitude.max(), 100))
+            ax[3].plot(a, db(a), "-", label=f"fitted b(A) (residual {db.residual_mm:.1f} mm)")
+        ax[3].set_xscale("log")
+    ax[3].set_xlabel("dark-square IR amplitude")
+    ax[3].set_ylabel("dark - white depth bias [mm]")
+    ax[3].set_title("Board pattern: dark squares read longer", fontsize=9)
+    ax[3].legend(fontsize=8)
+    ax[3].grid(alpha=0.3)
+    p = res.prediction or {}
+    sub = (f"; predicted RMS on new poses {p['rms_mm']:.1f} mm [{p['rms_mm_interval'][0]:.1f}, "
+           f"{p['rms_mm_interval'][1]:.1f}]") if p else ""
+    fig.suptitle(f"Board-based depth calibration ({len(res.pose_index)} poses, intrinsics: "
+                 f"{res.intrinsics_source.split(' (')[0]}){sub}", fontsize=10)
     fig.tight_layout()
     return fig

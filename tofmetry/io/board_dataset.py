@@ -10,7 +10,8 @@
       depth_shift.json      {"depth_shift_mm": s, "convention": "corrected = measured + shift"} (optional)
       depth_shift.npz       the same shift as a tofmetry DepthCalibration (zero surfaces, constant range curve)
       poses/NNNN/           one capture per board pose (capture.json, depth/, ir/, color/)
-      poses/NNNN/corners.json  {"board": [cols, rows], "corners_px": [[u, v], ...], "source": ...}
+      poses/NNNN/corners.json  {"board": [cols, rows], "corners_px": [[u, v], ...] (or a list of such grids: several
+                            boards in one view), "source": ...}; without it the boards are found in the IR image
 
 ``tofmetry calibrate depth`` dispatches here when the folder holds ``board.json``.
 """
@@ -59,24 +60,34 @@ class BoardSpec:
         return cls(cols, rows, float(square_mm))
 
 
-def write_corners(path: str | os.PathLike, corners: np.ndarray, board: BoardSpec, source: str = "") -> Path:
-    c = np.asarray(corners, float).reshape(-1, 2)
-    if len(c) != board.cols * board.rows:
-        raise InputError(f"{path}: {len(c)} corners do not match the board {board.cols}x{board.rows}")
-    return atomic_write_json(path, {"board": [board.cols, board.rows], "corners_px": c, "source": source})
+def write_corners(path: str | os.PathLike, corners, board: BoardSpec, source: str = "") -> Path:
+    """Write ``corners.json``: one grid (cols*rows, 2) [px] or a list of grids (several boards in one view)."""
+    grids = corners if isinstance(corners, (list, tuple)) else [corners]
+    out = []
+    for c in grids:
+        c = np.asarray(c, float).reshape(-1, 2)
+        if len(c) != board.cols * board.rows:
+            raise InputError(f"{path}: {len(c)} corners do not match the board {board.cols}x{board.rows}")
+        out.append(c)
+    data = out[0] if len(out) == 1 and not isinstance(corners, (list, tuple)) else np.stack(out)
+    return atomic_write_json(path, {"board": [board.cols, board.rows], "corners_px": data, "source": source})
 
 
-def read_corners(path: str | os.PathLike, board: BoardSpec) -> np.ndarray:
-    """(cols*rows, 2) float64 corner pixels; FormatError naming the file on mismatch."""
+def read_corners(path: str | os.PathLike, board: BoardSpec):
+    """(cols*rows, 2) float64 corner pixels, or a list of such grids when the file holds several
+    boards (``corners_px`` of shape (M, cols*rows, 2)); FormatError naming the file on mismatch."""
     d = read_json(path, "corners file")
     try:
         c = np.asarray(d["corners_px"], float)
     except (KeyError, TypeError, ValueError):
-        raise FormatError(f"{path}: expected {{'corners_px': [[u, v], ...]}}") from None
-    if c.ndim != 2 or c.shape[1] != 2 or len(c) != board.cols * board.rows:
+        raise FormatError(f"{path}: expected {{'corners_px': [[u, v], ...]}} (or a list of such grids)") from None
+    n = board.cols * board.rows
+    if c.ndim == 3 and c.shape[1:] == (n, 2) and c.shape[0] >= 1:
+        return [g for g in c]
+    if c.ndim != 2 or c.shape[1] != 2 or len(c) != n:
         raise FormatError(
             f"{path}: {c.shape[0] if c.ndim else 0} corners do not match the board {board.cols}x{board.rows} "
-            f"(expected {board.cols * board.rows})"
+            f"(expected {n}, or a list of grids of {n})"
         )
     return c
 
@@ -102,7 +113,8 @@ class BoardDataset:
     def capture(self, i: int) -> Capture:
         return Capture(self.path / "poses" / self.names[i])
 
-    def corners(self, i: int) -> np.ndarray | None:
+    def corners(self, i: int):
+        """The pose's corner grid (or list of grids), None without ``corners.json``."""
         f = self.path / "poses" / self.names[i] / "corners.json"
         return read_corners(f, self.board) if f.is_file() else None
 
@@ -119,7 +131,8 @@ class BoardDataset:
         return Extrinsics.from_dict(read_json(f, "extrinsics.json"), source_name=str(f)) if f.is_file() else None
 
     def load_poses(self, indices=None) -> list[tuple[np.ndarray, np.ndarray, np.ndarray | None]]:
-        """``[(depth (H,W) uint16 mm, ir (H,W) uint16, corners or None), ...]`` (first frame of each pose)."""
+        """``[(depth (H,W) uint16 mm, ir (H,W) uint16, corners), ...]`` (first frame of each pose;
+        corners: (cols*rows, 2), a list of grids, or None: found in the IR image by the calibration)."""
         out = []
         for i in (range(len(self)) if indices is None else indices):
             cap = self.capture(i)
@@ -203,8 +216,10 @@ def import_iai_kinect2(src: str | os.PathLike, out: str | os.PathLike, board: Bo
 
 def _write_shift_calibration(path: Path, shift_mm: float, intr: CameraIntrinsics, src: Path) -> None:
     """The iai_kinect2 depthShift as a tofmetry DepthCalibration (zero surfaces, constant range curve)."""
+    # the one place io builds a calibration model (the iai_kinect2 importer's convenience output);
+    # imported here because tofmetry.pipelines and tofmetry.calibrate sit above io
     from tofmetry.calibrate.board import constant_shift_calibration
-    from tofmetry.io.calibration_file import save_calibration
+    from tofmetry.pipelines.calibration_files import save_calibration
 
     save_calibration(path, constant_shift_calibration(shift_mm, intr, "kinect_v2",
                                                       {"source": str(src / "calib_depth.yaml"), "tool": "iai_kinect2"}))
@@ -248,18 +263,18 @@ def export_iai_kinect2(src: str | os.PathLike, out: str | os.PathLike, force: bo
             shift = float(read_json(src / "depth_shift.json")["depth_shift_mm"])
         cal = IaiCalibration(ir, color, pose, shift)
     elif src.suffix.lower() == ".npz":
-        from tofmetry.io.calibration_file import load_calibration
+        from tofmetry.io.calibration_file import read_calibration_file
 
-        dc = load_calibration(src)
-        if dc.sensor not in ("kinect_v2", "unknown"):
+        head, arrays = read_calibration_file(src)
+        if head.get("sensor") not in ("kinect_v2", "unknown"):
             from tofmetry.errors import SensorMismatchError
 
-            raise SensorMismatchError(f"{src}: calibration is for sensor {dc.sensor!r}; iai_kinect2 is for kinect_v2")
-        shift = -float(dc.offset_mm) if depth_shift_mm is None else float(depth_shift_mm)
-        if dc.surface_model != "none" or len(dc.node_mm) > 1:
+            raise SensorMismatchError(f"{src}: calibration is for sensor {head.get('sensor')!r}; iai_kinect2 is for kinect_v2")
+        shift = -float(head["offset_mm"]) if depth_shift_mm is None else float(depth_shift_mm)
+        if head.get("surface_model") != "none" or len(arrays["node_mm"]) > 1 or "ray_knots" in arrays:
             dropped.append("per-pixel surfaces")
         dropped.append("range-curve shape (only its mean is kept as depthShift)")
-        cal = IaiCalibration(dc.intrinsics, None, None, shift)
+        cal = IaiCalibration(CameraIntrinsics.from_dict(head["intrinsics"], source=f"{src} header"), None, None, shift)
     elif src.suffix.lower() == ".json":
         cal = IaiCalibration(read_intrinsics(src), None, None, depth_shift_mm)
     else:

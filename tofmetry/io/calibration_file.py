@@ -1,14 +1,23 @@
 """Depth calibration file: ``.npz`` with a JSON header (no pickle).
 
+This module reads and writes the container only: a JSON header and named arrays. The model
+(:class:`tofmetry.calibrate.DepthCalibration`) is built from them by
+:func:`tofmetry.calibrate.calibration_from_arrays`; :func:`tofmetry.pipelines.load_calibration`
+and :func:`tofmetry.pipelines.save_calibration` do both.
+
 Layout (``np.savez``, loaded with ``allow_pickle=False``)::
 
-    header        0-d unicode array: JSON {"format": "tofmetry-depth-calibration", "version": 1,
-                  "sensor", "intrinsics", "offset_mm", "valid_range_mm", "range_data_mm",
-                  "range_degree", "surface_model", "provenance", "diagnostics"}
-    range_knots   (n,) float64 [mm]     B-spline knots of the range error R(d)
-    range_coeffs  (n,) float64 [mm]     B-spline coefficients
-    node_mm       (K,) float64 [mm]     surface nodes (measured distance)
-    surfaces      (K, H, W) float32 [mm] per-pixel deformation maps
+    header          0-d unicode array: JSON {"format": "tofmetry-depth-calibration", "version": 1|2,
+                    "sensor", "intrinsics", "offset_mm", "valid_range_mm", "range_data_mm",
+                    "range_degree", "surface_model", "provenance", "diagnostics"; version 2 adds
+                    "ray_gamma", "ray_data_mm", "fallback", "trend_mm", "prediction"}
+    range_knots     (n,) float64 [mm]        B-spline knots of the range error R(d)
+    range_coeffs    (n,) float64 [mm]        B-spline coefficients
+    node_mm         (K,) float64 [mm]        surface nodes (measured distance)
+    surfaces        (K, H, W) float32 [mm]   per-pixel deformation maps
+    version 2, optional:
+    ray_knots, ray_coeffs   (m,) float64     cubic B-spline W of the ray length [mm]
+    support_*               the support map (see tofmetry.calibrate.CalibrationSupport)
 """
 
 from __future__ import annotations
@@ -21,51 +30,56 @@ from pathlib import Path
 
 import numpy as np
 
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:  # the model lives in tofmetry.calibrate, which itself re-exports this module's functions
-    from tofmetry.calibrate._model import DepthCalibration
 from tofmetry.errors import FormatError, InputError
 from tofmetry.io._atomic import atomic_write_bytes, to_json
-from tofmetry.sensor import CameraIntrinsics
 
-_ARRAYS = ("range_knots", "range_coeffs", "node_mm", "surfaces")
+FORMAT_NAME = "tofmetry-depth-calibration"
+#: versions this module reads; it writes the last one
+VERSIONS = (1, 2)
+REQUIRED = ("range_knots", "range_coeffs", "node_mm", "surfaces")
 
 
-def save_calibration(path: str | os.PathLike, cal: DepthCalibration) -> Path:
-    """Write ``cal`` to ``path`` (``.npz``) atomically."""
-    from tofmetry.calibrate._model import FORMAT_NAME, FORMAT_VERSION
+def write_calibration_file(path: str | os.PathLike, header: dict, arrays: dict[str, np.ndarray]) -> Path:
+    """Write a calibration container atomically.
 
-    header = {
-        "format": FORMAT_NAME, "version": FORMAT_VERSION, "sensor": cal.sensor,
-        "intrinsics": cal.intrinsics.to_dict(), "offset_mm": cal.offset_mm,
-        "valid_range_mm": cal.valid_range_mm.tolist(), "range_data_mm": cal.range_data_mm.tolist(),
-        "range_degree": cal.range_degree, "surface_model": cal.surface_model,
-        "shape": list(cal.shape), "n_surfaces": int(cal.surfaces.shape[0]),
-        "provenance": cal.provenance, "diagnostics": cal.diagnostics,
-    }
+    Parameters
+    ----------
+    path : destination ``.npz``
+    header : JSON-able dict (format name and version are set here)
+    arrays : name -> numeric array (no object arrays)
+    """
+    bad = [k for k, a in arrays.items() if np.asarray(a).dtype == object]
+    if bad:
+        raise InputError(f"calibration file: arrays {bad} are object arrays; only numeric arrays are stored")
+    missing = [a for a in REQUIRED if a not in arrays]
+    if missing:
+        raise InputError(f"calibration file: missing arrays {missing}")
+    head = {"format": FORMAT_NAME, "version": VERSIONS[-1], **header}
     buf = io.BytesIO()
-    np.savez(  # uncompressed: smooth float32 maps barely compress and zlib costs seconds
-        buf, header=np.array(to_json(header, indent=None)), range_knots=cal.range_knots,
-        range_coeffs=cal.range_coeffs, node_mm=cal.node_mm, surfaces=cal.surfaces.astype(np.float32),
-    )
+    # uncompressed: smooth float32 maps barely compress and zlib costs seconds
+    np.savez(buf, header=np.array(to_json(head, indent=None)), **{k: np.asarray(a) for k, a in arrays.items()})
     return atomic_write_bytes(Path(path), buf.getvalue())
 
 
-def read_calibration_header(path: str | os.PathLike) -> dict:
-    """The JSON header only (cheap)."""
-    return _open(Path(path))[0]
+def read_calibration_file(path: str | os.PathLike) -> tuple[dict, dict[str, np.ndarray]]:
+    """Read and check a calibration container: ``(header, arrays)``.
 
-
-def _open(path: Path):
-    from tofmetry.calibrate._model import FORMAT_NAME, FORMAT_VERSION
-
+    Raises
+    ------
+    InputError
+        The file does not exist.
+    FormatError
+        Not a tofmetry calibration, an unknown version, or required arrays missing.
+    """
+    path = Path(path)
     if not path.is_file():
         raise InputError(f"calibration file not found: {path}")
     try:
         z = np.load(path, allow_pickle=False)
-    except (ValueError, OSError, zipfile.BadZipFile) as exc:
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
         raise FormatError(f"{path}: not a tofmetry calibration (.npz with a JSON header): {exc}") from None
+    if not hasattr(z, "files"):
+        raise FormatError(f"{path}: a single .npy array, not a tofmetry calibration (.npz with a JSON header)")
     with z:
         if "header" not in z.files:
             raise FormatError(f"{path}: no 'header' entry; not a tofmetry calibration file")
@@ -73,57 +87,22 @@ def _open(path: Path):
             header = json.loads(str(z["header"][()]))
         except (json.JSONDecodeError, ValueError) as exc:
             raise FormatError(f"{path}: header is not valid JSON ({exc})") from None
-        if header.get("format") != FORMAT_NAME:
-            raise FormatError(f"{path}: format {header.get('format')!r}, expected {FORMAT_NAME!r}")
+        if not isinstance(header, dict) or header.get("format") != FORMAT_NAME:
+            fmt = header.get("format") if isinstance(header, dict) else type(header).__name__
+            raise FormatError(f"{path}: format {fmt!r}, expected {FORMAT_NAME!r}")
         ver = header.get("version")
-        if ver != FORMAT_VERSION:
-            raise FormatError(f"{path}: calibration format version {ver}, this tofmetry reads version {FORMAT_VERSION}")
-        missing = [a for a in _ARRAYS if a not in z.files]
+        if ver not in VERSIONS:
+            raise FormatError(f"{path}: calibration format version {ver}, this tofmetry reads versions {list(VERSIONS)}")
+        missing = [a for a in REQUIRED if a not in z.files]
         if missing:
             raise FormatError(f"{path}: missing arrays {missing}")
-        arrays = {a: z[a] for a in _ARRAYS}
+        try:
+            arrays = {a: z[a] for a in z.files if a != "header"}
+        except ValueError as exc:  # an object array would need pickle
+            raise FormatError(f"{path}: unreadable array ({exc})") from None
     return header, arrays
 
 
-def load_calibration(path: str | os.PathLike, sensor: str | None = None,
-                     shape: tuple[int, int] | None = None) -> DepthCalibration:
-    """Read and validate a calibration file.
-
-    Parameters
-    ----------
-    sensor, shape : optional; if given, checked with ``check_compatible`` (SensorMismatchError).
-
-    Raises
-    ------
-    FormatError
-        Not a calibration file, wrong version, missing or inconsistent arrays.
-    SensorMismatchError
-        Made for another sensor or resolution than ``sensor`` / ``shape``.
-    """
-    from tofmetry.calibrate._model import DepthCalibration
-
-    path = Path(path)
-    header, a = _open(path)
-    try:
-        intr = CameraIntrinsics.from_dict(header["intrinsics"], source=f"{path} header")
-        hshape = tuple(header["shape"])
-        if hshape != intr.shape or a["surfaces"].shape[1:] != intr.shape:
-            raise FormatError(
-                f"{path}: inconsistent resolution: header {hshape}, intrinsics {intr.shape}, surfaces {a['surfaces'].shape[1:]}"
-            )
-        cal = DepthCalibration(
-            sensor=str(header["sensor"]), intrinsics=intr, range_knots=a["range_knots"],
-            range_coeffs=a["range_coeffs"], range_degree=int(header["range_degree"]),
-            range_data_mm=np.array(header["range_data_mm"], float), valid_range_mm=np.array(header["valid_range_mm"], float),
-            node_mm=a["node_mm"], surfaces=a["surfaces"], offset_mm=float(header["offset_mm"]),
-            surface_model=str(header.get("surface_model", "")), provenance=header.get("provenance") or {},
-            diagnostics=header.get("diagnostics") or {},
-        )
-    except KeyError as exc:
-        raise FormatError(f"{path}: header misses key {exc}") from None
-    except InputError as exc:
-        if isinstance(exc, FormatError):
-            raise
-        raise FormatError(f"{path}: {exc}") from None
-    cal.check_compatible(sensor=sensor, shape=shape)
-    return cal
+def read_calibration_header(path: str | os.PathLike) -> dict:
+    """The JSON header only."""
+    return read_calibration_file(path)[0]

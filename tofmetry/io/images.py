@@ -1,7 +1,9 @@
-"""Reading and writing single depth / IR / colour images (PNG, TIFF, NPY, JPG).
+"""Reading and writing single depth / IR / colour images (PNG, TIFF, NPY, JPG, BMP, PGM ...).
 
 Every reader returns arrays with the dtype named in its docstring and raises
 :class:`~tofmetry.errors.FormatError` naming the file on anything unexpected.
+:func:`read_gray_image` reads any single-channel 8- or 16-bit image OpenCV decodes (and
+greyscale stored as colour) at its own bit depth: the reader of checkerboard (IR) images.
 """
 
 from __future__ import annotations
@@ -17,6 +19,9 @@ from tofmetry.errors import FormatError
 from tofmetry.io._atomic import atomic_write_bytes
 
 DEPTH_SUFFIXES = (".png", ".tif", ".tiff", ".npy")
+#: Suffixes :func:`read_gray_image` accepts (what OpenCV's ``imread`` decodes, plus ``.npy``).
+GRAY_IMAGE_SUFFIXES = (".png", ".bmp", ".dib", ".tif", ".tiff", ".pgm", ".pnm", ".ppm", ".pbm", ".jpg", ".jpeg",
+                       ".jpe", ".jp2", ".webp", ".npy")
 _PNG_SIG = b"\x89PNG\r\n\x1a\n"
 
 
@@ -82,19 +87,81 @@ def read_depth_image(path: str | os.PathLike, as_float: bool = False) -> np.ndar
     return img.astype(np.float32) if as_float else img
 
 
-def read_ir_image(path: str | os.PathLike) -> np.ndarray:
-    """Read one IR amplitude frame: (H, W) uint16 (PNG/TIFF/NPY); 8-bit is promoted."""
+def read_gray_image(path: str | os.PathLike) -> np.ndarray:
+    """Read one single-channel image at its own bit depth (IR, grey, checkerboard photos).
+
+    Parameters
+    ----------
+    path : any image OpenCV's ``imread`` decodes (PNG, BMP, TIFF, PGM/PNM, JPEG, ...; see
+        :data:`GRAY_IMAGE_SUFFIXES`) or a 2-D ``.npy``. 8- and 16-bit single-channel images are
+        returned as stored; 3-/4-channel images (greyscale saved as colour, e.g. 8-bit BMP or
+        JPEG) become one channel (the first when all channels are equal, else the luminance
+        ``0.299 R + 0.587 G + 0.114 B``); an alpha channel is dropped.
+
+    Returns
+    -------
+    (H, W) uint8 or uint16 (float32 for float TIFF / ``.npy``).
+
+    Raises
+    ------
+    FormatError
+        Missing, unreadable or truncated file, or a content that is not one image of 8/16-bit
+        (or float) intensities; the message names the file.
+    """
     path = Path(path)
+    if not path.is_file():
+        raise FormatError(f"image not found: {path}")
     if path.suffix.lower() == ".npy":
-        arr = np.load(path, allow_pickle=False)
-        return arr.astype(np.uint16) if arr.dtype != np.uint16 else arr
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise FormatError(f"{path}: unreadable or truncated IR image")
-    if img.ndim == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+        try:
+            img = np.load(path, allow_pickle=False)
+        except Exception as exc:  # noqa: BLE001 - any decoding failure is a format error
+            raise FormatError(f"{path}: unreadable .npy ({exc})") from None
+    else:
+        try:
+            img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        except cv2.error as exc:
+            raise FormatError(f"{path}: OpenCV could not decode it ({exc})") from None
+        if img is None:
+            raise FormatError(f"{path}: unreadable, truncated or not an image format OpenCV decodes "
+                              f"(expected one of {', '.join(GRAY_IMAGE_SUFFIXES)})")
+    return _as_gray(img, path)
+
+
+def _as_gray(img: np.ndarray, path: Path) -> np.ndarray:
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[..., 0]
+    if img.ndim == 3 and img.shape[2] in (3, 4):
+        c = img[..., :3]
+        if np.array_equal(c[..., 0], c[..., 1]) and np.array_equal(c[..., 0], c[..., 2]):
+            img = np.ascontiguousarray(c[..., 0])
+        elif c.dtype in (np.uint8, np.uint16, np.float32):
+            img = cv2.cvtColor(np.ascontiguousarray(c), cv2.COLOR_BGR2GRAY)
+        else:
+            raise FormatError(f"{path}: colour image of dtype {img.dtype}; expected 8/16-bit")
+    if img.ndim != 2 or img.size == 0:
+        raise FormatError(f"{path}: expected a single-channel (H, W) image, found shape {img.shape}")
+    if img.dtype in (np.uint8, np.uint16):
+        return img
+    if img.dtype == bool:
+        return img.astype(np.uint8) * 255
+    if np.issubdtype(img.dtype, np.floating):
+        if not np.all(np.isfinite(img)):
+            raise FormatError(f"{path}: float image contains NaN/inf")
+        return img.astype(np.float32)
+    if np.issubdtype(img.dtype, np.integer):
+        lo, hi = int(img.min()), int(img.max())
+        if lo >= 0 and hi <= 65535:
+            return img.astype(np.uint16)
+        raise FormatError(f"{path}: {img.dtype} values {lo}..{hi} do not fit 16 bit (expected 0..65535)")
+    raise FormatError(f"{path}: expected 8/16-bit or float intensities, found dtype {img.dtype}")
+
+
+def read_ir_image(path: str | os.PathLike) -> np.ndarray:
+    """Read one IR amplitude frame: (H, W) uint16 (any format of :func:`read_gray_image`;
+    8-bit values are promoted unscaled, float values clipped to 0..65535 and rounded)."""
+    img = read_gray_image(path)
     if img.dtype == np.float32:
-        img = np.clip(img, 0, 65535).astype(np.uint16)
+        return np.rint(np.clip(img, 0, 65535)).astype(np.uint16)
     return img.astype(np.uint16, copy=False)
 
 

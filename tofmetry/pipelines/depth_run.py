@@ -10,7 +10,7 @@ import numpy as np
 from tofmetry.calibrate import DepthCalibration
 from tofmetry.calibrate import figures as F
 from tofmetry.io import atomic_write_json, write_intrinsics
-from tofmetry.pipelines._common import _save_fig
+from tofmetry._shared.figures import save_png
 from tofmetry.sensor import CameraIntrinsics
 
 
@@ -65,12 +65,12 @@ def write_depth_report(run: DepthRun, folder: Path) -> list[Path]:
     folder.mkdir(parents=True, exist_ok=True)
     out = [atomic_write_json(folder / "fit.json", run.to_dict())]
     if run.kind == "wall":
-        out.append(_save_fig(F.fig_range_curve(run.calibration, run.range_points, run.frame_points),
+        out.append(save_png(F.fig_range_curve(run.calibration, run.range_points, run.frame_points),
                              folder / "range_curve.png"))
-        out.append(_save_fig(F.fig_std_vs_range([r["distance_mm"] for r in run.rows], [r["center_std_mm"] for r in run.rows],
+        out.append(save_png(F.fig_std_vs_range([r["distance_mm"] for r in run.rows], [r["center_std_mm"] for r in run.rows],
                                                 [r["pixel_std_median_mm"] for r in run.rows]), folder / "std_vs_range.png"))
     else:
-        out.append(_save_fig(F.fig_board_calibration(run.board_result), folder / "board_calibration.png"))
+        out.append(save_png(F.fig_board_calibration(run.board_result), folder / "board_calibration.png"))
         out.append(write_intrinsics(folder / "intrinsics.json", run.intrinsics, sensor=run.sensor,
                                     source=run.intrinsics_source))
     return out

@@ -3,15 +3,18 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
-from tofmetry.calibrate import IntrinsicsResult, calibrate_intrinsics, cross_validate_intrinsics, detect_corners
+import numpy as np
+
 from tofmetry.calibrate import figures as F
-from tofmetry.io import atomic_write_json
-from tofmetry.io.images import read_color_image, read_ir_image
+from tofmetry.calibrate import IntrinsicsResult, calibrate_intrinsics, cross_validate_intrinsics, detect_board
 from tofmetry.errors import InputError
-from tofmetry.pipelines._common import IMAGE_SUFFIXES, _adv, _save_fig
+from tofmetry.io import atomic_write_json
+from tofmetry.io.images import GRAY_IMAGE_SUFFIXES, read_gray_image
+from tofmetry._shared.figures import save_png
+from tofmetry.pipelines._common import _adv
 from tofmetry.sensor import CameraIntrinsics
 
 
@@ -23,11 +26,16 @@ class IntrinsicsRun:
     ----------
     result : IntrinsicsResult (kept views; ``result.rejected_views`` the outlier views)
     names : image names with a detected board (incl. outlier views), same order as ``corners``
-    rejected : image names where no board was detected
+    rejected : image names where no board was detected (or a corner disagreed with its grid neighbours)
+    rejected_reasons : dict rejected image name -> why
     rejected_views : outlier views (RMS above ``max(1 px, 5 x median)``), left out of the fit
     corners : list of (cols*rows, 2) float64 [px], one per ``names``
     image_size : (width, height) [px]
     cv : k-fold pose-wise held-out reprojection RMS (see ``cross_validate_intrinsics``), names of the views
+    detections : dict image name -> how its corners were found: ``detector`` (OpenCV grid finder),
+        ``model_fraction`` (share of corners refined by the X-junction fit), ``median_corner_std_px``
+        (median standard uncertainty of its corners from the fit residuals [px]), ``median_blur_px``
+        (fitted edge blur, Gaussian sigma [px]), ``dtype`` (of the file)
     """
 
     result: IntrinsicsResult
@@ -41,6 +49,8 @@ class IntrinsicsRun:
     cv: dict
     images_dir: str = ""
     seconds: float = float("nan")
+    detections: dict = field(default_factory=dict)
+    rejected_reasons: dict = field(default_factory=dict)
 
     @property
     def intrinsics(self) -> CameraIntrinsics:
@@ -52,15 +62,20 @@ class IntrinsicsRun:
             cv["views"] = [self.names[i] for i in cv["views"]]
         return {**self.result.to_dict(), "images_dir": self.images_dir, "board": list(self.board),
                 "square_mm": self.square_mm, "image_size": list(self.image_size), "detected": self.names,
-                "rejected": self.rejected, "cross_validation": cv, "seconds": self.seconds}
+                "rejected": self.rejected, "rejected_reasons": self.rejected_reasons, "cross_validation": cv,
+                "detections": self.detections, "seconds": self.seconds}
 
 
-def _list_images(images_dir: Path) -> list[Path]:
+def list_board_images(images_dir: Path) -> list[Path]:
+    """The images of a folder, by suffix (:data:`~tofmetry.io.images.GRAY_IMAGE_SUFFIXES`), sorted
+    by name; hidden files are skipped. Raises InputError when the folder is missing or holds none."""
+    images_dir = Path(images_dir)
     if not images_dir.is_dir():
         raise InputError(f"images folder not found: {images_dir}")
-    files = sorted(p for p in images_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
+    files = sorted(p for p in images_dir.iterdir()
+                   if p.is_file() and p.suffix.lower() in GRAY_IMAGE_SUFFIXES and not p.name.startswith("."))
     if not files:
-        raise InputError(f"{images_dir}: no images ({', '.join(IMAGE_SUFFIXES)})")
+        raise InputError(f"{images_dir}: no images (expected files ending in {', '.join(GRAY_IMAGE_SUFFIXES)})")
     return files
 
 
@@ -72,9 +87,18 @@ def intrinsics_from_images(images_dir: Path, board: tuple[int, int], square_mm: 
 
     Parameters
     ----------
-    images_dir : folder of 16-bit IR PNG/TIFF/NPY or 8-bit colour JPEG images
+    images_dir : folder of checkerboard images: any 8- or 16-bit single-channel image OpenCV
+        reads (PNG, BMP, TIFF, PGM ...), greyscale stored as colour (BMP, JPEG), or ``.npy``
+        (:func:`~tofmetry.io.images.read_gray_image`); all of one size
     board : (cols, rows) inner corners; square_mm : square size [mm]
     advance : optional progress callable (one call per image, per leave-one-out refit, per fold)
+
+    Raises
+    ------
+    FormatError
+        An unreadable image (the message names it); InputError for mixed sizes, no images.
+    EstimationError
+        Fewer than 3 images with a board.
     """
     t0 = time.perf_counter()
     images_dir = Path(images_dir)
@@ -82,20 +106,31 @@ def intrinsics_from_images(images_dir: Path, board: tuple[int, int], square_mm: 
     if cols < 2 or rows < 2 or not square_mm > 0:
         raise InputError(f"board needs >= 2x2 inner corners and square_mm > 0; found {cols}x{rows}, {square_mm}")
     adv = _adv(advance)
-    corners, names, rejected, size = [], [], [], None
-    for f in _list_images(images_dir):
-        img = read_color_image(f) if f.suffix.lower() in (".jpg", ".jpeg") else read_ir_image(f)
+    corners, names, rejected, size, detections, rejected_reasons = [], [], [], None, {}, {}
+    for f in list_board_images(images_dir):
+        img = read_gray_image(f)
         s = (img.shape[1], img.shape[0])
         if size is None:
             size = s
         elif s != size:
             raise InputError(f"{f}: size {s[0]}x{s[1]} differs from the first image's {size[0]}x{size[1]}")
-        c = detect_corners(img, (cols, rows))
-        if c is None:
+        det = detect_board(img, (cols, rows))
+        if det is None:
             rejected.append(f.name)
+            rejected_reasons[f.name] = "board not found"
+        elif not det.usable:
+            rejected.append(f.name)
+            rejected_reasons[f.name] = (f"{det.n_suspect} corner(s) disagree with their grid neighbours (by up to "
+                                        f"{max(det.refinement.grid_residual_px[det.refinement.suspect]):.2f} px)")
         else:
-            corners.append(c)
+            corners.append(det.corners)
             names.append(f.name)
+            ref = det.refinement
+            std = ref.std_px[np.isfinite(ref.std_px)]
+            detections[f.name] = {"detector": det.detector, "model_fraction": ref.fraction_model,
+                                  "median_corner_std_px": float(np.median(std)) if std.size else float("nan"),
+                                  "median_blur_px": float(np.nanmedian(ref.blur_px)) if ref.model_ok.any()
+                                  else float("nan"), "dtype": str(img.dtype)}
         adv()
     res = calibrate_intrinsics(corners, names, (cols, rows), square_mm, size, leave_one_out=leave_one_out,
                                fix_k3=fix_k3, advance=adv)
@@ -103,21 +138,23 @@ def intrinsics_from_images(images_dir: Path, board: tuple[int, int], square_mm: 
     cv = cross_validate_intrinsics(corners, (cols, rows), square_mm, size, k=k_folds, fix_k3=fix_k3, exclude=excl) \
         if len(corners) - len(excl) >= 4 else {}
     return IntrinsicsRun(res, names, rejected, list(res.rejected_views), corners, size, (cols, rows), float(square_mm),
-                         cv, str(images_dir), time.perf_counter() - t0)
+                         cv, str(images_dir), time.perf_counter() - t0, detections, rejected_reasons)
 
 
 def write_intrinsics_report(run: IntrinsicsRun, folder: Path) -> list[Path]:
-    """``intrinsics_report.json``, ``coverage.png`` and ``per_image.png`` (per-image RMS,
-    rejection threshold, leave-one-out influence) in ``folder`` (created)."""
+    """``intrinsics_report.json`` (result, predicted ray-error map on a 16 px grid, corner-region
+    coverage), ``coverage.png`` (corner coverage, uncovered image corners, predicted ray error)
+    and ``per_image.png`` (per-image RMS, rejection threshold, leave-one-out influence) in
+    ``folder`` (created)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     res = run.result
     kept = [c for n, c in zip(run.names, run.corners) if n in set(res.used)]
     w, h = run.image_size
     out = [atomic_write_json(folder / "intrinsics_report.json", run.to_dict())]
-    out.append(_save_fig(F.fig_coverage(kept, (h, w), f"Corner coverage: {len(kept)} images, {100 * res.coverage:.0f} % "
-                                        f"of the area, {100 * res.cell_coverage:.0f} % of 8x8 cells"),
-                         folder / "coverage.png"))
-    out.append(_save_fig(F.fig_intrinsics_per_image(run), folder / "per_image.png"))
+    title = (f"Corner coverage: {len(kept)} images, {100 * res.coverage:.0f} % of the area, "
+             f"{100 * res.cell_coverage:.0f} % of 8x8 cells")
+    out.append(save_png(F.fig_coverage(kept, (h, w), title, corner_regions=res.corner_regions_coverage,
+                                        predicted_ray=res.predicted_ray), folder / "coverage.png"))
+    out.append(save_png(F.fig_intrinsics_per_image(run), folder / "per_image.png"))
     return out
-

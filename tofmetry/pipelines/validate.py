@@ -7,12 +7,16 @@ from pathlib import Path
 
 import numpy as np
 
-from tofmetry.calibrate import DepthCalibration, DepthFitConfig, evaluate_wall_station, summarize, wall_sample, with_surface
+from tofmetry.calibrate import (
+    METHODS, DepthCalibration, before_after, check_prediction, evaluate_wall_station, summarize, wall_reference,
+    wall_sample,
+)
 from tofmetry.calibrate import cross_validate as _cv
 from tofmetry.calibrate import figures as F
 from tofmetry.io import atomic_write_json
 from tofmetry.errors import EstimationError, InputError
-from tofmetry.pipelines._common import _adv, _save_fig
+from tofmetry._shared.figures import save_png
+from tofmetry.pipelines._common import _adv
 from tofmetry.pipelines.wall import _open_wall, _station_stats, _usable
 from tofmetry.sensor import CameraIntrinsics
 
@@ -26,7 +30,12 @@ class ValidationRun:
     stations : list of StationReport
     summary : dict (see ``tofmetry.calibrate.summarize``)
     maps : per station dict of (H, W) residual maps [mm] (``residual_before``, ``residual_after``)
-    cross_validation : {"spline": ..., "poly3": ...} leave-one-station-out results or None
+    cross_validation : {method: {"stations", "summary"}} leave-one-station-out results per method
+        ("tofmetry", "study", "study-poly3") or None
+    metrics : per station the metrics of the calibration's own prediction (tilt removed, see
+        ``tofmetry.calibrate.before_after``)
+    prediction_check : the calibration's predicted error against the held-out stations
+        (``tofmetry.calibrate.check_prediction``); empty without a prediction or held-out stations
     """
 
     stations: list
@@ -37,6 +46,8 @@ class ValidationRun:
     dataset: str = ""
     center_std_mm: list = field(default_factory=list)
     notes: list = field(default_factory=list)
+    metrics: list = field(default_factory=list)
+    prediction_check: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         cv = None
@@ -45,17 +56,18 @@ class ValidationRun:
                   for k, v in self.cross_validation.items()}
         return {"calibration_provenance": self.calibration.provenance, "wall_dataset": self.dataset,
                 "stations": [r.to_dict() for r in self.stations], "summary": self.summary, "cross_validation": cv,
-                "notes": self.notes}
+                "metrics": self.metrics, "prediction": self.calibration.prediction,
+                "prediction_check": self.prediction_check, "notes": self.notes}
 
 
 def validate_depth(path: Path, cal: DepthCalibration, *, intrinsics: CameraIntrinsics | None = None, tilted: bool = False,
                    reference_offset_mm: float = 0.0, cross_validate: bool = False,
-                   cv_surfaces: tuple[str, ...] = ("spline", "poly3"), advance=None) -> ValidationRun:
+                   cv_methods: tuple[str, ...] = ("tofmetry", "study"), advance=None) -> ValidationRun:
     """Per-station before/after metrics of ``cal`` on the wall dataset ``path`` (stations the
     calibration was fitted on are marked not held out), plus optional leave-one-station-out
-    cross-validation of the wall fit on ``path`` for the surface models ``cv_surfaces``
-    ("spline": tensor-product spline, "poly3": the study's cubic polynomial). Each model costs one
-    refit per station."""
+    cross-validation of the wall fit on ``path`` for the methods ``cv_methods`` ("tofmetry": the
+    joint model; "study": the study's range spline + a tensor spline per station; "study-poly3":
+    the same with the study's cubic polynomial). Each method costs one refit per station."""
     path = Path(path)
     intr = intrinsics or cal.intrinsics
     ds, caps, intr, _src, sensor, notes = _open_wall(path, intr, 1)
@@ -71,29 +83,36 @@ def validate_depth(path: Path, cal: DepthCalibration, *, intrinsics: CameraIntri
     if same:
         notes.append("validating on the calibration's own training data (not held out); "
                      "use cross-validation for held-out figures")
-    reports, maps = [], []
+    reports, maps, metrics = [], [], []
+    rays = intr.ray_table()
     for st, s in zip(stations, stats):
-        rep, mp = evaluate_wall_station(s.mean_mm, st.distance_mm - reference_offset_mm, cal, intr, name=st.name,
-                                        frontal=not tilted, held_out=st.name not in fit_names,
-                                        mean_sem_mm=s.std_mm / np.sqrt(max(s.n_frames, 1)))
+        dist = st.distance_mm - reference_offset_mm
+        sem = s.std_mm / np.sqrt(max(s.n_frames, 1))
+        rep, mp = evaluate_wall_station(s.mean_mm, dist, cal, intr, name=st.name, frontal=not tilted,
+                                        held_out=st.name not in fit_names, mean_sem_mm=sem)
         reports.append(rep)
         maps.append(mp)
+        corr, _ = cal.correction(np.nan_to_num(s.mean_mm))
+        metrics.append({"name": st.name, "distance_mm": dist, "held_out": rep.held_out}
+                       | before_after(s.mean_mm, s.mean_mm - corr, wall_reference(intr, dist), rays, (intr.cx, intr.cy),
+                                      sem, True))
+    held = [m for m in metrics if m["held_out"]]
+    check = check_prediction(cal.prediction, held) if held and cal.prediction else {}
     cvres = None
     if cross_validate:
-        samples = [wall_sample(s.mean_mm, st.distance_mm - reference_offset_mm, intr, name=st.name)[0]
+        samples = [wall_sample(s.mean_mm, st.distance_mm - reference_offset_mm, intr, name=st.name, frontal=not tilted,
+                               sem_mm=s.std_mm / np.sqrt(max(s.n_frames, 1)))[0]
                    for st, s in zip(stations, stats)]
         dists = [st.distance_mm - reference_offset_mm for st in stations]
         cvres = {}
-        base = DepthFitConfig()
-        models = {"spline": with_surface(base, "spline"), "poly3": with_surface(base, "poly", degree=3)}
-        unknown = [m for m in cv_surfaces if m not in models]
+        unknown = [m for m in cv_methods if m not in METHODS]
         if unknown:
-            raise InputError(f"cv_surfaces: unknown surface model(s) {unknown}; choose from {sorted(models)}")
-        for label in cv_surfaces:
-            cfg = models[label]
-            r = _cv(samples, dists, intr, cfg, frontal=not tilted, sensor=sensor, advance=adv)
+            raise InputError(f"cv_methods: unknown method(s) {unknown}; choose from {sorted(METHODS)}")
+        for label in cv_methods:
+            r = _cv(samples, dists, intr, METHODS[label](), frontal=not tilted, sensor=sensor, advance=adv)
             cvres[label] = {"stations": r, "summary": summarize(r)}
-    return ValidationRun(reports, summarize(reports), maps, cvres, cal, str(path), [s.center_std_mm for s in stats], notes)
+    return ValidationRun(reports, summarize(reports), maps, cvres, cal, str(path), [s.center_std_mm for s in stats], notes,
+                         metrics, check)
 
 
 def write_validation_report(run: ValidationRun, folder: Path) -> list[Path]:
@@ -103,15 +122,16 @@ def write_validation_report(run: ValidationRun, folder: Path) -> list[Path]:
     folder.mkdir(parents=True, exist_ok=True)
     cal = run.calibration
     out = [atomic_write_json(folder / "validation.json", run.to_dict())]
-    out.append(_save_fig(F.fig_validation(run.stations), folder / "validation.png"))
+    out.append(save_png(F.fig_validation(run.stations), folder / "validation.png"))
     held = [(r.distance_mm + r.dev_before_mm + cal.offset_mm, r.dev_before_mm) for r in run.stations]
     smp = cal.diagnostics.get("samples") or []
-    pts = np.array([[r["center_mm"], r["dev_before_mm"]] for r in smp]) if smp else np.zeros((0, 2))
-    out.append(_save_fig(F.fig_range_curve(cal, pts, held_out=held), folder / "range_curve.png"))
-    out.append(_save_fig(F.fig_std_vs_range([r.distance_mm for r in run.stations], run.center_std_mm),
+    pts = np.array([[r["center_mm"], r.get("central_before_mm", r.get("dev_before_mm"))] for r in smp]) \
+        if smp else np.zeros((0, 2))
+    out.append(save_png(F.fig_range_curve(cal, pts, held_out=held), folder / "range_curve.png"))
+    out.append(save_png(F.fig_std_vs_range([r.distance_mm for r in run.stations], run.center_std_mm),
                          folder / "std_vs_range.png"))
     for r, mp in zip(run.stations, run.maps):
-        out.append(_save_fig(F.fig_residual_maps(mp["residual_before"], mp["residual_after"],
+        out.append(save_png(F.fig_residual_maps(mp["residual_before"], mp["residual_after"],
                                                  f"Plane-fit residuals at {r.distance_mm / 1000:.3f} m ({r.name})"),
                              folder / f"residuals_{r.name}.png"))
     return out

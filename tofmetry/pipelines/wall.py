@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tofmetry.calibrate import DepthFitConfig, fit_depth_model, station_statistics, wall_sample
+from tofmetry.calibrate import DepthFitConfig, StudyFitConfig, fit_any, station_statistics, wall_sample
 from tofmetry.errors import EstimationError, SensorMismatchError
 from tofmetry.io import EmptyFrameWarning, WallDataset
 from tofmetry.pipelines._common import _adv, _provenance
@@ -64,7 +64,11 @@ def _usable(stats, stations, notes) -> list[int]:
 
 def calibrate_wall(path: Path, *, intrinsics: CameraIntrinsics | None = None, config=None, tilted: bool = True,
                    reference_offset_mm: float = 0.0, advance=None, provenance: dict | None = None) -> DepthRun:
-    """Depth calibration of a wall dataset (``stations.csv``); see :func:`tofmetry.pipelines.calibrate_depth_dataset`."""
+    """Depth calibration of a wall dataset (``stations.csv``); see :func:`tofmetry.pipelines.calibrate_depth_dataset`.
+
+    ``config``: :class:`~tofmetry.calibrate.DepthFitConfig` (tofmetry's method, the default) or
+    :class:`~tofmetry.calibrate.StudyFitConfig` (the study's method, a baseline).
+    """
     path = Path(path)
     t0 = time.perf_counter()
     cfg = config or DepthFitConfig()
@@ -75,7 +79,8 @@ def calibrate_wall(path: Path, *, intrinsics: CameraIntrinsics | None = None, co
     for i in keep:
         st, s = ds.stations[i], stats[i]
         try:
-            smp, _ = wall_sample(s.mean_mm, st.distance_mm - reference_offset_mm, intr, name=st.name, frontal=not tilted)
+            smp, _ = wall_sample(s.mean_mm, st.distance_mm - reference_offset_mm, intr, name=st.name, frontal=not tilted,
+                                 sem_mm=s.std_mm / np.sqrt(max(s.n_frames, 1)), valid_fraction=s.valid_fraction)
         except EstimationError as exc:
             notes.append(f"station {st.name} ({st.distance_mm:.0f} mm) skipped: {exc}")
             continue
@@ -89,7 +94,7 @@ def calibrate_wall(path: Path, *, intrinsics: CameraIntrinsics | None = None, co
                         "tilted": tilted, "stations": [{"name": st.name, "distance_mm": st.distance_mm,
                                                         "n_frames": s.n_frames} for st, s in zip(stations, stats)],
                         **(provenance or {})})
-    res = fit_depth_model(samples, intr, cfg, sensor=sensor, provenance=prov)
+    res = fit_any(samples, intr, cfg, sensor=sensor, provenance=prov)
     cal = res.calibration
     rows = []
     for st, row, s in zip(stations, res.samples, stats):
@@ -100,10 +105,13 @@ def calibrate_wall(path: Path, *, intrinsics: CameraIntrinsics | None = None, co
     cal.diagnostics["samples"] = res.samples
     frame_points = [(row["center_mm"], s.frame_center_mm - st.distance_mm + reference_offset_mm)
                     for row, s, st in zip(res.samples, stats, stations)]
-    return DepthRun("wall", cal, intr, src, sensor, rows, {"history": res.history, "fit_seconds": res.seconds,
-                                                              "range_model": cal.diagnostics.get("range_model"),
-                                                              "range_model_cv_rms_mm": cal.diagnostics.get("range_model_cv_rms_mm")},
-                    time.perf_counter() - t0, notes, str(path), res.range_points, frame_points)
+    fit = {"fit_seconds": res.seconds, "model": cal.diagnostics.get("model"),
+           "method": "study" if isinstance(cfg, StudyFitConfig) else "tofmetry",
+           "candidates": cal.diagnostics.get("candidates", []), "prediction": cal.prediction,
+           "support": cal.support.summary() if cal.support is not None else None,
+           "tilt_calibrated": cal.diagnostics.get("tilt_calibrated", not tilted)}
+    return DepthRun("wall", cal, intr, src, sensor, rows, fit, time.perf_counter() - t0, notes, str(path),
+                    res.range_points, frame_points)
 
 
 

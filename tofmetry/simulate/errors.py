@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from tofmetry._shared.study_constants import AMPLITUDE_BIAS_MM_PER_LN
 from tofmetry.errors import InputError
 from tofmetry.simulate.deformation import (  # noqa: F401  (re-exported: the terms live in their modules)
     RANGE_KINDS, corner_scale, corner_shape, deformation_mm, deformation_scale, deformation_shape,
@@ -83,9 +84,15 @@ class ErrorModel:
         ``steep_mm max(0, d - steep_start_m)^steep_power``. Default: linear trend + 3 harmonics
         of the 80 MHz half wavelength + steep growth past 4.4 m.
     range_variable : {"z", "radial"}
-        The range error is a function of Z (default) or of the radial range ``Z sqrt(1+x^2+y^2)``.
+        The range error is a function of the radial range ``Z sqrt(1+x^2+y^2)`` (default: a
+        continuous-wave ToF camera measures the phase of the light's path, so its wiggling follows
+        the ray length, paper §2.3) or of Z.
     range_apply : {"z", "ray"}
-        The range error is added to Z (default) or to the radial range, i.e. ``W / rho`` in Z.
+        The range error is added to the radial range, i.e. ``W / rho`` in Z (default: the camera
+        converts the ray length to Z), or to Z. ``range_variable="z", range_apply="z"`` is the
+        form this simulator had before the sensor family (kept for comparison, e.g. with
+        ``ErrorModel.with_(range_variable="z", range_apply="z")``); on the optical axis both
+        forms are the same, so the study's central-deviation curve (Fig. 7a) is unchanged.
     deform_* :
         Per-pixel surface (see :mod:`tofmetry.simulate.deformation`): the exponential bowl
         (``corner``/``centre`` values at 1 m [mm], ``sharpness`` > 0, ``radius``,
@@ -149,8 +156,8 @@ class ErrorModel:
     wiggle_periods_m: tuple = (HALF_WAVELENGTH_M,)
     wiggle_harmonics: tuple | None = None
     wiggle_steep_power: float = 1.5
-    range_variable: str = "z"
-    range_apply: str = "z"
+    range_variable: str = "radial"
+    range_apply: str = "ray"
     # (b) deformation
     deform_corner_mm_1m: float = 10.5
     deform_centre_mm_1m: float = -2.0
@@ -172,7 +179,7 @@ class ErrorModel:
     deform_corner_range_power: float = 1.0
     deform_corner_xy: tuple = (0.77, 0.64)
     # (c) amplitude bias
-    amp_bias_mm_per_ln: float = 12.0 / math.log(6.0)
+    amp_bias_mm_per_ln: float = AMPLITUDE_BIAS_MM_PER_LN
     amp_bias_abs_mm_per_ln: float = 0.0
     amp_bias_abs_ref: float = 12_000.0
     reflective_max_mm: float = 60.0

@@ -1,14 +1,12 @@
-"""Geometric (IR) intrinsics from checkerboard images: the one implementation.
+"""Brown-model lens calibration from detected checkerboard corners (study §4.1).
 
-Pipeline: robust percentile stretch of the (dark, 16-bit) IR image to 8 bit
-(:func:`normalize_ir`) -> ``cv2.findChessboardCornersSB`` (sub-pixel; falls back to
-``findChessboardCorners`` + ``cornerSubPix``) (:func:`detect_corners`) ->
-``cv2.calibrateCameraExtended`` (Brown model fx, fy, cx, cy, k1, k2, p1, p2, k3, with standard
-deviations and per-view RMS) -> rejection of views whose RMS exceeds ``max(1 px, 5 x median)``
-(mis-detected corners) and refit -> leave-one-out refits (spread of each parameter; images
-whose removal moves a parameter by more than its standard uncertainty are flagged) -> corner
-coverage of the image. :func:`cross_validate_intrinsics` gives the k-fold pose-wise held-out
-reprojection error (intrinsics fitted on k-1 folds, the held-out views' pose solved with them).
+``cv2.calibrateCameraExtended`` (fx, fy, cx, cy, k1, k2, p1, p2, k3), outlier-view rejection
+(RMS above ``max(1 px, 5 x median)``) and refit, leave-one-out stability, the **full parameter
+covariance** (the Gauss-Newton normal equations OpenCV's standard deviations come from; its
+diagonal equals them) and from it the **predicted ray-error map** over the whole image
+(:func:`tofmetry.calibrate._ray_error.predicted_ray_error_px`), the board coverage of the image
+and of its four corner regions (warnings where no board reached them).
+:func:`cross_validate_intrinsics` gives the k-fold pose-wise held-out reprojection error.
 """
 
 from __future__ import annotations
@@ -18,124 +16,57 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from tofmetry.calibrate._board_pose import board_object_points, check_corners, reprojection_rms_with
+from tofmetry.calibrate._ray_error import (
+    CORNER_FRAC, PARAMS, RayError, corner_regions, predicted_ray_error_px,
+)
 from tofmetry.errors import EstimationError, InputError
 from tofmetry.sensor import CameraIntrinsics
 
-PARAMS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+#: A corner region counts as covered when this fraction of it lies inside some board's corner hull.
+CORNER_COVERED_FRAC = 0.1
 
 
-def normalize_ir(img: np.ndarray, lo_pct: float = 0.5, hi_pct: float = 99.5, gamma: float = 1.0) -> np.ndarray:
-    """Robust percentile stretch of an IR/grey image to uint8 (the one IR normalisation).
-
-    Parameters
-    ----------
-    img : (H, W) uint16/float or (H, W, 3) colour (converted to grey)
-    lo_pct, hi_pct : percentiles mapped to 0 and 255 (computed over non-zero pixels)
-    gamma : optional gamma (< 1 brightens dark IR)
-
-    Returns
-    -------
-    (H, W) uint8
-    """
-    a = np.asarray(img)
-    if a.ndim == 3:
-        a = cv2.cvtColor(a.astype(np.uint8) if a.dtype != np.uint8 else a, cv2.COLOR_RGB2GRAY)
-    if a.ndim != 2:
-        raise InputError(f"normalize_ir: expected an (H, W) image, found shape {a.shape}")
-    f = a.astype(np.float64)
-    nz = f[f > 0]
-    if nz.size == 0:
-        return np.zeros(a.shape, np.uint8)
-    lo, hi = np.percentile(nz, [lo_pct, hi_pct])
-    if hi <= lo:
-        hi = lo + 1.0
-    x = np.clip((f - lo) / (hi - lo), 0.0, 1.0)
-    if gamma != 1.0:
-        x = x ** gamma
-    return np.round(x * 255.0).astype(np.uint8)
+def coverage_mask(corners: list[np.ndarray], shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) bool: union of the convex hulls of each image's detected corners (the covered area)."""
+    h, w = shape
+    m = np.zeros((h, w), np.uint8)
+    for c in corners:
+        hull = cv2.convexHull(np.asarray(c, np.float32).reshape(-1, 1, 2))
+        cv2.fillConvexPoly(m, np.round(hull).astype(np.int32), 1)
+    return m.astype(bool)
 
 
-def detect_corners(img: np.ndarray, board: tuple[int, int]) -> np.ndarray | None:
-    """Sub-pixel inner corners of a ``cols x rows`` checkerboard, or None (the one detector).
+def corner_coverage(corners: list[np.ndarray], shape: tuple[int, int], cells: int = 8) -> float:
+    """Fraction of a ``cells x cells`` grid over the image holding at least one corner."""
+    h, w = shape
+    occ = np.zeros((cells, cells), bool)
+    for c in corners:
+        c = np.asarray(c).reshape(-1, 2)
+        iu = np.clip((c[:, 0] * cells / w).astype(int), 0, cells - 1)
+        iv = np.clip((c[:, 1] * cells / h).astype(int), 0, cells - 1)
+        occ[iv, iu] = True
+    return float(occ.mean())
+
+
+def corner_region_coverage(mask: np.ndarray, frac: float = CORNER_FRAC) -> dict:
+    """Fraction of each image-corner region (``frac`` of width and height) inside ``mask``.
 
     Parameters
     ----------
-    img : (H, W) uint8 grey (used as is), (H, W) uint16/float IR (stretched with
-        :func:`normalize_ir`) or (H, W, 3) colour.
-    board : (cols, rows) inner corners
+    mask : (H, W) bool, e.g. :func:`coverage_mask`
 
     Returns
     -------
-    (cols*rows, 2) float64 [px] in OpenCV order, or None when not found.
+    dict region name -> covered fraction in [0, 1].
     """
-    a = np.asarray(img)
-    img8 = a if (a.dtype == np.uint8 and a.ndim == 2) else normalize_ir(a)
-    cols, rows = board
-    flags = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
-    ok, c = cv2.findChessboardCornersSB(img8, (cols, rows), flags=flags)
-    if not ok or c is None:
-        ok, c = cv2.findChessboardCorners(img8, (cols, rows),
-                                          flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
-        if not ok:
-            return None
-    # Gradient-orthogonality refinement (cornerSubPix) in a window of ~40 % of the smallest square
-    # side: the SB corners carry a systematic per-view bias (measured on simulated boards:
-    # 0.15 -> 0.10 px corner RMS, and the intrinsics' ray error over the covered area 0.87 -> 0.23 px).
-    c = np.asarray(c, np.float32).reshape(-1, 1, 2)
-    g = c.reshape(rows, cols, 2)
-    step = min(np.linalg.norm(np.diff(g, axis=1), axis=2).min(), np.linalg.norm(np.diff(g, axis=0), axis=2).min())
-    win = int(np.clip(round(0.2 * float(step)), 2, 5))
-    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)
-    c = cv2.cornerSubPix(img8.astype(np.float32), c, (win, win), (-1, -1), crit)
-    return np.asarray(c, np.float64).reshape(-1, 2)
+    m = np.asarray(mask, bool)
+    h, w = m.shape
+    v, u = np.mgrid[0:h, 0:w]
+    return {k: float(m[r].mean()) for k, r in corner_regions(u, v, w, h, frac).items()}
 
 
-def board_object_points(board: tuple[int, int], square_mm: float) -> np.ndarray:
-    """(cols*rows, 3) float64 inner-corner coordinates [mm]: ``(i s, j s, 0)``, OpenCV corner
-    order (i fastest, along the columns)."""
-    cols, rows = board
-    gx, gy = np.meshgrid(np.arange(cols), np.arange(rows))
-    return np.column_stack([gx.ravel() * float(square_mm), gy.ravel() * float(square_mm),
-                            np.zeros(cols * rows)]).astype(np.float64)
-
-
-def check_corners(corners: np.ndarray, board: tuple[int, int], what: str) -> np.ndarray:
-    """(cols*rows, 2) float64 corners, or InputError naming ``what``."""
-    c = np.asarray(corners, dtype=np.float64)
-    if c.ndim == 3 and c.shape[1] == 1:
-        c = c.reshape(-1, 2)
-    if c.ndim != 2 or c.shape[1] != 2 or len(c) != board[0] * board[1]:
-        raise InputError(
-            f"{what}: {c.shape} corners do not match the board {board[0]}x{board[1]} "
-            f"(expected ({board[0] * board[1]}, 2) pixel coordinates)"
-        )
-    return c
-
-
-def solve_board_pose(corners: np.ndarray, board: tuple[int, int], square_mm: float,
-                     intr: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray, float]:
-    """Board pose from its corners with fixed intrinsics (IPPE + Levenberg-Marquardt refinement).
-
-    Returns
-    -------
-    R : (3, 3) board -> camera rotation; t : (3,) [mm]; rms : reprojection RMS [px].
-    """
-    c = check_corners(corners, board, "solve_board_pose")
-    obj = board_object_points(board, square_mm)
-    ok, rvec, tvec = cv2.solvePnP(obj, c, intr.K, intr.dist_array, flags=cv2.SOLVEPNP_IPPE)
-    if not ok:
-        raise EstimationError("solvePnP failed for this pose")
-    rvec, tvec = cv2.solvePnPRefineLM(obj, c, intr.K, intr.dist_array, rvec, tvec)
-    proj, _ = cv2.projectPoints(obj, rvec, tvec, intr.K, intr.dist_array)
-    rms = float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - c) ** 2, axis=1))))
-    R, _ = cv2.Rodrigues(rvec)
-    return R, tvec.ravel(), rms
-
-
-def reprojection_rms_with(intr: CameraIntrinsics, corners: list[np.ndarray], board: tuple[int, int],
-                          square_mm: float) -> np.ndarray:
-    """(V,) per-view reprojection RMS [px] with *fixed* intrinsics (pose solved per view)."""
-    return np.array([solve_board_pose(c, board, square_mm, intr)[2] for c in corners])
+# ----------------------------------------------------------------------------- calibration
 
 
 @dataclass(eq=False)
@@ -146,7 +77,13 @@ class IntrinsicsResult:
     ----------
     intrinsics : CameraIntrinsics
     rms_px : float, overall reprojection RMS of the kept views [px]
-    std : dict param -> standard uncertainty (OpenCV stdDeviationsIntrinsics)
+    std : dict param -> standard uncertainty (OpenCV ``stdDeviationsIntrinsics``)
+    cov : (9, 9) covariance of :data:`PARAMS` (Gauss-Newton normal equations of the fit, with
+        the intrinsics' correlations; its diagonal is ``std**2``)
+    cov_matches_opencv : bool, whether ``sqrt(diag(cov))`` reproduced OpenCV's ``std`` (to 1 %);
+        when not (unusual flags), ``cov`` is diagonal from ``std``
+    predicted_ray : RayError or None, the ray-error map predicted from ``cov``
+        (:func:`predicted_ray_error_px`, 4 px grid)
     per_image_rms_px : dict image name -> reprojection RMS [px] (kept views)
     loo : dict param -> std of the leave-one-out estimates (how much it varies)
     loo_range : dict param -> max - min over the leave-one-out folds
@@ -154,6 +91,9 @@ class IntrinsicsResult:
     flagged : list of images whose removal changes a parameter beyond its uncertainty
     coverage : float, fraction of the image area inside the boards' corner hulls
     cell_coverage : float, fraction of 8x8 image cells holding a detected corner
+    corner_regions_coverage : dict region -> fraction of that image-corner region
+        (:data:`CORNER_FRAC` of width and height) inside the boards' corner hulls
+    uncovered_corners : list of corner regions covered below :data:`CORNER_COVERED_FRAC`
     warnings : list of str
     used : list of image names used
     rejected_views : list of image names rejected as outliers (RMS > threshold in the first fit)
@@ -176,44 +116,91 @@ class IntrinsicsResult:
     rejected_views: list = field(default_factory=list)
     rejected_rms_px: dict = field(default_factory=dict)
     reject_threshold_px: float = float("nan")
+    cov: np.ndarray | None = None
+    cov_matches_opencv: bool = False
+    predicted_ray: RayError | None = None
+    corner_regions_coverage: dict = field(default_factory=dict)
+    uncovered_corners: list = field(default_factory=list)
 
     @property
     def per_view_rms_px(self) -> np.ndarray:
         """(V,) RMS of the kept views [px], in ``used`` order."""
         return np.array([self.per_image_rms_px[n] for n in self.used])
 
-    def to_dict(self) -> dict:
-        return {
+    def to_dict(self, with_map: bool = True) -> dict:
+        """JSON-able summary; ``with_map`` adds the predicted ray-error map on a 16 px grid."""
+        d = {
             "intrinsics": self.intrinsics.to_dict(), "rms_px": self.rms_px, "std": self.std,
             "per_image_rms_px": self.per_image_rms_px, "leave_one_out_std": self.loo,
             "leave_one_out_range": self.loo_range, "influence": self.influence, "flagged": self.flagged,
             "coverage": self.coverage, "cell_coverage": self.cell_coverage, "warnings": self.warnings,
             "images_used": self.used, "rejected_views": self.rejected_views, "rejected_rms_px": self.rejected_rms_px,
             "reject_threshold_px": self.reject_threshold_px,
+            "corner_regions": {"fraction_of_size": CORNER_FRAC, "covered_fraction": self.corner_regions_coverage,
+                               "uncovered": self.uncovered_corners},
+            "covariance": {"params": list(PARAMS), "matrix": None if self.cov is None else self.cov.tolist(),
+                           "diagonal_matches_opencv_std": self.cov_matches_opencv},
         }
+        pr = self.predicted_ray
+        if pr is not None:
+            pd = pr.to_dict()
+            pd["meaning"] = ("first-order propagation of the parameter covariance to the rays over the full image "
+                             "grid: expected (RMS) angle between the estimated and the true ray, in px at the focal "
+                             "length")
+            if with_map:
+                coarse = predicted_ray_error_px(self.intrinsics, self.cov, step=16)
+                pd["map16_px"] = np.round(coarse.map_px, 4).tolist()
+                pd["map16_u_px"], pd["map16_v_px"] = coarse.u_px.tolist(), coarse.v_px.tolist()
+            d["predicted_ray_error"] = pd
+        return d
 
 
 def _calib(obj, img, size, flags):
+    """One ``calibrateCameraExtended`` fit. Returns rms, (9,) values, (9,) std, (V,) per-view
+    RMS, K, dist, rvecs, tvecs."""
     K0 = np.eye(3)
     crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12)
     out = cv2.calibrateCameraExtended(obj, img, size, K0, np.zeros(5), flags=flags, criteria=crit)
-    rms, K, dist, _r, _t, std_i, _std_e, per_view = out
+    rms, K, dist, rv, tv, std_i, _std_e, per_view = out
     d = np.asarray(dist, float).ravel()
     d = np.concatenate([d, np.zeros(max(0, 5 - len(d)))])[:5]
     vals = np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], *d])
-    return float(rms), vals, np.asarray(std_i, float).ravel()[:9], np.asarray(per_view, float).ravel()
+    return (float(rms), vals, np.asarray(std_i, float).ravel()[:9], np.asarray(per_view, float).ravel(), K, d,
+            rv, tv)
 
 
-def corner_coverage(corners: list[np.ndarray], shape: tuple[int, int], cells: int = 8) -> float:
-    """Fraction of a ``cells x cells`` grid over the image holding at least one corner."""
-    h, w = shape
-    occ = np.zeros((cells, cells), bool)
-    for c in corners:
-        c = np.asarray(c).reshape(-1, 2)
-        iu = np.clip((c[:, 0] * cells / w).astype(int), 0, cells - 1)
-        iv = np.clip((c[:, 1] * cells / h).astype(int), 0, cells - 1)
-        occ[iv, iu] = True
-    return float(occ.mean())
+def intrinsic_covariance(obj: list[np.ndarray], img: list[np.ndarray], K: np.ndarray, dist: np.ndarray,
+                         rvecs, tvecs, free: np.ndarray) -> np.ndarray:
+    """(9, 9) covariance of :data:`PARAMS` at a calibration solution.
+
+    Gauss-Newton normal equations over the intrinsics and every view's pose (``cv2.projectPoints``
+    Jacobians), the poses eliminated (Schur complement), scaled by the residual variance per
+    coordinate ``sum r^2 / (2 N - n_params)``: the matrix whose diagonal OpenCV reports as
+    ``stdDeviationsIntrinsics``. Parameters with ``free = False`` (fixed) get zero rows/columns.
+
+    Parameters
+    ----------
+    obj : list of (N_v, 3) object points [mm]; img : list of (N_v, 2) corners [px]
+    K : (3, 3); dist : (5,); rvecs, tvecs : per-view poses of the solution; free : (9,) bool
+    """
+    A = np.zeros((9, 9))
+    S = np.zeros((9, 9))
+    ss, n_pts = 0.0, 0
+    for o, c, r, t in zip(obj, img, rvecs, tvecs):
+        p, jac = cv2.projectPoints(np.asarray(o, np.float64).reshape(-1, 3), r, t, K, dist)
+        Je, Ji = jac[:, :6], jac[:, 6:15]
+        res = (p.reshape(-1, 2) - np.asarray(c, np.float64).reshape(-1, 2)).ravel()
+        ss += float(res @ res)
+        n_pts += len(o)
+        A += Ji.T @ Ji
+        B = Ji.T @ Je
+        S += B @ np.linalg.solve(Je.T @ Je, B.T)
+    free = np.asarray(free, bool)
+    N = (A - S)[np.ix_(free, free)]
+    dof = 2 * n_pts - (int(free.sum()) + 6 * len(obj))
+    cov = np.zeros((9, 9))
+    cov[np.ix_(free, free)] = np.linalg.pinv(N) * ss / max(dof, 1)
+    return 0.5 * (cov + cov.T)
 
 
 def _prepare(corners, names, board, square_mm):
@@ -250,6 +237,11 @@ def calibrate_intrinsics(corners: list[np.ndarray], names: list[str] | None, boa
         once; ``reject_px=None`` keeps every view
     flags : extra OpenCV calibration flags
 
+    Returns
+    -------
+    IntrinsicsResult, with the parameter covariance, the predicted ray-error map and the
+    coverage of the four image-corner regions (a warning names those no board reached).
+
     Raises
     ------
     EstimationError
@@ -258,9 +250,10 @@ def calibrate_intrinsics(corners: list[np.ndarray], names: list[str] | None, boa
     if len(corners) < 3:
         raise EstimationError(f"intrinsic calibration needs at least 3 images with a detected board, found {len(corners)}")
     names, obj, imgs = _prepare(corners, names, board, square_mm)
+    corners = [c.reshape(-1, 2).astype(np.float64) for c in imgs]
     flags = int(flags) | (cv2.CALIB_FIX_K3 if fix_k3 else 0)
     size = (int(image_size[0]), int(image_size[1]))
-    rms, vals, std, per_view = _calib([obj] * len(imgs), imgs, size, flags)
+    rms, vals, std, per_view, K, dist, rv, tv = _calib([obj] * len(imgs), imgs, size, flags)
     rejected, rej_rms, thr = [], {}, float("nan")
     if reject_px is not None:
         thr = max(float(reject_px), reject_factor * float(np.median(per_view)))
@@ -270,7 +263,7 @@ def calibrate_intrinsics(corners: list[np.ndarray], names: list[str] | None, boa
             rej_rms = {names[j]: float(per_view[j]) for j in bad}
             keep = [j for j in range(len(imgs)) if j not in set(bad)]
             names, imgs, corners = [names[j] for j in keep], [imgs[j] for j in keep], [corners[j] for j in keep]
-            rms, vals, std, per_view = _calib([obj] * len(imgs), imgs, size, flags)
+            rms, vals, std, per_view, K, dist, rv, tv = _calib([obj] * len(imgs), imgs, size, flags)
     w, h = size
     intr = CameraIntrinsics(w, h, vals[0], vals[1], vals[2], vals[3], tuple(vals[4:]))
     res = IntrinsicsResult(
@@ -281,20 +274,38 @@ def calibrate_intrinsics(corners: list[np.ndarray], names: list[str] | None, boa
     if rejected:
         res.warnings.append(f"rejected {len(rejected)} view(s) with reprojection RMS above {thr:.2f} px "
                             f"(mis-detected corners?): " + ", ".join(f"{n} {r:.2f} px" for n, r in rej_rms.items()))
+    # covariance (with correlations) and the ray error it predicts over the whole image
+    free = std > 0
+    cov = intrinsic_covariance([obj] * len(imgs), corners, K, dist, rv, tv, free)
+    ok = bool(np.allclose(np.sqrt(np.diag(cov)), std, rtol=0.01, atol=1e-12))
+    if not ok:
+        cov = np.diag(std ** 2)
+    res.cov, res.cov_matches_opencv = cov, ok
+    res.predicted_ray = predicted_ray_error_px(intr, cov, step=4)
+    mask = coverage_mask(corners, (h, w))
     res.cell_coverage = corner_coverage(corners, (h, w))
-    res.coverage = float(coverage_mask(corners, (h, w)).mean())
+    res.coverage = float(mask.mean())
+    res.corner_regions_coverage = corner_region_coverage(mask)
+    res.uncovered_corners = [k for k, v in res.corner_regions_coverage.items() if v < CORNER_COVERED_FRAC]
     if res.coverage < min_coverage:
         res.warnings.append(
             f"the boards cover only {100 * res.coverage:.0f} % of the image area ({100 * res.cell_coverage:.0f} % of "
             "8x8 cells): distortion and focal length are poorly constrained where there are no corners; add "
             "images with larger or closer boards reaching the image borders and corners"
         )
+    if res.uncovered_corners:
+        pr = res.predicted_ray
+        res.warnings.append(
+            f"no board reached the image corner region(s) {', '.join(res.uncovered_corners)} "
+            f"({100 * CORNER_FRAC:.0f} % of width and height): the lens model is extrapolated there; predicted ray "
+            "error there up to " + ", ".join(f"{pr.per_corner_max_px[k]:.2f}" for k in res.uncovered_corners)
+            + f" px (image RMS {pr.rms_px:.2f} px); add images with the board pushed into those corners"
+        )
     if leave_one_out and len(imgs) >= 4:
         folds = []
         for j in range(len(imgs)):
             others = imgs[:j] + imgs[j + 1:]
-            _, v, _, _ = _calib([obj] * len(others), others, size, flags)
-            folds.append(v)
+            folds.append(_calib([obj] * len(others), others, size, flags)[1])
             if advance is not None:
                 advance()
         folds = np.array(folds)
@@ -351,27 +362,3 @@ def cross_validate_intrinsics(corners: list[np.ndarray], board: tuple[int, int],
         held[test] = reprojection_rms_with(fit.intrinsics, [cs[i] for i in test], board, square_mm)
     return {"per_view_rms_px": held, "rms_px": float(np.sqrt(np.mean(held ** 2))),
             "median_px": float(np.median(held)), "max_px": float(np.max(held)), "k": len(folds), "views": keep}
-
-
-def ray_difference_px(a: CameraIntrinsics, b: CameraIntrinsics, mask: np.ndarray | None = None) -> np.ndarray:
-    """Back-projection difference between two models, expressed in pixels.
-
-    For every pixel, the ray of model ``a`` is reprojected with model ``b``'s focal lengths
-    (undistorted normalised coordinates times (fx, fy) of ``b``): (H, W) float64 [px] distance
-    between the two models' rays, NaN outside ``mask``.
-    """
-    ra, rb = a.ray_table(), b.ray_table()
-    d = np.hypot((ra[..., 0] - rb[..., 0]) * b.fx, (ra[..., 1] - rb[..., 1]) * b.fy)
-    if mask is not None:
-        d = np.where(mask, d, np.nan)
-    return d
-
-
-def coverage_mask(corners: list[np.ndarray], shape: tuple[int, int]) -> np.ndarray:
-    """(H, W) bool: union of the convex hulls of each image's detected corners (the covered area)."""
-    h, w = shape
-    m = np.zeros((h, w), np.uint8)
-    for c in corners:
-        hull = cv2.convexHull(np.asarray(c, np.float32).reshape(-1, 1, 2))
-        cv2.fillConvexPoly(m, np.round(hull).astype(np.int32), 1)
-    return m.astype(bool)
