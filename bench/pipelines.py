@@ -39,10 +39,11 @@ def bench_depth_fit(n_stations: int = 15, n_frames: int = 50) -> dict:
 
 def bench_reconstruction() -> tuple[dict, dict]:
     """End-to-end reconstruction of the simulated 8-view scan (10 frames per view), by stage; TSDF frames/s."""
-    from tofmetry.calibrate import load_calibration, save_calibration
+    from tofmetry.pipelines import load_calibration, save_calibration
     from tofmetry.pipelines import calibrate_depth_dataset
     from tofmetry.io import ScanDataset
-    from tofmetry.reconstruct import ReconstructionConfig, ReconstructionPipeline, TSDFFusion, white_map_from_wall
+    from tofmetry.pipelines.reconstruct import white_map_from_wall
+    from tofmetry.reconstruct import ReconstructionConfig, ReconstructionPipeline, TSDFFusion
     from tofmetry.simulate import datasets
 
     with tempfile.TemporaryDirectory() as tmp:

@@ -36,8 +36,12 @@ def table(res: dict) -> str:
     f = res["frame_pipeline"]
     t = res["temporal"]
     rows = [
-        ("1. per-frame pipeline (correct + undistort + back-project, 512x424)", f"{f['ours_ms']:.3f} ms = {f['ours_fps']:.0f} frames/s",
-         "≥ 2000 frames/s", f"numpy {f['numpy_ms']:.1f} ms (×{f['speedup_vs_numpy']:.0f}); Open3D legacy {f['open3d_legacy_ms']:.2f} ms "
+        ("1. per-frame path of the API, `tofmetry.to_points(depth, cal, out=buf)` (correct + undistort + back-project, "
+         "512x424)", f"{f['ours_ms']:.3f} ms = {f['ours_fps']:.0f} frames/s",
+         "≥ 2000 frames/s", f"new array per call {f['ours_allocating_ms']:.3f} ms; prepared kernel alone {f['kernel_ms']:.3f} ms; "
+         f"raw depth (identity calibration) {f['raw_depth_ms']:.3f} ms; the commands' path before "
+         f"(apply_depth_calibration + depth_to_points) {f['old_path_ms']:.2f} ms (×{f['speedup_vs_old_path']:.0f}); "
+         f"numpy {f['numpy_ms']:.1f} ms (×{f['speedup_vs_numpy']:.0f}); Open3D legacy {f['open3d_legacy_ms']:.2f} ms "
          f"(×{f['speedup_vs_open3d_legacy']:.1f}, target ≥ 4); Open3D tensor {f['open3d_tensor_ms']:.2f} ms; "
          f"bandwidth bound {f['bandwidth_bound_ms']:.3f} ms at {f['copy_bandwidth_GBps']:.1f} GB/s: ×{f['ratio_to_bound']:.2f} "
          f"(target ≤ 3; 10-90 % of {f['rounds']} paired rounds ×{f['ratio_to_bound_p10']:.2f}–{f['ratio_to_bound_p90']:.2f}, "
@@ -48,6 +52,18 @@ def table(res: dict) -> str:
         ("2. temporal stats, 50 frames", f"{t['n50']['ms']:.2f} ms = {t['n50']['stacks_per_s']:.0f} stacks/s", "≥ 200 stacks/s",
          f"numpy {t['n50']['numpy_ms']:.1f} ms"),
     ]
+    if "correct" in res:
+        c = res["correct"]
+        rows.append((f"6. `tofmetry correct`, {c['frames']} frames end to end (new process)", f"{c['correct_s']:.2f} s = "
+                     f"{c['correct_ms_per_frame']:.2f} ms/frame", "≤ 1.5 × the PNG copy",
+                     f"reading + writing the same PNGs ({c['copy_threads']} threads) {c['copy_s']:.2f} s: ×{c['ratio']:.2f} "
+                     f"(median of {c['rounds']} alternating pairs, " + ", ".join(f"×{r:.2f}" for r in c["ratios"]) + ")"))
+    if "correct_memory" in res:
+        m = res["correct_memory"]
+        a, b = m["1000"], m["10000"]
+        rows.append(("7. peak RSS of `tofmetry correct`, 1,000 vs 10,000 frames", f"{a['peak_rss_mib']:.0f} vs "
+                     f"{b['peak_rss_mib']:.0f} MiB ({100 * m['rss_change']:+.1f} %)", "< 10 % apart",
+                     f"{a['seconds']:.1f} s and {b['seconds']:.1f} s"))
     if "depth_fit" in res:
         d = res["depth_fit"]
         rows.append(("3. depth calibration fit, 15 stations × 50 frames", f"{d['seconds']:.1f} s", "≤ 20 s",
@@ -70,7 +86,7 @@ def table(res: dict) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("-o", "--output", type=Path, default=Path("bench/results"))
-    ap.add_argument("--quick", action="store_true", help="fewer repetitions; skip the slow benchmarks 3-5")
+    ap.add_argument("--quick", action="store_true", help="fewer repetitions; skip the slow benchmarks 3-7")
     args = ap.parse_args(argv)
     from bench.frame_pipeline import bench_frame_pipeline, bench_temporal
 
@@ -87,6 +103,12 @@ def main(argv=None) -> int:
         print("4-5. reconstruction and TSDF …", file=sys.stderr)
         rec, tsdf = bench_reconstruction()
         res["reconstruction"], res["tsdf"] = rec, tsdf
+        from bench.correct_stream import bench_correct, bench_correct_memory
+
+        print("6. tofmetry correct, 1000 frames, against the PNG copy …", file=sys.stderr)
+        res["correct"] = bench_correct(1000, rounds=5)
+        print("7. peak RSS of tofmetry correct, 1000 and 10000 frames …", file=sys.stderr)
+        res["correct_memory"] = bench_correct_memory()
     res["peak_rss_mb"] = peak_rss_mb()
     args.output.mkdir(parents=True, exist_ok=True)
     atomic_write_json(args.output / "results.json", res)

@@ -1,6 +1,7 @@
 """Simulator figures: central bias, temporal std, corner deformation at 1-4 m; timing."""
 import time, tempfile, numpy as np
 from pathlib import Path
+from tofmetry._shared.geometry import fit_plane_svd
 from tofmetry.simulate import VirtualKinect, ErrorModel, scenes
 from tofmetry.simulate.datasets import write_frames
 from tofmetry.io import CaptureMeta
@@ -24,11 +25,9 @@ for d in (1.0, 2.0, 3.0, 4.0):
     ok = cnt >= 25
     z = mean[ok] * 1e-3
     P = np.column_stack([xy[..., 0][ok] * z, xy[..., 1][ok] * z, z])
-    c0 = P.mean(0)
-    n = np.linalg.svd(P - c0, full_matrices=False)[2][2]
-    n = n if n[2] > 0 else -n
+    plane = fit_plane_svd(P, orient=(0.0, 0.0, 1.0))
     res = np.full(mean.shape, np.nan)
-    res[ok] = (P - c0) @ n * 1000  # + = farther than the fitted plane
+    res[ok] = (P @ plane[:3] + plane[3]) * 1000  # + = farther than the fitted plane
     rc = np.nanmean(res[C])
     cd = [np.nanmean(res[s]) - rc for s in corners.values()]
     print(f"{d:4.1f}  {cb:+8.2f}  {std:6.2f}  " + " ".join(f"{x:+7.1f}" for x in cd), f"  valid={valid.mean():.3f}")

@@ -70,7 +70,8 @@ def test_white_map_from_wall_matches_the_station_formula(wall):
     with stations beyond max_mm left out."""
     from tofmetry.io import WallDataset
     from tofmetry.pointcloud import robust_mean_depth
-    from tofmetry.reconstruct import white_amplitude_map, white_map_from_wall
+    from tofmetry.pipelines.reconstruct import white_map_from_wall
+    from tofmetry.reconstruct import white_amplitude_map
 
     calls = []
     wm = white_map_from_wall(wall, None, None, max_mm=2000.0, advance=lambda: calls.append(1))
@@ -86,7 +87,7 @@ def test_white_map_from_wall_matches_the_station_formula(wall):
 def test_white_map_from_wall_needs_ir(wall, tmp_path):
     import shutil
 
-    from tofmetry.reconstruct import white_map_from_wall
+    from tofmetry.pipelines.reconstruct import white_map_from_wall
 
     w2 = tmp_path / "wall"
     shutil.copytree(wall, w2)

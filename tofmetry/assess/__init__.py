@@ -4,19 +4,13 @@ Each analysis is a function on a capture (or plain frame arrays) returning a res
 with ``to_dict()``; :mod:`tofmetry.assess.figures` draws them (``save_figures(result, out_dir)``).
 """
 
+from tofmetry.assess.figures import save_figures
 from tofmetry.assess.flying import FlyingPixelParams, detect_flying_pixels, neighbour_support, remove_flying_pixels
 from tofmetry.assess.materials import MaterialsResult, RegionStats, assess_materials, fit_reference_plane
 from tofmetry.assess.noise import NoiseResult, StdSummary, assess_noise, recommend_n, sigma_from_stds, summarize_std_map
 from tofmetry.assess.outdoor import OutdoorResult, assess_outdoor, flying_cloud
 from tofmetry.assess.regions import Region, auto_grey_board_regions, regions_from_dict, regions_to_dict
 from tofmetry.assess.warmup import WarmupResult, assess_warmup, local_linear_smooth, select_patch
-
-
-def save_figures(result, out_dir, **kwargs):
-    """Write the PNG figures of any assessment result into ``out_dir``; returns the paths."""
-    from tofmetry.assess import figures
-
-    return figures.save_figures(result, out_dir, **kwargs)
 
 
 __all__ = [

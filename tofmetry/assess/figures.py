@@ -1,4 +1,4 @@
-"""Figures of the assessment results (matplotlib, Agg backend; one PNG per figure).
+"""Figures of the assessment results (matplotlib; one PNG per figure).
 
 Each ``*_figures(result, out_dir)`` writes its PNGs and returns their paths;
 :func:`save_figures` dispatches on the result type.
@@ -6,35 +6,27 @@ Each ``*_figures(result, out_dir)`` writes its PNGs and returns their paths;
 
 from __future__ import annotations
 
-import io
 from pathlib import Path
 
 import numpy as np
+from matplotlib.patches import Rectangle
+from matplotlib.ticker import NullFormatter, ScalarFormatter
 
-from tofmetry.io import atomic_write_bytes
-
-
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+from tofmetry._shared.figures import save_png, subplots
+from tofmetry.assess.materials import MaterialsResult
+from tofmetry.assess.noise import NoiseResult
+from tofmetry.assess.outdoor import OutdoorResult
+from tofmetry.assess.warmup import WarmupResult
 
 
 def _save(fig, path: Path) -> Path:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
-    _plt().close(fig)
-    return atomic_write_bytes(path, buf.getvalue())
+    return save_png(fig, path, dpi=110, tight=True)
 
 
 def warmup_figures(res, out_dir) -> list[Path]:
     """``warmup.png``: patch distance vs operating time, smoothed curve, stabilisation time."""
-    plt = _plt()
     out = Path(out_dir)
-    fig, ax = plt.subplots(figsize=(8, 4.5))
+    fig, ax = subplots(figsize=(8, 4.5))
     t = res.time_s / 60.0
     ax.plot(t, res.distance_mm, ".", ms=3, color="0.6", label="patch mean (per frame)")
     ax.plot(t, res.smoothed_mm, "-", color="C0", lw=2, label=f"smoothed ({res.smooth_window_s:.0f} s window)")
@@ -56,14 +48,13 @@ def warmup_figures(res, out_dir) -> list[Path]:
 def noise_figures(res, out_dir) -> list[Path]:
     """``noise_std_maps.png`` (one map per n, shared colour bar), ``noise_profile.png`` (row profile)
     and ``noise_averaging.png`` (precision of the n-frame mean)."""
-    plt = _plt()
     out = Path(out_dir)
     ns = sorted(res.std_maps)
     allv = np.concatenate([m[np.isfinite(m)] for m in res.std_maps.values()])
     vmax = float(np.percentile(allv, 99)) if allv.size else 1.0
     ncol = min(len(ns), 2)
     nrow = int(np.ceil(len(ns) / ncol))
-    fig, axes = plt.subplots(nrow, ncol, figsize=(5.2 * ncol, 3.9 * nrow), squeeze=False)
+    fig, axes = subplots(nrow, ncol, figsize=(5.2 * ncol, 3.9 * nrow), squeeze=False)
     im = None
     for ax, n in zip(axes.ravel(), ns):
         im = ax.imshow(res.std_maps[n], cmap="viridis", vmin=0, vmax=vmax)
@@ -77,7 +68,7 @@ def noise_figures(res, out_dir) -> list[Path]:
     fig.suptitle("Per-pixel temporal standard deviation (red line: profile row)")
     fig.colorbar(im, ax=axes.ravel().tolist(), label="temporal std [mm]", shrink=0.85)
     paths = [_save(fig, out / "noise_std_maps.png")]
-    fig, ax = plt.subplots(figsize=(8, 4))
+    fig, ax = subplots(figsize=(8, 4))
     for n in ns:
         ax.plot(res.profiles[n], lw=1, label=f"n = {n}")
     ax.set_xlabel("u [px]")
@@ -87,12 +78,10 @@ def noise_figures(res, out_dir) -> list[Path]:
     ax.legend(fontsize=8)
     paths.append(_save(fig, out / "noise_profile.png"))
     if res.block_precision:
-        fig, ax = plt.subplots(figsize=(6, 4))
+        fig, ax = subplots(figsize=(6, 4))
         n = np.array([b["n"] for b in res.block_precision])
         ax.loglog(n, [b["std_of_mean_mm"] for b in res.block_precision], "o-", label="measured (disjoint blocks)")
         ax.loglog(n, [b["expected_mm"] for b in res.block_precision], "k--", label="σ / √n")
-        from matplotlib.ticker import NullFormatter, ScalarFormatter
-
         for axis in (ax.xaxis, ax.yaxis):
             axis.set_major_formatter(ScalarFormatter())
             axis.set_minor_formatter(NullFormatter())
@@ -111,15 +100,12 @@ def noise_figures(res, out_dir) -> list[Path]:
 def materials_figures(res, out_dir) -> list[Path]:
     """``materials_samples.png`` (amplitude and bias per sample, bias vs ln amplitude ratio) and
     ``materials_deviation.png`` (map of depth minus reference plane, colour bar, regions outlined)."""
-    plt = _plt()
-    from matplotlib.patches import Rectangle
-
     out = Path(out_dir)
     regs = res.regions
     names = [r.name for r in regs]
     x = np.arange(len(regs))
     colors = ["C3" if r.erratic else ("C2" if r.reference else "C0") for r in regs]
-    fig, axes = plt.subplots(1, 3, figsize=(16, 4.5))
+    fig, axes = subplots(1, 3, figsize=(16, 4.5))
     axes[0].bar(x, [r.amplitude for r in regs], color=colors)
     axes[0].set_ylabel("mean IR amplitude [sensor units]")
     axes[0].set_title("Intensity per sample")
@@ -144,7 +130,7 @@ def materials_figures(res, out_dir) -> list[Path]:
     ax.set_title("Amplitude-related bias")
     ax.grid(alpha=0.3)
     paths = [_save(fig, out / "materials_samples.png")]
-    fig, ax = plt.subplots(figsize=(8, 6))
+    fig, ax = subplots(figsize=(8, 6))
     dev = res.deviation_mm
     rr = [r.rect for r in regs]
     u0, v0 = min(r[0] for r in rr), min(r[1] for r in rr)
@@ -168,15 +154,14 @@ def materials_figures(res, out_dir) -> list[Path]:
     return paths
 
 
-def outdoor_figures(res, out_dir, intr=None) -> list[Path]:
-    """``outdoor_profile.png``: side view of the cloud (flying pixels red) and the validity map."""
-    plt = _plt()
-    from tofmetry.assess.outdoor import flying_cloud
-    from tofmetry.sensor import KINECT_V2
+def outdoor_figures(res, out_dir, cloud) -> list[Path]:
+    """``outdoor_profile.png``: side view of the cloud (flying pixels red) and the validity map.
 
+    ``cloud``: the :func:`~tofmetry.assess.flying_cloud` of ``res`` (points [m], colours, is_flying).
+    """
     out = Path(out_dir)
-    pts, _, fly = flying_cloud(res, intr or KINECT_V2.depth)
-    fig, axes = plt.subplots(1, 2, figsize=(14, 5), gridspec_kw={"width_ratios": [1.4, 1]})
+    pts, _, fly = cloud
+    fig, axes = subplots(1, 2, figsize=(14, 5), gridspec_kw={"width_ratios": [1.4, 1]})
     ax = axes[0]
     ax.scatter(pts[~fly, 2], -pts[~fly, 1], s=0.3, c="0.35", rasterized=True, label="valid points")
     ax.scatter(pts[fly, 2], -pts[fly, 1], s=1.5, c="red", rasterized=True, label="flying pixels")
@@ -199,12 +184,9 @@ def outdoor_figures(res, out_dir, intr=None) -> list[Path]:
 
 
 def save_figures(result, out_dir, **kwargs) -> list[Path]:
-    """Write the figures of any assessment result into ``out_dir``."""
-    from tofmetry.assess.materials import MaterialsResult
-    from tofmetry.assess.noise import NoiseResult
-    from tofmetry.assess.outdoor import OutdoorResult
-    from tofmetry.assess.warmup import WarmupResult
+    """Write the figures of any assessment result into ``out_dir``.
 
+    An :class:`OutdoorResult` needs ``cloud=`` (see :func:`outdoor_figures`)."""
     Path(out_dir).mkdir(parents=True, exist_ok=True)
     if isinstance(result, WarmupResult):
         return warmup_figures(result, out_dir)

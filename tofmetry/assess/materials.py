@@ -19,6 +19,7 @@ from typing import Callable
 
 import numpy as np
 
+from tofmetry._shared.study_constants import BLACK_AMPLITUDE_RATIO
 from tofmetry.assess._source import capture_ir, check_frame, frame_iter
 from tofmetry.assess.regions import Region, auto_grey_board_regions
 from tofmetry.errors import EstimationError, InputError
@@ -88,7 +89,7 @@ class MaterialsResult:
             "fit": {"model": "bias_mm = slope * ln(A_ref / A) + intercept", "slope_mm_per_ln": self.slope_mm_per_ln,
                     "slope_se_mm_per_ln": self.slope_se_mm_per_ln, "intercept_mm": self.intercept_mm,
                     "rms_mm": self.fit_rms_mm, "n_regions": self.n_fit,
-                    "bias_at_amplitude_ratio_6_mm": self.predicted_bias_mm(6.0)},
+                    "bias_at_amplitude_ratio_6_mm": self.predicted_bias_mm(BLACK_AMPLITUDE_RATIO)},
             "falloff_exponent": self.falloff_exponent, "plane_inv_z": list(self.plane_inv_z),
             "regions": [r.to_dict() for r in self.regions], "erratic": [r.name for r in self.regions if r.erratic],
             "auto_regions": self.auto_info, "notes": list(self.notes),

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
+from scipy.special import gammaincinv
 
 from tofmetry.assess._source import check_frame, frame_iter, n_frames
 from tofmetry.errors import InputError
@@ -90,14 +91,14 @@ def sigma_from_stds(std: np.ndarray, n: int) -> float:
 
     ``(n-1) s^2 / sigma^2`` follows chi-square with n - 1 dof, so the median of s^2 is
     ``sigma^2 * median(chi2_{n-1}) / (n - 1)``; the median makes it robust to outlier pixels.
+    The chi-square median is ``2 P^-1(k / 2, 1 / 2)`` (inverse regularised lower incomplete gamma).
     """
-    from scipy.stats import chi2
-
     v = np.asarray(std, np.float64)
     v = v[np.isfinite(v)]
     if v.size == 0 or n < 2:
         return float("nan")
-    return float(math.sqrt(np.median(v * v) * (n - 1) / chi2.median(n - 1)))
+    chi2_median = 2.0 * gammaincinv((n - 1) / 2.0, 0.5)
+    return float(math.sqrt(np.median(v * v) * (n - 1) / chi2_median))
 
 
 def summarize_std_map(std: np.ndarray, n: int) -> StdSummary:

@@ -15,7 +15,7 @@ import numpy as np
 from tofmetry.assess._source import check_frame, frame_iter
 from tofmetry.assess.flying import FlyingPixelParams, detect_flying_pixels
 from tofmetry.errors import InputError
-from tofmetry.pointcloud import amplitude_colors, depth_to_points
+from tofmetry.pointcloud import amplitude_colors
 from tofmetry.sensor.intrinsics import CameraIntrinsics
 
 
@@ -110,14 +110,23 @@ def assess_outdoor(source, *, intr: CameraIntrinsics | None = None, params: Flyi
                          params=p, notes=notes)
 
 
-def flying_cloud(result: OutdoorResult, intr: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Point cloud of the kept frame coloured for display: flying pixels red, others grey (IR).
+def flying_cloud(result: OutdoorResult, points: np.ndarray,
+                 index: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The kept frame's cloud coloured for display: flying pixels red, others grey (IR amplitude).
+
+    Parameters
+    ----------
+    result : OutdoorResult
+    points : (N, 3) float [m], the back-projection of ``result.depth`` (camera frame)
+    index : (N,) int, flat pixel index of each point in ``result.depth``
 
     Returns
     -------
-    points : (N, 3) float64 [m]; colors : (N, 3) uint8; is_flying : (N,) bool
+    points : (N, 3) [m], as given; colors : (N, 3) uint8; is_flying : (N,) bool
     """
-    pts, idx = depth_to_points(result.depth, intr, return_index=True)
+    pts, idx = np.asarray(points), np.asarray(index)
+    if len(pts) != len(idx):
+        raise InputError(f"flying_cloud: {len(pts)} points for {len(idx)} pixel indices")
     fly = result.flying_mask.ravel()[idx]
     if result.ir is not None:
         cols = amplitude_colors(result.ir.ravel()[idx])

@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 
 from tofmetry.errors import EstimationError, FormatError, InputError
 
@@ -138,8 +139,6 @@ def auto_grey_board_regions(ir: np.ndarray, depth: np.ndarray, rays: np.ndarray,
     regions : list of Region, named ``L<class>_<row>_<col>``
     info : dict with the lattice, falloff exponent and counts
     """
-    from scipy import ndimage
-
     a = np.asarray(ir, np.float64)
     valid = (np.asarray(depth) > 0) & (a > 0)
     if valid.sum() < 100:

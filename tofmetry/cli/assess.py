@@ -10,8 +10,11 @@ from pathlib import Path
 from typing import Optional
 
 import typer
+from rich.table import Table
 
+from tofmetry._shared.study_constants import BLACK_AMPLITUDE_RATIO
 from tofmetry.cli._common import console, load_intrinsics_option, progress
+from tofmetry.errors import InputError
 
 assess_app = typer.Typer(help="Sensor assessment (study §3): warm-up, noise, materials, outdoor/flying pixels.",
                          no_args_is_help=True)
@@ -23,15 +26,12 @@ def _open(capture: Path):
     return Capture(capture)
 
 
-def _finish(result, out: Path, name: str, rows: list[tuple[str, str]], **fig_kwargs) -> None:
-    from rich.table import Table
+def _finish(result, out: Path, name: str, rows: list[tuple[str, str]], **kwargs) -> None:
+    from tofmetry.pipelines.assess import write_assessment
 
-    from tofmetry.assess import save_figures
-    from tofmetry.io import atomic_write_json
-
-    out.mkdir(parents=True, exist_ok=True)
-    js = atomic_write_json(out / f"{name}.json", result.to_dict())
-    figs = save_figures(result, out, **fig_kwargs)
+    files = write_assessment(result, out, f"{name}.json", **kwargs)
+    if "cloud" in files:
+        rows = [*rows, ("cloud", str(files["cloud"]))]
     table = Table(title=f"{name} assessment")
     table.add_column("quantity")
     table.add_column("value", justify="right")
@@ -40,7 +40,7 @@ def _finish(result, out: Path, name: str, rows: list[tuple[str, str]], **fig_kwa
     console.print(table)
     for n in getattr(result, "notes", []) or []:
         console.print(f"[yellow]note:[/] {n}")
-    console.print(f"wrote {js} and {len(figs)} figure(s) in {out}")
+    console.print(f"wrote {files['json']} and {len(files['figures'])} figure(s) in {out}")
 
 
 def _fmt(x, spec=".2f", unit="") -> str:
@@ -106,7 +106,6 @@ def materials(capture: Path = typer.Argument(..., help="Capture (depth + IR) of 
               ) -> None:
     """Materials/intensity: amplitude and depth bias per sample, amplitude-bias fit."""
     from tofmetry.assess import assess_materials, regions_from_dict
-    from tofmetry.errors import InputError
     from tofmetry.io import read_json
 
     if (regions is None) == (not auto_grey_board):
@@ -121,7 +120,7 @@ def materials(capture: Path = typer.Argument(..., help="Capture (depth + IR) of 
     rows = [(r.name + (" (ref)" if r.reference else "") + (" \\[erratic]" if r.erratic else ""),
              f"A={r.amplitude:.0f}  bias={r.bias_mm:+.1f} mm  std={r.spatial_std_mm:.1f} mm") for r in res.regions]
     rows.append(("fit slope", f"{_fmt(res.slope_mm_per_ln)} ± {_fmt(res.slope_se_mm_per_ln)} mm per ln(A_ref/A)"))
-    rows.append(("bias at 1/6 amplitude", _fmt(res.predicted_bias_mm(6.0), "+.1f", " mm")))
+    rows.append(("bias at 1/6 amplitude", _fmt(res.predicted_bias_mm(BLACK_AMPLITUDE_RATIO), "+.1f", " mm")))
     _finish(res, out, "materials", rows)
 
 
@@ -132,8 +131,7 @@ def outdoor(capture: Path = typer.Argument(..., help="Capture (strong light)."),
             intrinsics: Optional[Path] = typer.Option(None, "--intrinsics", help="intrinsics.json overriding the capture's."),
             ) -> None:
     """Valid fraction and flying pixels; coloured cloud (flying in red) as PLY, profile view PNG."""
-    from tofmetry.assess import assess_outdoor, flying_cloud
-    from tofmetry.io import write_ply
+    from tofmetry.assess import assess_outdoor
 
     cap = _open(capture)
     intr, _ = cap.intrinsics(load_intrinsics_option(intrinsics))
@@ -141,15 +139,11 @@ def outdoor(capture: Path = typer.Argument(..., help="Capture (strong light)."),
         raise typer.BadParameter(f"--frame {frame} outside 0..{len(cap) - 1}", param_hint="--frame")
     with progress("outdoor frames", len(cap)) as adv:
         res = assess_outdoor(cap, intr=intr, frame=frame, progress=adv)
-    out.mkdir(parents=True, exist_ok=True)
-    pts, cols, fly = flying_cloud(res, intr)
-    write_ply(out / "outdoor_cloud.ply", pts, colors=cols, scalars={"flying": fly.astype("float32")})
     _finish(res, out, "outdoor", [
         ("maximal points (H x W)", f"{res.n_max}"),
         ("valid points (mean)", f"{res.valid.mean():.0f} ({res.valid_fraction * 100:.1f} %)"),
         ("flying pixels (mean)", f"{res.flying.mean():.0f} ({res.flying_share * 100:.2f} % of the cloud)"),
-        ("cloud", str(out / "outdoor_cloud.ply")),
-    ], intr=intr)
+    ], intrinsics=intr, cloud_ply="outdoor_cloud.ply")
 
 
 def filter_cmd(capture: Path = typer.Argument(..., help="Input capture (not modified)."),
@@ -161,30 +155,15 @@ def filter_cmd(capture: Path = typer.Argument(..., help="Input capture (not modi
                intrinsics: Optional[Path] = typer.Option(None, "--intrinsics", help="intrinsics.json overriding the capture's."),
                ) -> None:
     """Remove flying pixels: writes a new capture with them set to 0 (IR and colour copied)."""
-    from tofmetry.assess import FlyingPixelParams, remove_flying_pixels
-    from tofmetry.errors import InputError
-    from tofmetry.io import CaptureMeta, CaptureWriter
+    from tofmetry.assess import FlyingPixelParams
+    from tofmetry.pipelines.flying import filter_capture
 
     cap = _open(capture)
-    if out.resolve() == cap.path.resolve():
-        raise InputError(f"filter: output {out} is the input capture; choose another folder (inputs are never overwritten)")
-    intr, _ = cap.intrinsics(load_intrinsics_option(intrinsics))
     p = FlyingPixelParams(sigma_1m_mm=sigma_1m_mm, k_noise=k_noise, theta_max_deg=theta_max_deg)
-    m = cap.meta
-    meta = CaptureMeta(sensor=m.sensor, depth_unit_mm=1.0, intrinsics=m.intrinsics, timestamps_s=m.timestamps_s,
-                       extra={**m.extra, "filtered": {"flying_pixels": p.to_dict(), "source": str(cap.path)}})
-    removed = total = 0
-    with CaptureWriter(out, meta, force=force) as w, progress("filtering frames", len(cap)) as adv:
-        for i in range(len(cap)):
-            d = cap.depth(i)
-            ir = cap.ir(i) if cap.has_ir else None
-            f = remove_flying_pixels(d, intr, p, ir=ir)
-            removed += int((d > 0).sum() - (f > 0).sum())
-            total += int((d > 0).sum())
-            w.add(f, ir=ir, color=cap.color(i) if cap.has_color else None)
-            adv()
-    console.print(f"wrote {out}: {len(cap)} frames, removed {removed} flying pixels "
-                  f"({removed / max(total, 1) * 100:.2f} % of the valid points)")
+    with progress("filtering frames", len(cap)) as adv:
+        run = filter_capture(cap, out, p, intrinsics=load_intrinsics_option(intrinsics), force=force, advance=adv)
+    console.print(f"wrote {out}: {run.n_frames} frames, removed {run.removed} flying pixels "
+                  f"({run.removed_share * 100:.2f} % of the valid points)")
 
 
 def register(app: typer.Typer) -> None:

@@ -14,29 +14,81 @@ calibrate_app = typer.Typer(help="Calibrate the camera: IR intrinsics (checkerbo
 
 
 # ------------------------------------------------------------------ helpers
-def _fit_config(surface: str, poly_degree: int, knots: str, iterations: int, range_model: str = "auto",
-                modulation_mhz: str | None = None):
-    from tofmetry.calibrate import DepthFitConfig, SurfaceSpec
+def _fit_config(method: str, surface: str, poly_degree: int, fallback: str):
+    from tofmetry.calibrate import DepthFitConfig, StudyFitConfig, SurfaceSpec
     from tofmetry.errors import InputError
 
-    try:
-        ku, kv = (int(x) for x in knots.lower().split("x"))
-    except ValueError:
-        raise InputError(f"--knots must be like 6x5 (interior knots along u and v), found {knots!r}") from None
-    if surface not in ("spline", "poly", "none"):
-        raise InputError(f"--surface must be spline, poly or none, found {surface!r}")
-    if range_model not in ("auto", "spline", "harmonic"):
-        raise InputError(f"--range-model must be auto, spline or harmonic, found {range_model!r}")
-    mod = None
-    if modulation_mhz is not None:
-        try:
-            mod = tuple(float(x) for x in modulation_mhz.split(",") if x.strip())
-        except ValueError:
-            raise InputError(f"--modulation-mhz must be comma-separated MHz like 80,16,120, found {modulation_mhz!r}") from None
-        if any(not f > 0 for f in mod):
-            raise InputError(f"--modulation-mhz: frequencies must be positive, found {modulation_mhz!r}")
-    return DepthFitConfig(surface=SurfaceSpec(model=surface, degree=poly_degree, knots=(ku, kv)), iterations=iterations,
-                          range_model=range_model, modulation_mhz=mod)
+    if method == "study":
+        if surface not in ("spline", "poly", "none"):
+            raise InputError(f"--surface must be spline, poly or none, found {surface!r}")
+        return StudyFitConfig(surface=SurfaceSpec(model=surface, degree=poly_degree))
+    if method != "tofmetry":
+        raise InputError(f"--method must be tofmetry or study, found {method!r}")
+    return DepthFitConfig(fallback=fallback)
+
+
+def _outside_how(cal) -> str:
+    """What a calibration does with depths outside its support (for warnings)."""
+    if cal is None:
+        return "they were left as measured"
+    lo, hi = cal.support_range_mm
+    if cal.support is None:
+        return f"depths outside {lo:.0f}-{hi:.0f} mm were left uncorrected (a calibration without a support map)"
+    how = {"hold": "the correction at the nearest fitted depth", "trend": "its straight-line trend",
+           "unchanged": "no correction"}[cal.fallback]
+    return f"they got the fallback ({how}; fitted depths {lo:.0f}-{hi:.0f} mm), which is not validated there"
+
+
+def print_prediction(cal) -> None:
+    """Print a calibration's own predicted error on new data (blocked validation) and its support."""
+    pred = cal.prediction or {}
+    interp = pred.get("interpolation") or {}
+    if interp:
+        n = interp.get("rms_mm", {}).get("n", 0)
+        console.print(f"predicted error on new stations (blocked validation: each of {n} interior stations predicted "
+                      "by a calibration fitted on the others), typical (RMS over the folds) [90 % interval]:")
+        for key, what in (("central_abs_mm", "|central deviation|"), ("rms_systematic_mm", "per-pixel RMS, systematic"),
+                          ("rms_mm", "per-pixel RMS, incl. noise of the stations' means"),
+                          ("p95_mm", "p95 |error| (4x4 px means)")):
+            v = interp.get(key)
+            if v and v.get("n"):
+                console.print(f"  {what:>48}: {v.get('predicted', v['median']):.2f} mm  [{v['p5']:.2f}, {v['p95']:.2f}]")
+        ex = [r for r in pred.get("extrapolation", []) if r.get("fallback") == pred.get("fallback_chosen")]
+        for r in ex:
+            console.print(f"  extrapolation to {r['name']} ({r['center_mm']:.0f} mm, left out): central "
+                          f"{r['central_mm']:+.2f} mm, RMS {r['rms_mm']:.2f} mm (fallback {r['fallback']})")
+        for w in pred.get("warnings", []):
+            console.print(f"  [yellow]warning:[/] {w}")
+        if pred.get("tilt_calibrated") is False:
+            console.print("  [yellow]not calibrated:[/] a tilt-like (linear in x, y) deformation cannot be told from the "
+                          "walls' tilt and is left in")
+    if cal.support is not None:
+        s = cal.support.summary()
+        console.print(f"support: depths {s['range_mm'][0]:.0f}-{s['range_mm'][1]:.0f} mm over "
+                      f"{100 * s['covered_fraction']:.0f} % of the image; outside it: fallback '{cal.fallback}' "
+                      "(pixels counted by correct / cloud / reconstruct)")
+
+
+def print_prediction_check(check: dict) -> None:
+    """Print the calibration's predicted error beside what the held-out stations measured."""
+    from rich.table import Table
+
+    if not check or check.get("verdict") == "no prediction":
+        return
+    t = Table(title="the calibration's own prediction vs held-out stations (tilt removed; RMS over stations, mm)")
+    for col in ("metric", "predicted", "90 % interval", "measured", "ratio", "in interval", "verdict"):
+        t.add_column(col, justify="right")
+    names = {"central_abs_mm": "|central deviation|", "rms_mm": "per-pixel RMS", "rms_systematic_mm": "RMS, systematic",
+             "p95_mm": "p95 |error|"}
+    for key, label in names.items():
+        c = check.get(key)
+        if c:
+            t.add_row(label, f"{c['predicted']:.2f}", f"{c['interval'][0]:.2f}-{c['interval'][1]:.2f}",
+                      f"{c['measured']:.2f}", f"{c['ratio']:.2f}", f"{100 * c['in_interval']:.0f} %", c["verdict"])
+    console.print(t)
+    if check["verdict"] == "fails":
+        console.print("[red]the calibration's prediction fails on these stations: its measured error exceeds twice the "
+                      "prediction (other conditions than the calibration's? recalibrate, or trust the measured figures)[/]")
 
 
 def _report_table(reports, title: str):
@@ -60,7 +112,8 @@ def _notes(notes) -> None:
 
 # ------------------------------------------------------------------ intrinsics
 def intrinsics_cmd(
-    images_dir: Path = typer.Argument(..., help="Folder of IR (16-bit) or colour images of a checkerboard."),
+    images_dir: Path = typer.Argument(..., help="Folder of checkerboard images: 8- or 16-bit grey (PNG, BMP, TIFF, "
+                                      "PGM, ...), greyscale stored as colour (BMP, JPEG) or .npy."),
     board: str = typer.Option(..., "--board", help="Inner corners COLSxROWS, e.g. 9x6."),
     square_mm: float = typer.Option(..., "--square-mm", help="Square size [mm]."),
     output: Path = typer.Option(..., "-o", "--output", help="intrinsics.json to write."),
@@ -73,7 +126,8 @@ def intrinsics_cmd(
     force: bool = typer.Option(False, "--force", help="Overwrite outputs."),
 ) -> None:
     """Estimate fx, fy, cx, cy, k1, k2, p1, p2, k3 from checkerboard images (outlier views rejected,
-    uncertainties, leave-one-out stability, 5-fold held-out reprojection error)."""
+    uncertainties, predicted ray error over the whole image, uncovered image corners, leave-one-out
+    stability, 5-fold held-out reprojection error)."""
     from rich.table import Table
 
     from tofmetry.calibrate import PARAMS
@@ -91,7 +145,9 @@ def intrinsics_cmd(
                                      advance=adv)
     res = run.result
     if run.rejected:
-        console.print(f"[yellow]board not found in {len(run.rejected)} image(s), rejected:[/] {', '.join(run.rejected)}")
+        why = getattr(run, "rejected_reasons", {})
+        console.print(f"[yellow]{len(run.rejected)} image(s) not used:[/] "
+                      + ", ".join(f"{n} ({why.get(n, 'board not found')})" for n in run.rejected))
     t = Table(title=f"intrinsics from {len(res.used)} images (RMS {res.rms_px:.3f} px)")
     for col in ("param", "value", "std. uncertainty", "leave-one-out std", "leave-one-out range"):
         t.add_column(col, justify="right")
@@ -106,6 +162,10 @@ def intrinsics_cmd(
     if run.cv:
         console.print(f"{run.cv['k']}-fold held-out reprojection RMS: {run.cv['rms_px']:.3f} px "
                       f"(max {run.cv['max_px']:.3f} px)")
+    if res.predicted_ray is not None:
+        pr = res.predicted_ray
+        console.print(f"predicted ray error (from the parameter covariance, full image): RMS {pr.rms_px:.3f} px, "
+                      f"p90 {pr.p90_px:.3f} px, image corners up to {pr.corners_max_px:.3f} px")
     for w in res.warnings:
         console.print(f"[yellow]warning:[/] {w}")
     write_intrinsics(output, res.intrinsics, rms_px=res.rms_px, std=res.std, n_images=len(res.used))
@@ -123,21 +183,28 @@ def depth(
     output: Path = typer.Option(..., "-o", "--output", help="Calibration file to write (.npz)."),
     intrinsics: Optional[Path] = typer.Option(None, "--intrinsics", help="intrinsics.json (wall: overrides the "
                                               "captures'; board: used instead of fitting them on the corners)."),
-    surface: str = typer.Option("spline", help="Wall: per-pixel surface model: spline, poly or none."),
-    poly_degree: int = typer.Option(3, help="Wall: total degree of the polynomial surface."),
-    knots: str = typer.Option("6x5", help="Wall: interior knots (u x v) of the tensor-spline surface."),
-    iterations: int = typer.Option(4, help="Wall: alternations between range curve and surfaces."),
-    range_model: str = typer.Option("auto", help="Wall: range-error curve: spline (the study's smoothing B-spline), "
-                                    "harmonic (trend + harmonics of the modulation half wavelengths) or auto (the one "
-                                    "predicting left-out stations best)."),
-    modulation_mhz: Optional[str] = typer.Option(None, help="Wall: modulation frequencies [MHz], e.g. 80,16,120 "
-                                                 "(default: the sensor profile's; empty string: none, spline only)."),
+    method: str = typer.Option("tofmetry", help="Wall: tofmetry (range error along the ray + per-pixel surfaces, "
+                               "chosen and judged by blocked validation) or study (the study's range spline + one "
+                               "surface per station, a baseline)."),
+    fallback: str = typer.Option("auto", help="Wall, tofmetry: outside the fitted depths: hold (the correction at "
+                                 "the nearest fitted depth), trend (a straight line in depth) or auto (the one that "
+                                 "predicted the left-out nearest and farthest stations better)."),
+    surface: str = typer.Option("spline", help="Wall, study method: per-pixel surface model: spline, poly or none."),
+    poly_degree: int = typer.Option(3, help="Wall, study method: total degree of the polynomial surface."),
     tilted: bool = typer.Option(True, "--tilted/--frontal", help="Wall: fit the wall orientation (tilt) per station, "
                                 "or take the wall perpendicular to the optical axis."),
     reference_offset_mm: float = typer.Option(0.0, help="Wall: known distance [mm] from the stations' reference point "
                                               "forward to the optical centre (subtracted from the distances)."),
-    squares: str = typer.Option("white", "--squares", help="Board: squares used, white (dark squares read longer) or all."),
-    folds: int = typer.Option(5, "--folds", help="Board: k-fold cross-validation over poses."),
+    squares: str = typer.Option("auto", "--squares", help="Board: views whose white squares saturate enter through "
+                                "their dark squares (dark squares read longer: their bias is measured vs amplitude): "
+                                "auto (unless they make the blocked held-out error worse by more than one standard "
+                                "error), white (never) or dark (always)."),
+    folds: int = typer.Option(5, "--folds", help="Board: blocks of poses in recording order (and random folds, "
+                              "reported beside) of the validation."),
+    train_poses: Optional[str] = typer.Option(None, "--train-poses", help="Board: poses to fit on, e.g. 0-49 "
+                                              "(names or numbers, ranges, commas; default: all but the judged)."),
+    judge_poses: Optional[str] = typer.Option(None, "--judge-poses", help="Board: poses held out of every fit "
+                                              "(intrinsics included) and judged with the written calibration, e.g. 50-69."),
     report: Optional[Path] = typer.Option(None, "--report", help="Folder for the fit report (JSON + figures)."),
     force: bool = typer.Option(False, "--force", help="Overwrite the output."),
 ) -> None:
@@ -147,64 +214,134 @@ def depth(
 
     from rich.table import Table
 
-    from tofmetry.calibrate import save_calibration
+    from tofmetry.pipelines import save_calibration
     from tofmetry.pipelines import calibrate_depth_dataset, write_depth_report
     from tofmetry.errors import InputError
 
     if output.exists() and not force:
         raise InputError(f"output {output} exists; pass --force to overwrite it")
-    cfg = _fit_config(surface, poly_degree, knots, iterations, range_model, modulation_mhz)
+    cfg = _fit_config(method, surface, poly_degree, fallback)
     with progress(f"calibrating depth on {dataset.name}", None) as adv:
-        run = calibrate_depth_dataset(dataset, intrinsics=load_intrinsics_option(intrinsics), config=cfg, tilted=tilted,
-                                      reference_offset_mm=reference_offset_mm, advance=adv, squares=squares,
-                                      k_folds=folds, provenance={"command": " ".join(sys.argv)})
+        if (dataset / "board.json").is_file():
+            from tofmetry.pipelines.board import calibrate_board
+
+            run = calibrate_board(dataset, load_intrinsics_option(intrinsics), squares, folds, adv,
+                                  {"command": " ".join(sys.argv)}, train_poses=train_poses, judge_poses=judge_poses)
+        elif train_poses is not None or judge_poses is not None:
+            raise InputError("--train-poses / --judge-poses apply to board datasets (board.json) only")
+        else:
+            run = calibrate_depth_dataset(dataset, intrinsics=load_intrinsics_option(intrinsics), config=cfg,
+                                          tilted=tilted, reference_offset_mm=reference_offset_mm, advance=adv,
+                                          squares=squares, k_folds=folds, provenance={"command": " ".join(sys.argv)})
     _notes(run.notes)
     cal = run.calibration
     save_calibration(output, cal)
     if run.kind == "wall":
-        t = Table(title=f"depth calibration fit ({cal.surface_model}; intrinsics: {run.intrinsics_source})")
-        for col in ("station", "D [mm]", "measured [mm]", "dev [mm]", "residual [mm]", "RMS before", "RMS after",
-                    "frame std [mm]"):
+        t = Table(title=f"depth calibration fit, in sample (intrinsics: {run.intrinsics_source})")
+        for col in ("station", "D [mm]", "measured [mm]", "central dev before", "after", "RMS before (offset removed)",
+                    "RMS after", "frame std [mm]"):
             t.add_column(col, justify="right")
         for row in run.rows:
             t.add_row(row["station"], f"{row['distance_mm']:.0f}", f"{row['center_mm']:.1f}",
-                      f"{row['dev_before_mm']:+.2f}", f"{row['dev_after_mm']:+.3f}", f"{row['rms_before_mm']:.2f}",
-                      f"{row['rms_after_mm']:.2f}", f"{row['center_std_mm']:.2f}")
+                      f"{row.get('central_before_mm', row.get('dev_before_mm', float('nan'))):+.2f}",
+                      f"{row.get('central_mm', row.get('dev_after_mm', float('nan'))):+.3f}",
+                      f"{row['rms_before_mm']:.2f}", f"{row.get('rms_mm', row.get('rms_after_mm', float('nan'))):.2f}",
+                      f"{row['center_std_mm']:.2f}")
         console.print(t)
-        cv = cal.diagnostics.get("range_model_cv_rms_mm", {})
-        chosen = cal.diagnostics.get("range_model", "spline")
-        console.print(f"range-error model: {chosen} (of {len(cv)} candidates; left-out station RMS "
-                      f"{cv.get(chosen, float('nan')):.2f} mm, smoothing spline {cv.get('spline', float('nan')):.2f} mm)")
-        console.print(f"offset (reference point -> optical centre + mean range bias): {cal.offset_mm:+.2f} mm; "
-                      f"valid range {cal.valid_range_mm[0]:.0f}-{cal.valid_range_mm[1]:.0f} mm")
+        console.print(f"model: {cal.diagnostics.get('model', cal.surface_model)}")
+        console.print(f"offset (reference point -> optical centre + mean range bias): {cal.offset_mm:+.2f} mm")
+        print_prediction(cal)
     else:
-        fit = run.fit
-        ifit = fit["intrinsics_fit"]
-        console.print(f"board {fit['board']['cols']}x{fit['board']['rows']} inner corners, {fit['board']['square_mm']} mm; "
-                      f"{fit['n_poses']} poses used, squares: {fit['squares']}")
-        console.print(f"intrinsics from the corners: RMS {ifit['rms_px']:.3f} px, held-out ({ifit['k']}-fold) "
-                      f"{ifit['cv_rms_px']:.3f} px; used: {run.intrinsics_source}")
-        t = Table(title=f"board-plane error on held-out poses ({fit['k_folds']}-fold over poses), mm")
-        for col in ("case", "mean", "std", "RMS", "P95 |e|", "n"):
-            t.add_column(col, justify="right")
-        labels = {"none": "none", "iai_shift": "iai shift, our intrinsics", "constant_refit": "constant (refit)",
-                  "model": "tofmetry"}
-        cases = [(labels[c], fit["cv_held_out"].get(c)) for c in ("none", "iai_shift", "constant_refit", "model")]
-        if fit.get("iai_pipeline_held_out"):
-            ip = fit["iai_pipeline_held_out"]
-            cases = [("none, iai intrinsics", ip["none"]), ("iai_kinect2 (intr. + shift)", ip["iai_shift"]),
-                     *cases]
-        for label, st in cases:
-            if st is not None:
-                t.add_row(label, f"{st['mean_mm']:+.2f}", f"{st['std_mm']:.2f}", f"{st['rms_mm']:.2f}",
-                          f"{st['p95_abs_mm']:.2f}", str(st["n"]))
-        console.print(t)
-        console.print("(cases without a note use the intrinsics above; each case is judged against the board "
-                      "plane of its own intrinsics)")
+        _print_board_run(run)
     if report is not None:
         write_depth_report(run, report)
         console.print(f"report written to {report}")
     console.print(f"wrote {output} in {run.seconds:.1f} s")
+
+
+def _print_board_run(run) -> None:
+    """Board mode: model selection, blocked validation, prediction and judged poses (board-specific)."""
+    from rich.table import Table
+
+    from tofmetry.pipelines.board import judged_table
+
+    fit = run.fit
+    console.print(f"board {fit['board']['cols']}x{fit['board']['rows']} inner corners, {fit['board']['square_mm']} mm; "
+                  f"{fit['n_poses']} poses used; {fit['n_dark_only_views']} with saturated white squares "
+                  f"({'used through their dark squares' if fit['use_dark_views'] else 'not used'}); "
+                  f"intrinsics: {run.intrinsics_source}")
+    ifit = fit["intrinsics_fit"]
+    if "cv_rms_px" in ifit:
+        console.print(f"intrinsics held-out reprojection ({ifit['k']}-fold): {ifit['cv_rms_px']:.3f} px")
+    console.print(f"corner grids: noise {ifit['corner_noise_px']:.3f} px, rejected above {ifit['grid_threshold_px']:.2f} px")
+    designs = [d for d in ("time", "range", "region") if d in fit["validation"]]
+    t = Table(title="model selection on blocked folds: held-out RMS [mm] (time: blocks of poses in recording order, "
+                    "range: bins of range, region: image regions left out)")
+    for col in ("candidate", *designs, "score", "chosen"):
+        t.add_column(col, justify="right")
+    for r in fit["selection"]:
+        t.add_row(r["name"] + (" + dark-square views" if r["use_dark_views"] else ""),
+                  *[f"{r[f'{d}_rms_mm']:.2f}" for d in designs], f"{r.get('score_mm', float('nan')):.2f}",
+                  "*" if r.get("chosen") else "")
+    console.print(t)
+    console.print(f"model: {fit['model_description']}")
+    t = Table(title="held-out board-plane error of the chosen model, white squares [mm]")
+    for col in ("validation", "mean", "RMS", "P95 |e|", "n"):
+        t.add_column(col, justify="right")
+    for d, st in fit["validation"].items():
+        t.add_row(st.get("label", f"{d} (blocked)"), f"{st['mean_mm']:+.2f}", f"{st['rms_mm']:.2f}",
+                  f"{st['p95_abs_mm']:.2f}", str(st["n"]))
+    console.print(t)
+    p = fit.get("prediction") or {}
+    if p:
+        console.print(f"predicted error on {p['n_new_views']} new poses (time blocks, 90 % interval): RMS "
+                      f"{p['rms_mm']:.2f} [{p['rms_mm_interval'][0]:.2f}, {p['rms_mm_interval'][1]:.2f}], P95 |e| "
+                      f"{p['p95_abs_mm']:.2f} [{p['p95_abs_mm_interval'][0]:.2f}, {p['p95_abs_mm_interval'][1]:.2f}], "
+                      f"mean {p['mean_mm']:+.2f} [{p['mean_mm_interval'][0]:+.2f}, {p['mean_mm_interval'][1]:+.2f}] mm")
+    j = fit.get("judged")
+    if j:
+        t = Table(title=f"judged poses {j['poses'][0]}..{j['poses'][-1]} ({j['n_views']} poses, never fitted), "
+                        "white squares [mm]")
+        for col in ("case", "mean", "RMS", "P95 |e|", "n"):
+            t.add_column(col, justify="right")
+        for label, st in judged_table(fit):
+            t.add_row(label, f"{st['mean_mm']:+.2f}", f"{st['rms_mm']:.2f}", f"{st['p95_abs_mm']:.2f}", str(st["n"]))
+        console.print(t)
+        jp, m = j.get("prediction") or {}, j["cases"].get("tofmetry", {})
+        if jp:
+            console.print(f"tofmetry predicted for {jp['n_new_views']} new poses vs measured: RMS "
+                          f"[{jp['rms_mm_interval'][0]:.2f}, {jp['rms_mm_interval'][1]:.2f}] vs {m['rms_mm']:.2f}, P95 "
+                          f"[{jp['p95_abs_mm_interval'][0]:.2f}, {jp['p95_abs_mm_interval'][1]:.2f}] vs "
+                          f"{m['p95_abs_mm']:.2f}, mean [{jp['mean_mm_interval'][0]:+.2f}, "
+                          f"{jp['mean_mm_interval'][1]:+.2f}] vs {m['mean_mm']:+.2f} mm")
+        o = j["outside"]
+        console.print(f"judged pixels outside the training support: {o['range']} beyond the range fitted (clamped), "
+                      f"{o['image_cell']} in image cells never covered, {o['cell_and_range_bin']} in cell/100 mm "
+                      f"bins without a sample, {o['uncorrected']} outside the calibration's valid range "
+                      f"(left uncorrected), of {j['n_samples']}")
+
+
+def _validate_board(path: Path, cal, poses, intrinsics, output) -> None:
+    """``calibrate validate`` on a board dataset (board-specific)."""
+    from rich.table import Table
+
+    from tofmetry.io import atomic_write_json
+    from tofmetry.pipelines.board import validate_board
+
+    v = validate_board(path, cal, poses=poses, intrinsics=intrinsics)
+    for n, why in v["skipped"]:
+        console.print(f"[yellow]note:[/] pose {n} not judged: {why}")
+    t = Table(title=f"board poses {v['poses'][0]}..{v['poses'][-1]} ({v['n_views']} judged), white squares [mm]")
+    for col in ("case", "mean", "RMS", "P95 |e|", "n"):
+        t.add_column(col, justify="right")
+    for k, st in v["cases"].items():
+        t.add_row(k, f"{st['mean_mm']:+.2f}", f"{st['rms_mm']:.2f}", f"{st['p95_abs_mm']:.2f}", str(st["n"]))
+    console.print(t)
+    if "measured_within_prediction" in v:
+        console.print(f"measured within the calibration's predicted 90 % intervals: {v['measured_within_prediction']}")
+    if output is not None:
+        atomic_write_json(output / "validation.json", v)
+        console.print(f"validation written to {output}")
 
 
 # ------------------------------------------------------------------ validate
@@ -215,28 +352,35 @@ def validate(
     intrinsics: Optional[Path] = typer.Option(None, "--intrinsics", help="intrinsics.json for the clouds "
                                               "(default: the calibration's)."),
     cv: bool = typer.Option(False, "--cv", help="Also run leave-one-station-out cross-validation on WALL_DIR "
-                            "(spline and polynomial surfaces)."),
+                            "(tofmetry's method and the study's)."),
     tilted: bool = typer.Option(False, "--tilted/--frontal", help="Reference wall orientation fitted on the "
                                 "corrected cloud, or perpendicular to the optical axis."),
     reference_offset_mm: float = typer.Option(0.0, help="Same meaning as for 'calibrate depth'."),
+    poses: Optional[str] = typer.Option(None, "--poses", help="Board dataset: the poses to judge, e.g. 50-69 "
+                                        "(default: all; they should be poses the calibration never saw)."),
     force: bool = typer.Option(False, "--force", help="Overwrite the output folder's files."),
 ) -> None:
-    """Before/after metrics per station of a wall dataset (plus optional cross-validation)."""
-    from tofmetry.calibrate import load_calibration
+    """Before/after metrics per station of a wall dataset (plus optional cross-validation), or per
+    pose of a board dataset (board.json: white squares against the board planes)."""
+    from tofmetry.pipelines import load_calibration
     from tofmetry.pipelines import validate_depth, write_validation_report
     from tofmetry.errors import InputError
 
     if output is not None and (output / "validation.json").exists() and not force:
         raise InputError(f"{output / 'validation.json'} exists; pass --force to overwrite it")
     cal = load_calibration(calibration)
+    if (wall_dir / "board.json").is_file():
+        _validate_board(wall_dir, cal, poses, load_intrinsics_option(intrinsics), output)
+        return
     with progress(f"validating on {wall_dir.name}", None) as adv:
         run = validate_depth(wall_dir, cal, intrinsics=load_intrinsics_option(intrinsics), tilted=tilted,
                              reference_offset_mm=reference_offset_mm, cross_validate=cv, advance=adv)
     _notes(run.notes)
     console.print(_report_table(run.stations, f"validation on {wall_dir} (before -> after, mm)"))
     console.print(run.summary)
+    print_prediction_check(run.prediction_check)
     for label, r in (run.cross_validation or {}).items():
-        console.print(_report_table(r["stations"], f"leave-one-station-out, {label} surfaces"))
+        console.print(_report_table(r["stations"], f"leave-one-station-out, method {label}"))
         console.print({label: r["summary"]})
     if output is not None:
         write_validation_report(run, output)
@@ -252,52 +396,16 @@ def correct(
     force: bool = typer.Option(False, "--force", help="Replace an existing output folder."),
 ) -> None:
     """Apply a depth calibration to every frame of a capture (same format out)."""
-    import numpy as np
-
-    from tofmetry.calibrate import apply_depth_calibration, count_outside_range, load_calibration
-    from tofmetry.errors import InputError
-    from tofmetry.io import Capture, CaptureMeta, atomic_dir, atomic_write_bytes, atomic_write_json
-    from tofmetry.io.images import write_png16
+    from tofmetry.io import Capture
+    from tofmetry.pipelines.correct import correct_capture
 
     cap = Capture(capture)
-    if output.resolve() == capture.resolve():
-        raise InputError("output must differ from the input capture (inputs are never overwritten)")
-    cal = load_calibration(calibration)
-    cal.check_compatible(sensor=cap.sensor, shape=cap.shape)
-    outside = 0
-    with atomic_dir(output, force=force) as tmp:
-        meta = CaptureMeta(sensor=cap.sensor, depth_unit_mm=1.0, intrinsics=cal.intrinsics,
-                           timestamps_s=cap.meta.timestamps_s,
-                           extra={**(cap.meta.extra or {}), "depth_calibration": str(calibration),
-                                  "corrected_from": str(capture)})
-        atomic_write_json(tmp / "capture.json", meta.to_dict())
-        (tmp / "depth").mkdir()
-        with progress("correcting frames", len(cap)) as adv:
-            for i in range(len(cap)):
-                d = cap.depth(i)
-                outside += count_outside_range(d, cal)
-                c = apply_depth_calibration(d, cal)
-                if float32:
-                    import io
-
-                    buf = io.BytesIO()
-                    np.save(buf, np.where(d > 0, c, 0).astype(np.float32))
-                    atomic_write_bytes(tmp / "depth" / f"{i:06d}.npy", buf.getvalue())
-                else:
-                    q = np.where(d > 0, np.clip(np.rint(c), 1, 65535), 0).astype(np.uint16)
-                    write_png16(tmp / "depth" / f"{i:06d}.png", q)
-                adv()
-        import shutil
-
-        for sub in ("ir", "color"):
-            if (capture / sub).is_dir():
-                shutil.copytree(capture / sub, tmp / sub)
-    if outside:
-        n = len(cap) * cap.shape[0] * cap.shape[1]
-        console.print(f"[yellow]warning:[/] {outside} valid depth samples ({100 * outside / n:.2f} % of all pixels) "
-                      f"outside the calibrated range {cal.valid_range_mm[0]:.0f}-{cal.valid_range_mm[1]:.0f} mm "
-                      "were left uncorrected")
-    console.print(f"wrote {len(cap)} corrected frames to {output}")
+    with progress("correcting frames", len(cap)) as adv:
+        run = correct_capture(cap, calibration, output, float32=float32, force=force, advance=adv)
+    if run.outside_range:
+        console.print(f"[yellow]warning:[/] {run.outside_range} valid depth samples ({100 * run.outside_share:.2f} % of "
+                      f"all pixels) lie outside the calibration's support; {_outside_how(run.calibration)}")
+    console.print(f"wrote {run.n_frames} corrected frames to {output}")
 
 
 def register(app: typer.Typer) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from contextlib import nullcontext
 from pathlib import Path
 from typing import Optional
 
@@ -10,12 +11,17 @@ import typer
 from tofmetry.cli._common import console, load_intrinsics_option, progress
 
 
-def info(capture: Path = typer.Argument(..., help="Capture folder (capture.json + depth/).")) -> None:
-    """Validate a capture and print a summary: frames, valid fraction, depth range."""
+def info(capture: Path = typer.Argument(..., help="Capture folder (capture.json + depth/) or a depth calibration "
+                                         "file (.npz).")) -> None:
+    """Validate a capture and print a summary (frames, valid fraction, depth range), or describe a
+    depth calibration: its model, support and its own predicted error on new data."""
     import numpy as np
 
     from tofmetry.io import Capture
 
+    if capture.is_file() and capture.suffix.lower() == ".npz":
+        _info_calibration(capture)
+        return
     cap = Capture(capture)
     intr, src = cap.intrinsics()
     n = len(cap)
@@ -39,6 +45,32 @@ def info(capture: Path = typer.Argument(..., help="Capture folder (capture.json 
         console.print(f"  timestamps    {ts[0]:.1f} .. {ts[-1]:.1f} s")
 
 
+def _info_calibration(path: Path) -> None:
+    from tofmetry.cli.calibrate import print_prediction
+    from tofmetry.pipelines import load_calibration
+
+    cal = load_calibration(path)
+    i = cal.intrinsics
+    console.print(f"[bold]{path}[/]: depth calibration ({cal.provenance.get('method', 'wall')})")
+    console.print(f"  sensor        {cal.sensor}, {cal.shape[1]}x{cal.shape[0]}")
+    console.print(f"  intrinsics    fx={i.fx:.2f} fy={i.fy:.2f} cx={i.cx:.2f} cy={i.cy:.2f}")
+    console.print(f"  model         {cal.diagnostics.get('model', cal.surface_model)}")
+    console.print(f"  offset        {cal.offset_mm:+.2f} mm (constant part of the correction on the axis)")
+    if cal.provenance.get("created_utc"):
+        console.print(f"  created       {cal.provenance['created_utc']} by {cal.provenance.get('tool', '?')}")
+    board = (cal.prediction or {}).get("board")
+    if board:
+        console.print("predicted error on new board poses (blocked validation), [90 % interval]:")
+        for key in ("rms_mm", "p95_abs_mm", "mean_mm"):
+            if key in board:
+                iv = board.get(f"{key}_interval", [float("nan"), float("nan")])
+                console.print(f"  {key:>12}: {board[key]:.2f} mm  [{iv[0]:.2f}, {iv[1]:.2f}]")
+    print_prediction(cal)
+    if not cal.prediction:
+        console.print("[yellow]no predicted error stored[/] (a calibration written before tofmetry validated "
+                      "its own calibrations, or fitted without validation)")
+
+
 def cloud(
     capture: Path = typer.Argument(..., help="Capture folder."),
     output: Path = typer.Option(..., "-o", "--output", help="Output PLY (metres)."),
@@ -51,44 +83,19 @@ def cloud(
     force: bool = typer.Option(False, "--force", help="Overwrite an existing output."),
 ) -> None:
     """Write the point cloud of a capture as binary PLY (metres, camera frame)."""
-    import numpy as np
+    from tofmetry.pipelines.cloud import capture_cloud
 
-    from tofmetry.errors import InputError
-    from tofmetry.io import Capture, write_ply
-    from tofmetry.pointcloud import amplitude_colors, depth_to_points, robust_mean_depth, sample_colors
+    with progress("loading frames", None) if average else nullcontext(None) as adv:
+        run = capture_cloud(capture, output, average=average, calibration=calibration,
+                            intrinsics=load_intrinsics_option(intrinsics), color=color, frame=frame,
+                            undistort=not no_undistort, force=force, advance=adv)
+    console.print(f"wrote {len(run.points)} points to {output} (intrinsics: {run.intrinsics_source})")
+    if run.outside_support:
+        from tofmetry.cli.calibrate import _outside_how
+        from tofmetry.pipelines import load_calibration
 
-    if output.exists() and not force:
-        raise InputError(f"output {output} exists; pass --force to overwrite it")
-    cap = Capture(capture)
-    intr, src = cap.intrinsics(load_intrinsics_option(intrinsics))
-    if average:
-        with progress("loading frames", len(cap)) as adv:
-            stack = cap.depth_stack(advance=adv)
-        depth = robust_mean_depth(stack)
-    else:
-        if not 0 <= frame < len(cap):
-            raise typer.BadParameter(f"--frame {frame} outside 0..{len(cap) - 1}", param_hint="--frame")
-        depth = cap.depth(frame).astype(np.float64)
-    if calibration is not None:
-        from tofmetry.calibrate import apply_depth_calibration, load_calibration
-
-        cal = load_calibration(calibration)
-        cal.check_compatible(sensor=cap.sensor, shape=cap.shape)
-        if intrinsics is None:
-            intr, src = cal.intrinsics, "calibration"
-        depth = apply_depth_calibration(depth, cal)
-    pts, idx = depth_to_points(depth, intr, undistort=not no_undistort, return_index=True)
-    cols = None
-    if color and cap.has_color:
-        from tofmetry.sensor import get_profile
-
-        prof = get_profile(cap.sensor)
-        cols, _ = sample_colors(pts, cap.color(frame), prof.color, prof.ir_to_color)
-    elif cap.has_ir:
-        ir = cap.ir_mean() if average else cap.ir(frame)
-        cols = amplitude_colors(ir.ravel()[idx])
-    write_ply(output, pts, colors=cols)
-    console.print(f"wrote {len(pts)} points to {output} (intrinsics: {src})")
+        console.print(f"[yellow]warning:[/] {run.outside_support} points ({100 * run.outside_support / max(1, len(run.points)):.1f} %) "
+                      f"lie outside the calibration's support; {_outside_how(load_calibration(calibration))}")
 
 
 def register(app: typer.Typer) -> None:

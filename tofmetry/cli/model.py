@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import typer
+from rich.table import Table
 
+from tofmetry._shared.study_constants import AMPLITUDE_BIAS_MM_PER_LN
 from tofmetry.cli._common import console, progress
+from tofmetry.errors import InputError
 
 
 def reconstruct(
@@ -20,7 +22,7 @@ def reconstruct(
         "giving the white amplitude per pixel: enables the amplitude-dependent bias correction (needs IR)."),
     amplitude_max_mm: float = typer.Option(2500.0, help="Use wall stations up to this distance for the amplitude reference [mm]."),
     amplitude_k: float = typer.Option(
-        12.0 / math.log(6.0), "--amplitude-k",
+        AMPLITUDE_BIAS_MM_PER_LN, "--amplitude-k",
         help="Slope k of the amplitude bias k ln(A_white / A) [mm per unit ln]; default the paper's 12 / ln 6 = 6.70 "
         "(pass the slope measured by 'tofmetry assess materials')."),
     keep_all: bool = typer.Option(False, "--keep-all", help="Skip object segmentation: keep the whole working range."),
@@ -38,23 +40,13 @@ def reconstruct(
         "unreliable (the outputs are written and flagged in poses.json either way; without this option the exit code is 3)."),
 ) -> None:
     """Automatic 3D model of an object from several views: segment, register (pose graph), fuse (TSDF), mesh."""
-    from tofmetry.errors import InputError
-    from tofmetry.io import ScanDataset, WallDataset
-    from tofmetry.reconstruct import (
-        ReconstructionConfig,
-        ReconstructionPipeline,
-        write_reconstruction,
-    )
+    from tofmetry.pipelines.reconstruct import reconstruct_scan
+    from tofmetry.reconstruct import ReconstructionConfig
 
     if (calibration is None) == (not no_calibration):
         raise InputError("pass either --calibration FILE or --no-calibration (raw depth), not both / not neither")
     if output.exists() and any(output.iterdir() if output.is_dir() else [output]) and not force:
         raise InputError(f"output {output} already exists; pass --force to replace it")
-    cal = None
-    if calibration is not None:
-        from tofmetry.calibrate import load_calibration
-
-        cal = load_calibration(calibration)
     cfg = ReconstructionConfig()
     cfg.segment.keep_all = keep_all
     cfg.fusion.poisson = poisson
@@ -63,20 +55,10 @@ def reconstruct(
     cfg.preprocess.amplitude_k_mm_per_ln = amplitude_k
     cfg.registration.global_adjust = global_adjust
     cfg.registration.estimate_depth_gain = depth_gain
-    ds = ScanDataset(scan_dir)
-    white_map = None
-    if amplitude_reference is not None:
-        from tofmetry.reconstruct import white_map_from_wall
-
-        n_st = sum(st.distance_mm <= amplitude_max_mm for st in WallDataset(amplitude_reference).stations) or 1
-        with progress("amplitude reference (wall)", n_st) as adv:
-            white_map = white_map_from_wall(amplitude_reference, cal, None if cal is not None else ds[0].intrinsics()[0],
-                                            amplitude_max_mm, advance=adv)
-    console.print(f"{len(ds)} views: {', '.join(ds.names)}; calibration: {calibration or 'none (raw depth)'}")
-    res = ReconstructionPipeline(ds, cal, cfg, progress=progress, white_map=white_map).run()
-    write_reconstruction(output, res, force=force)
-    from rich.table import Table
-
+    console.print(f"scan {scan_dir}; calibration: {calibration or 'none (raw depth)'}")
+    res = reconstruct_scan(scan_dir, calibration, output, config=cfg, amplitude_wall=amplitude_reference,
+                           amplitude_max_mm=amplitude_max_mm, force=force, progress=progress)
+    console.print(f"{len(res.names)} views: {', '.join(res.names)}")
     t = Table(title="registration edges (fitness = matched share of object points)")
     for col in ("source", "target", "method", "fitness", "RMSE [mm]", "seen-through", "alternatives", "kept", "resid [deg]",
                 "resid [mm]"):
@@ -122,8 +104,6 @@ def reconstruct(
 
 
 def _parse_floats(text: str, what: str, n: int | None = None) -> tuple[float, ...]:
-    from tofmetry.errors import InputError
-
     try:
         vals = tuple(float(x) for x in text.split(",") if x.strip())
     except ValueError:
@@ -131,22 +111,6 @@ def _parse_floats(text: str, what: str, n: int | None = None) -> tuple[float, ..
     if not vals or (n is not None and len(vals) != n):
         raise InputError(f"{what}: expected {n or 'some'} comma-separated numbers, found {text!r}")
     return vals
-
-
-def _read_transform(path: Path):
-    import numpy as np
-
-    from tofmetry.errors import InputError
-    from tofmetry.io import read_json
-
-    d = read_json(path, "initial transform")
-    if isinstance(d, dict) and "views" in d:  # a poses.json: no transform inside, only the model frame
-        raise InputError(f"{path}: a poses.json does not hold a model->reference transform; pass a JSON "
-                         "{'transform': 4x4} or a bare 4x4 list")
-    T = np.asarray(d["transform"] if isinstance(d, dict) else d, dtype=float)
-    if T.shape != (4, 4):
-        raise InputError(f"{path}: expected a 4x4 matrix, found shape {T.shape}")
-    return T
 
 
 def evaluate(
@@ -166,28 +130,16 @@ def evaluate(
                                          "range, incidence, occlusion)."),
 ) -> None:
     """Accuracy of a model against a reference: align, signed distances, statistics, completeness, figures."""
-    from tofmetry.evaluate import EvaluationConfig, evaluate_model, write_evaluation
-    from tofmetry.io.mesh import read_geometry
+    from tofmetry.evaluate import EvaluationConfig
+    from tofmetry.pipelines.evaluate import evaluate_files
 
     cfg = EvaluationConfig(
         align=align, icp=not no_icp, thresholds_mm=_parse_floats(thresholds_mm, "--thresholds-mm"),
         edge_trim_mm=edge_trim_mm, color_scale_mm=color_scale_mm,
         exclude_normal=None if exclude_normal is None else _parse_floats(exclude_normal, "--exclude-normal", 3))
-    m = read_geometry(model, "model")
-    r = read_geometry(reference, "reference")
-    init = _read_transform(init_transform) if init_transform is not None else None
-    cams = None
-    if poses is not None:
-        from tofmetry.evaluate import CameraViews
-        from tofmetry.io import read_json
-
-        cams = CameraViews.from_document(read_json(poses, "poses"), str(poses))
     with progress("evaluating", None):
-        res = evaluate_model(m, r, cfg, init=init, poses=cams)
-    write_evaluation(output, res, title=model.name)
+        res = evaluate_files(model, reference, output, config=cfg, init_transform=init_transform, poses=poses).result
     s, st = res.stats_all, res.stats_trimmed
-    from rich.table import Table
-
     t = Table(title=f"{model.name} vs {reference.name} ({res.comparison})")
     for col in ("", "mean |d|", "std", "RMS", "p95 |d|", "max |d|", "<= 5 mm"):
         t.add_column(col, justify="right")

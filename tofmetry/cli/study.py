@@ -6,8 +6,10 @@ from pathlib import Path
 from typing import Optional
 
 import typer
+from rich.table import Table
 
 from tofmetry.cli._common import console
+from tofmetry.errors import InputError
 
 
 def demo(
@@ -15,8 +17,6 @@ def demo(
     seed: int = typer.Option(0, "--seed", help="Random seed of the virtual sensor."),
 ) -> None:
     """Simulate a wall and an object on the virtual Kinect v2; write point clouds and a summary."""
-    from rich.table import Table
-
     from tofmetry.study import run_demo
 
     summary = run_demo(output, seed=seed, on_step=lambda s: console.print(f"[cyan]›[/] {s}"))
@@ -42,9 +42,6 @@ def study(
     force: bool = typer.Option(False, "--force", help="Reuse a non-empty output folder."),
 ) -> None:
     """Run the whole study (assessment → calibration → validation → model → accuracy) with an HTML report."""
-    from rich.table import Table
-
-    from tofmetry.errors import InputError
     from tofmetry.io import atomic_write_bytes, atomic_write_json
     from tofmetry.report import render_html
     from tofmetry.study import config_to_toml, load_config

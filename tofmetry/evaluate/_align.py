@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tofmetry.errors import EstimationError
-from tofmetry.reconstruct._o3d import estimate_normals, global_register, icp, voxel_down
+from tofmetry.reconstruct import estimate_normals, global_register, icp, voxel_down
 
 
 @dataclass

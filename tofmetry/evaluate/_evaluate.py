@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from pydantic import BaseModel, Field
+from scipy.spatial import cKDTree
 
 from tofmetry.errors import InputError
 from tofmetry.evaluate._align import (
@@ -27,6 +28,7 @@ from tofmetry.evaluate._stats import (
 )
 from tofmetry.evaluate._visibility import CameraViews, observed_mask
 from tofmetry.io.mesh import Geometry
+from tofmetry.reconstruct import estimate_normals
 
 
 class EvaluationConfig(BaseModel):
@@ -127,8 +129,6 @@ def _surface_samples(g: Geometry, spacing_m: float, seed: int, what: str):
         p, n, _ = sample_mesh(g.points, g.faces, spacing_m, seed=seed)
         return p, n
     if g.normals is None:
-        from tofmetry.reconstruct._o3d import estimate_normals
-
         return g.points, estimate_normals(g.points, 5 * spacing_m)
     return g.points, g.normals
 
@@ -211,8 +211,6 @@ def evaluate_model(model: Geometry, reference: Geometry, config: EvaluationConfi
         edges = np.zeros((0, 3))
     on_edge = np.zeros(len(mod_pts), bool)
     if len(edges):
-        from scipy.spatial import cKDTree
-
         de, _ = cKDTree(edges).query(cp.closest, workers=-1, distance_upper_bound=cfg.edge_trim_mm * 1e-3 * 1.01)
         on_edge = de <= cfg.edge_trim_mm * 1e-3
     stats_all = deviation_stats(cp.distance, cfg.thresholds_mm)

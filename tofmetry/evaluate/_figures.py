@@ -1,16 +1,24 @@
-"""Deviation colouring and figures (matplotlib Agg; figures returned, not saved)."""
+"""Deviation colouring and figures (figures returned, not saved).
+
+Saving: :func:`tofmetry._shared.figures.save_png`.
+"""
 
 from __future__ import annotations
 
+import textwrap
+
+import matplotlib
 import numpy as np
+
+from tofmetry._shared.figures import subplots
+from tofmetry._shared.geometry import principal_axes
+
 
 COLORMAP = "RdBu_r"
 
 
 def deviation_colors(deviation_m: np.ndarray, scale_mm: float) -> np.ndarray:
     """(N,) signed deviations [m] -> (N, 3) uint8 RGB, diverging map saturating at +-scale_mm."""
-    import matplotlib
-
     cmap = matplotlib.colormaps[COLORMAP]
     t = np.clip((np.asarray(deviation_m) * 1e3 / scale_mm + 1.0) / 2.0, 0.0, 1.0)
     return (cmap(t)[:, :3] * 255).round().astype(np.uint8)
@@ -18,23 +26,16 @@ def deviation_colors(deviation_m: np.ndarray, scale_mm: float) -> np.ndarray:
 
 def histogram_figure(deviation_m: np.ndarray, on_edge: np.ndarray, stats: dict, title: str):
     """Histogram of signed deviations [mm] (all points and after edge trimming)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     d = np.asarray(deviation_m) * 1e3
     lim = max(5.0, float(np.percentile(np.abs(d), 99.5)))
     bins = np.linspace(-lim, lim, 121)
-    fig, ax = plt.subplots(figsize=(7, 4.2))
+    fig, ax = subplots(figsize=(7, 4.2))
     ax.hist(np.clip(d, -lim, lim), bins=bins, color="0.7", label=f"all ({d.size} points)")
     ax.hist(np.clip(d[~on_edge], -lim, lim), bins=bins, histtype="step", color="C0", lw=1.5,
             label=f"edge-trimmed ({int((~on_edge).sum())})")
     ax.axvline(0, color="k", lw=0.8)
     ax.set_xlabel("signed deviation model - reference [mm]")
     ax.set_ylabel("number of points")
-    import textwrap
-
     ax.set_title("\n".join(textwrap.wrap(title, 60)), fontsize=10)
     txt = (f"mean |d| {stats['mean_abs_mm']:.2f} mm, std {stats['std_signed_mm']:.2f} mm\n"
            f"p95 |d| {stats['percentiles_abs_mm']['p95']:.2f} mm, max {stats['max_abs_mm']:.2f} mm (trimmed)")
@@ -47,21 +48,15 @@ def histogram_figure(deviation_m: np.ndarray, on_edge: np.ndarray, stats: dict, 
 
 def render_figure(points: np.ndarray, deviation_m: np.ndarray, scale_mm: float, title: str, max_points: int = 60_000):
     """Three orthographic views (principal axes) of points coloured by deviation, with colour bar."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     p = np.asarray(points)
     d = np.asarray(deviation_m) * 1e3
     if len(p) > max_points:
         sel = np.random.default_rng(0).choice(len(p), max_points, replace=False)
         p, d = p[sel], d[sel]
-    c = p.mean(0)
-    _, _, vt = np.linalg.svd(p - c, full_matrices=False)
-    q = (p - c) @ vt.T * 1e3  # principal frame [mm]
+    c, axes = principal_axes(p)
+    q = (p - c) @ axes.T * 1e3  # principal frame [mm]
     views = [(0, 1, 2, "view along 3rd axis"), (0, 2, 1, "view along 2nd axis"), (1, 2, 0, "view along 1st axis")]
-    fig, axes = plt.subplots(1, 3, figsize=(15, 5))
+    fig, axes = subplots(1, 3, figsize=(15, 5))
     fig.subplots_adjust(wspace=0.4)
     sc = None
     for ax, (i, j, k, name) in zip(axes, views):
@@ -76,15 +71,3 @@ def render_figure(points: np.ndarray, deviation_m: np.ndarray, scale_mm: float, 
     cb.set_label(f"signed deviation [mm] (saturating at +-{scale_mm:g})")
     fig.suptitle(title)
     return fig
-
-
-def figure_png_bytes(fig, dpi: int = 110) -> bytes:
-    """Render a figure to PNG bytes and close it."""
-    import io
-
-    import matplotlib.pyplot as plt
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi)
-    plt.close(fig)
-    return buf.getvalue()

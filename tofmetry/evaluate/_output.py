@@ -5,14 +5,10 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from tofmetry._shared.figures import save_png
 from tofmetry.evaluate._evaluate import EvaluationResult
-from tofmetry.evaluate._figures import (
-    deviation_colors,
-    figure_png_bytes,
-    histogram_figure,
-    render_figure,
-)
-from tofmetry.io import atomic_write_bytes, atomic_write_json, write_ply
+from tofmetry.evaluate._figures import deviation_colors, histogram_figure, render_figure
+from tofmetry.io import atomic_write_json, write_ply
 
 
 def write_evaluation(out_dir: str | os.PathLike, result: EvaluationResult, title: str = "model vs reference",
@@ -25,13 +21,14 @@ def write_evaluation(out_dir: str | os.PathLike, result: EvaluationResult, title
     if extra:
         metrics.update(extra)
     paths = {"metrics": atomic_write_json(out / "metrics.json", metrics)}
-    paths["histogram"] = atomic_write_bytes(out / "histogram.png", figure_png_bytes(
+    paths["histogram"] = save_png(
         histogram_figure(result.deviation_m, result.on_edge, result.stats_trimmed.to_dict(),
-                         f"{title}: deviation histogram ({result.comparison})")))
+                         f"{title}: deviation histogram ({result.comparison})"), out / "histogram.png")
     paths["deviation_ply"] = write_ply(out / "deviation.ply", result.points,
                                        colors=deviation_colors(result.deviation_m, scale),
                                        scalars={"deviation_mm": result.deviation_m * 1e3,
                                                 "edge_trimmed": result.on_edge.astype(float)})
-    paths["render"] = atomic_write_bytes(out / "deviation_render.png", figure_png_bytes(
-        render_figure(result.points, result.deviation_m, scale, f"{title}: signed deviation (RdBu_r, +-{scale:g} mm)")))
+    paths["render"] = save_png(
+        render_figure(result.points, result.deviation_m, scale, f"{title}: signed deviation (RdBu_r, +-{scale:g} mm)"),
+        out / "deviation_render.png")
     return paths

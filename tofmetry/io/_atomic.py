@@ -1,34 +1,21 @@
-"""Atomic file and folder writing: write to a temporary sibling, then rename."""
+"""JSON files (written atomically) and the atomic writers of :mod:`tofmetry._shared.atomic`.
+
+``atomic_write_bytes`` and ``atomic_dir`` live in :mod:`tofmetry._shared.atomic` (figures use them
+too); they are re-exported here for the format modules of this package.
+"""
 
 from __future__ import annotations
 
 import json
 import os
-import shutil
-import tempfile
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
+from tofmetry._shared.atomic import atomic_dir, atomic_write_bytes
 from tofmetry.errors import InputError
 
-
-def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
-    """Write ``data`` to ``path`` atomically (same-folder temp file + ``os.replace``)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+__all__ = ["atomic_dir", "atomic_write_bytes", "atomic_write_json", "read_json", "to_json"]
 
 
 def _json_default(o):
@@ -74,31 +61,3 @@ def read_json(path: str | os.PathLike, what: str = "JSON file") -> dict:
         return json.loads(path.read_text())
     except json.JSONDecodeError as exc:
         raise InputError(f"{path}: not valid JSON ({exc})") from None
-
-
-@contextmanager
-def atomic_dir(path: str | os.PathLike, force: bool = False) -> Iterator[Path]:
-    """Build a folder in a temporary sibling and move it into place on success.
-
-    Refuses to replace an existing non-empty folder unless ``force``; the previous
-    folder is then removed only after the new one is complete.
-    """
-    path = Path(path)
-    occupied = (path.is_dir() and any(path.iterdir())) or (path.exists() and not path.is_dir())
-    if occupied:
-        if not force:
-            raise InputError(f"output {path} already exists; refusing to overwrite (pass --force to replace it)")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
-    try:
-        yield tmp
-        if path.exists():
-            old = path.with_name(f".{path.name}.old-{os.getpid()}")
-            os.replace(path, old)
-            os.replace(tmp, path)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, path)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise

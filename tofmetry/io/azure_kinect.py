@@ -32,9 +32,13 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from tofmetry.errors import FormatError, InputError
+from tofmetry.io._atomic import atomic_write_bytes, atomic_write_json, read_json
+from tofmetry.io.capture import CaptureMeta, CaptureWriter
+from tofmetry.io.intrinsics_json import read_intrinsics, write_intrinsics
 from tofmetry.sensor.extrinsics import Extrinsics
 from tofmetry.sensor.intrinsics import CameraIntrinsics
 from tofmetry.sensor.profiles import AZURE_KINECT  # noqa: F401  (re-exported: the sensor identity of imports)
@@ -103,8 +107,6 @@ def brown_from_rational(K: np.ndarray, rational: np.ndarray, size: tuple[int, in
     -------
     dist5 : (5,) ; rms_px, max_px : float, reprojection difference over the used pixels.
     """
-    import cv2
-
     W, H = size
     uu, vv = np.meshgrid(np.linspace(0, W - 1, 64), np.linspace(0, H - 1, 58))
     uv = np.column_stack([uu.ravel(), vv.ravel()]).astype(np.float64)
@@ -340,10 +342,6 @@ def import_azure_kinect(src: str | os.PathLike, out: str | os.PathLike, force: b
     Besides the contract files the folder holds ``azure_calibration.json`` (the factory file),
     ``color_intrinsics.json`` and ``extrinsics.json`` (depth -> colour, [m]).
     """
-    from tofmetry.io._atomic import atomic_write_bytes, atomic_write_json
-    from tofmetry.io.capture import CaptureMeta, CaptureWriter
-    from tofmetry.io.intrinsics_json import write_intrinsics
-
     src = Path(src)
     info = probe_azure_mkv(src)
     cams = parse_calibration(info.calibration, info.depth_mode, info.color_height, f"{src} calibration.json")
@@ -388,9 +386,6 @@ def import_azure_kinect_cli(src, out, *, force: bool = False, progress=None, max
 
 def load_capture_calibration(capture_path: str | os.PathLike) -> tuple[CameraIntrinsics, Extrinsics]:
     """Colour intrinsics and depth -> colour extrinsics stored beside an imported capture."""
-    from tofmetry.io._atomic import read_json
-    from tofmetry.io.intrinsics_json import read_intrinsics
-
     p = Path(capture_path)
     if not (p / "color_intrinsics.json").is_file():
         raise InputError(f"{p}: no color_intrinsics.json (not an imported Azure Kinect capture with colour)")

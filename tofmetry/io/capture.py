@@ -15,7 +15,10 @@
 
 from __future__ import annotations
 
+import io
 import os
+import shutil
+import threading
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -248,7 +251,10 @@ class CaptureWriter:
     """Stream frames into a new capture folder, atomically.
 
     Use as a context manager; the folder appears under its name only when the block
-    finishes without error. Refuses to replace an existing capture unless ``force``.
+    finishes without error (an interrupted run leaves a hidden ``.NAME.*.tmp`` folder at most,
+    never a capture that looks complete). Refuses to replace an existing capture unless ``force``.
+    Frames are appended in order with :meth:`add`, or written by index from several threads with
+    :meth:`put` (every index ``0 .. n-1`` must be written once).
 
     Examples
     --------
@@ -263,32 +269,75 @@ class CaptureWriter:
         self.force = force
         self._ctx = None
         self._tmp: Path | None = None
-        self.n = 0
         self._shape = None
+        self._lock = threading.Lock()
+        self._written: set[int] = set()
+
+    @property
+    def n(self) -> int:
+        """Number of frames written so far."""
+        return len(self._written)
 
     def __enter__(self) -> "CaptureWriter":
         self._ctx = atomic_dir(self.path, force=self.force)
         self._tmp = self._ctx.__enter__()
-        (self._tmp / "depth").mkdir()
+        for sub in ("depth", "ir", "color"):
+            (self._tmp / sub).mkdir()
         return self
 
     def add(self, depth: np.ndarray, ir: np.ndarray | None = None, color: np.ndarray | None = None) -> None:
         """Append one frame: depth (H, W) uint16 [mm]; ir (H, W) uint16; color (Hc, Wc, 3) uint8 RGB."""
-        if depth.dtype != np.uint16 or depth.ndim != 2:
-            raise FormatError(f"CaptureWriter.add: depth must be (H, W) uint16 mm, found {depth.shape} {depth.dtype}")
-        if self._shape is None:
-            self._shape = depth.shape
-        elif depth.shape != self._shape:
-            raise FormatError(f"CaptureWriter.add: frame {self.n} has size {depth.shape}, previous frames {self._shape}")
-        name = f"{self.n:06d}"
-        images.write_png16(self._tmp / "depth" / f"{name}.png", depth)
+        self.put(self.n, depth, ir, color)
+
+    def put(self, index: int, depth: np.ndarray, ir: np.ndarray | None = None, color: np.ndarray | None = None) -> None:
+        """Write frame ``index`` (thread-safe; any order).
+
+        Parameters
+        ----------
+        index : frame number, 0-based (file ``depth/{index:06d}.png``)
+        depth : (H, W) uint16 [mm] (PNG), or (H, W) float32 [mm] (``.npy``, unrounded, e.g. the
+            output of ``tofmetry correct --float32``)
+        ir : optional (H, W) amplitude (clipped to uint16, PNG)
+        color : optional (Hc, Wc, 3) uint8 RGB (JPEG)
+        """
+        if self._tmp is None:
+            raise RuntimeError("CaptureWriter.put is only available inside the 'with' block")
+        if depth.ndim != 2 or depth.dtype not in (np.uint16, np.float32):
+            raise FormatError(f"CaptureWriter: depth frame {index} must be (H, W) uint16 or float32 mm, found "
+                              f"{depth.shape} {depth.dtype}")
+        with self._lock:
+            if self._shape is None:
+                self._shape = depth.shape
+            elif depth.shape != self._shape:
+                raise FormatError(f"CaptureWriter: frame {index} has size {depth.shape}, previous frames {self._shape}")
+            if index in self._written:
+                raise FormatError(f"CaptureWriter: frame {index} written twice")
+            self._written.add(index)
+        name = f"{index:06d}"
+        # plain writes: the whole folder is moved into place atomically at the end
+        if depth.dtype == np.uint16:
+            (self._tmp / "depth" / f"{name}.png").write_bytes(images.encode_png16(depth))
+        else:
+            buf = io.BytesIO()
+            np.save(buf, depth)
+            (self._tmp / "depth" / f"{name}.npy").write_bytes(buf.getvalue())
         if ir is not None:
-            (self._tmp / "ir").mkdir(exist_ok=True)
-            images.write_png16(self._tmp / "ir" / f"{name}.png", np.clip(ir, 0, 65535).astype(np.uint16))
+            (self._tmp / "ir" / f"{name}.png").write_bytes(images.encode_png16(np.clip(ir, 0, 65535).astype(np.uint16)))
         if color is not None:
-            (self._tmp / "color").mkdir(exist_ok=True)
             images.write_color_jpg(self._tmp / "color" / f"{name}.jpg", color)
-        self.n += 1
+
+    def copy_frames(self, kind: str, files: list[Path]) -> None:
+        """Copy existing frame files unchanged (e.g. the IR frames of a corrected capture).
+
+        Parameters
+        ----------
+        kind : ``"ir"`` or ``"color"``
+        files : frame files, copied under their own names
+        """
+        if kind not in ("ir", "color"):
+            raise InputError(f"CaptureWriter.copy_frames: kind must be 'ir' or 'color', found {kind!r}")
+        for f in files:
+            shutil.copyfile(f, self._tmp / kind / Path(f).name)
 
     @property
     def staging(self) -> Path:
@@ -301,6 +350,12 @@ class CaptureWriter:
     def _finish(self) -> None:
         if self.n == 0:
             raise FormatError(f"{self.path}: no frames were written")
+        if max(self._written) != self.n - 1:
+            missing = sorted(set(range(max(self._written) + 1)) - self._written)[:5]
+            raise FormatError(f"{self.path}: frames {missing} were never written")
+        for sub in ("ir", "color"):
+            if not any((self._tmp / sub).iterdir()):
+                (self._tmp / sub).rmdir()
         ts = self.meta.timestamps_s
         if ts is not None and len(ts) != self.n:
             raise FormatError(f"{self.path}: {len(ts)} timestamps for {self.n} frames")

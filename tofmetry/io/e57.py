@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from tofmetry.errors import FormatError, InputError
+from tofmetry.io.ply import read_ply, write_ply
 
 
 def write_e57(path: str | os.PathLike, points: np.ndarray, colors: np.ndarray | None = None,
@@ -90,8 +91,6 @@ def read_e57(path: str | os.PathLike) -> dict[str, np.ndarray]:
 
 def export_e57_cli(src, out, *, force: bool = False, **_ignored) -> dict:
     """Registry entry: PLY (cloud or mesh vertices) -> E57."""
-    from tofmetry.io.ply import read_ply
-
     out = Path(out)
     if out.exists() and not force:
         raise InputError(f"output {out} already exists; refusing to overwrite (pass --force)")
@@ -103,8 +102,6 @@ def export_e57_cli(src, out, *, force: bool = False, **_ignored) -> dict:
 
 def export_ply_cli(src, out, *, force: bool = False, **_ignored) -> dict:
     """Registry entry: E57 -> PLY (binary)."""
-    from tofmetry.io.ply import write_ply
-
     out = Path(out)
     if out.exists() and not force:
         raise InputError(f"output {out} already exists; refusing to overwrite (pass --force)")

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from tofmetry.errors import FormatError, InputError
+from tofmetry.io.ply import read_ply
 
 SUPPORTED_SUFFIXES = (".ply", ".obj", ".stl")
 
@@ -63,8 +64,6 @@ def read_geometry(path: str | os.PathLike, what: str = "geometry") -> Geometry:
     pts = faces = normals = None
     if suffix == ".ply":
         try:
-            from tofmetry.io.ply import read_ply
-
             d = read_ply(path)
             pts, faces, normals = d["points"], d.get("faces"), d.get("normals")
         except (FormatError, UnicodeDecodeError, ValueError, KeyError, IndexError):

@@ -18,6 +18,8 @@ import os
 from pathlib import Path
 
 from tofmetry.errors import FormatError, InputError
+from tofmetry.io._atomic import atomic_write_json, read_json
+from tofmetry.io.intrinsics_json import read_intrinsics
 from tofmetry.io.tum import import_depth_color_lists
 from tofmetry.sensor.intrinsics import CameraIntrinsics
 
@@ -27,8 +29,6 @@ _IMG = (".png", ".jpg", ".jpeg")
 
 def read_open3d_intrinsics(path: str | os.PathLike) -> CameraIntrinsics:
     """Open3D ``PinholeCameraIntrinsic`` JSON -> CameraIntrinsics (column-major ``intrinsic_matrix``)."""
-    from tofmetry.io._atomic import read_json
-
     d = read_json(path, "Open3D camera intrinsic")
     try:
         m = [float(x) for x in d["intrinsic_matrix"]]
@@ -43,8 +43,6 @@ def read_open3d_intrinsics(path: str | os.PathLike) -> CameraIntrinsics:
 
 def write_open3d_intrinsics(path: str | os.PathLike, intr: CameraIntrinsics):
     """Inverse of :func:`read_open3d_intrinsics` (distortion is not representable and must be zero)."""
-    from tofmetry.io._atomic import atomic_write_json
-
     if intr.has_distortion:
         raise InputError("Open3D PinholeCameraIntrinsic has no distortion; undistort first")
     return atomic_write_json(path, {"width": intr.width, "height": intr.height,
@@ -77,7 +75,5 @@ def import_open3d(src: str | os.PathLike, out: str | os.PathLike, depth_scale: f
 def import_open3d_cli(src, out, *, force: bool = False, progress=None, depth_scale: float | None = None,
                       max_frames: int | None = None, intrinsics=None, **_ignored) -> dict:
     """Registry entry for :func:`import_open3d`."""
-    from tofmetry.io.intrinsics_json import read_intrinsics
-
     intr = read_intrinsics(intrinsics) if intrinsics else None
     return import_open3d(src, out, depth_scale or OPEN3D_DEPTH_SCALE, intr, force, max_frames, progress)

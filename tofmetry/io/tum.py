@@ -22,6 +22,9 @@ from pathlib import Path
 import numpy as np
 
 from tofmetry.errors import FormatError, InputError
+from tofmetry.io import images
+from tofmetry.io.capture import CaptureMeta, CaptureWriter
+from tofmetry.io.intrinsics_json import read_intrinsics
 
 TUM_DEPTH_SCALE = 5000.0
 
@@ -66,9 +69,6 @@ def associate(t_a: np.ndarray, t_b: np.ndarray, max_dt_s: float) -> np.ndarray:
 def import_depth_color_lists(root: Path, out, depth_list, color_list, scale: float, sensor: str, intrinsics,
                              force: bool, max_frames: int | None, progress, max_dt_s: float, fmt: str) -> dict:
     """Shared writer for TUM-like (timestamped) and Open3D-like (paired) folders."""
-    from tofmetry.io import images
-    from tofmetry.io.capture import CaptureMeta, CaptureWriter
-
     if not scale or scale <= 0:
         raise InputError(f"depth scale must be > 0 units per metre, found {scale}")
     if max_frames is not None:
@@ -115,7 +115,5 @@ def import_tum(src: str | os.PathLike, out: str | os.PathLike, depth_scale: floa
 def import_tum_cli(src, out, *, force: bool = False, progress=None, depth_scale: float | None = None,
                    max_frames: int | None = None, intrinsics=None, **_ignored) -> dict:
     """Registry entry for :func:`import_tum`."""
-    from tofmetry.io.intrinsics_json import read_intrinsics
-
     intr = read_intrinsics(intrinsics) if intrinsics else None
     return import_tum(src, out, depth_scale or TUM_DEPTH_SCALE, intr, force, max_frames, progress)

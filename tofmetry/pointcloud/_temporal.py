@@ -6,7 +6,9 @@ no cancellation), so a long sequence never has to sit in memory.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -113,8 +115,6 @@ def temporal_stats(frames, median: bool = False) -> TemporalStats:
         st = np.stack(keep).astype(np.float64)
         st[st <= 0] = np.nan
         with np.errstate(all="ignore"):
-            import warnings
-
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
                 res.median = np.nanmedian(st, axis=0)
@@ -129,7 +129,8 @@ def _nan_median(a: np.ndarray, cnt: np.ndarray) -> np.ndarray:
     return 0.5 * (np.take_along_axis(srt, lo, 0)[0] + np.take_along_axis(srt, hi, 0)[0])
 
 
-def robust_mean_depth(stack: np.ndarray, k: float = 3.0, min_count: int = 1) -> np.ndarray:
+def robust_mean_depth(stack: np.ndarray, k: float = 3.0, min_count: int = 1, *,
+                      correct: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray:
     """Temporal mean with outlier rejection: the mean of the samples within
     median +- k * max(1.4826 MAD, 0.5 mm), zeros ignored (0.5 mm: the quantisation floor of integer mm).
 
@@ -140,11 +141,16 @@ def robust_mean_depth(stack: np.ndarray, k: float = 3.0, min_count: int = 1) -> 
         Rejection threshold in robust standard deviations.
     min_count : int
         Pixels with fewer surviving samples are 0.
+    correct : optional ``correct(frame) -> corrected frame [mm]`` applied to every (H, W) frame
+        first (a depth calibration's kernel: the mean of the corrected frames keeps their
+        sub-millimetre values); it must keep invalid pixels at 0 (or NaN).
 
     Returns
     -------
     (H, W) float64 [mm], 0 where fewer than ``min_count`` samples survive.
     """
+    if correct is not None:
+        stack = np.stack([correct(f) for f in np.asarray(stack)])
     st = np.asarray(stack, dtype=np.float64)
     if st.ndim != 3 or st.shape[0] == 0:
         raise InputError(f"robust_mean_depth: expected (T, H, W) with T >= 1, found {st.shape}")

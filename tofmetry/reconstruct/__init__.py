@@ -17,7 +17,6 @@ from tofmetry.reconstruct._amplitude import (
     PAPER_K_MM_PER_LN,
     amplitude_bias_mm,
     white_amplitude_map,
-    white_map_from_wall,
 )
 from tofmetry.reconstruct._config import (
     FusionConfig,
@@ -26,6 +25,7 @@ from tofmetry.reconstruct._config import (
     RegistrationConfig,
     SegmentConfig,
 )
+from tofmetry.reconstruct._o3d import Match, estimate_normals, global_register, icp, voxel_down
 from tofmetry.reconstruct._fusion import (
     TSDFFusion,
     crop_mesh,
@@ -46,7 +46,7 @@ from tofmetry.reconstruct._posegraph import (
     select_hypotheses,
     spanning_tree,
 )
-from tofmetry.reconstruct._preprocess import ViewData, image_normals, prepare_view
+from tofmetry.reconstruct._preprocess import ViewData, corrected_mean_depth, image_normals, prepare_view
 from tofmetry.reconstruct._register import (
     PairResult,
     RegView,
@@ -66,6 +66,7 @@ from tofmetry.reconstruct._segment import (
 __all__ = [
     "PAPER_K_MM_PER_LN",
     "AdjustResult",
+    "Match",
     "AdjustView",
     "FusionConfig",
     "PairResult",
@@ -85,10 +86,14 @@ __all__ = [
     "apply_depth_gain",
     "connected_components",
     "consistency_gate",
+    "corrected_mean_depth",
     "crop_mesh",
+    "estimate_normals",
     "fit_support_plane",
     "free_space_violation",
     "global_adjust",
+    "global_register",
+    "icp",
     "image_normals",
     "loop_closures",
     "make_reg_view",
@@ -106,7 +111,7 @@ __all__ = [
     "undistort_depth",
     "undistort_maps",
     "visibility_violation",
+    "voxel_down",
     "white_amplitude_map",
-    "white_map_from_wall",
     "write_reconstruction",
 ]

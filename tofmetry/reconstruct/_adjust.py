@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.errors import EstimationError, InputError
 
 
@@ -278,7 +279,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                 sigma_g = 0.0
         rms_hist.append(float(np.sqrt(s2)) * 1e3)
         moved = [np.linalg.inv(P_start[v]) @ P[v] for v in range(V)]
-        max_rot = max(np.degrees(np.arccos(np.clip((np.trace(E[:3, :3]) - 1) / 2, -1, 1))) for E in moved)
+        max_rot = max(rotation_angle_deg(E) for E in moved)
         max_t = max(np.linalg.norm(E[:3, 3]) for E in moved)
         if r == radii_m[-1] and it > len(schedule) - n_last and max_rot < tol_deg and max_t < tol_m:
             converged = True
@@ -286,6 +287,6 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
     moved_deg, moved_mm = np.zeros(V), np.zeros(V)
     for v in range(V):
         E = np.linalg.inv(poses[v]) @ P[v]
-        moved_deg[v] = np.degrees(np.arccos(np.clip((np.trace(E[:3, :3]) - 1) / 2, -1, 1)))
+        moved_deg[v] = rotation_angle_deg(E)
         moved_mm[v] = np.linalg.norm(E[:3, 3]) * 1e3
     return AdjustResult(P, g, sigma_g, z_ref_m, it, np.array(rms_hist), counts, pair_rms, moved_deg, moved_mm, converged)

@@ -7,19 +7,18 @@ reports a black surface (about 1/6 of the white amplitude) reading up to 12 mm l
 calibration (a white, frontal wall: the calibration absorbed nothing of this bias there):
 amplitude falls as 1 / range^2 and with the cosine of the incidence, so per pixel
 ``a(u, v) = A_wall * range^2 / cos_wall`` is constant, and ``A_white = a / range^2``.
+Measuring ``a`` on a wall dataset (files) is :func:`tofmetry.pipelines.reconstruct.white_map_from_wall`.
 """
 
 from __future__ import annotations
 
-import math
+import warnings
 
 import numpy as np
 
+from tofmetry._shared.study_constants import AMPLITUDE_BIAS_MM_PER_LN as PAPER_K_MM_PER_LN
 from tofmetry.errors import InputError
 from tofmetry.sensor import CameraIntrinsics
-
-#: mm per unit of ln(A_white / A): 12 mm for a black target at 1/6 of the white amplitude (§3.3.1)
-PAPER_K_MM_PER_LN = 12.0 / math.log(6.0)
 
 
 def white_amplitude_map(ir_means: list[np.ndarray], depth_means_mm: list[np.ndarray], intr: CameraIntrinsics) -> np.ndarray:
@@ -44,8 +43,6 @@ def white_amplitude_map(ir_means: list[np.ndarray], depth_means_mm: list[np.ndar
         z = np.asarray(z, np.float64) * 1e-3
         a = np.asarray(ir, np.float64) * (z * norm) ** 2 * norm
         vals.append(np.where((z > 0) & (np.asarray(ir) > 0), a, np.nan))
-    import warnings
-
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         return np.nanmedian(np.stack(vals), axis=0)
@@ -67,55 +64,3 @@ def amplitude_bias_mm(depth_mm: np.ndarray, ir: np.ndarray, white_map: np.ndarra
     a_white = white_map[ok] / r[ok] ** 2
     out[ok] = k_mm_per_ln * np.log(a_white / np.asarray(ir, np.float64)[ok])
     return out
-
-
-def white_map_from_wall(wall_dir, calibration=None, intrinsics: CameraIntrinsics | None = None, max_mm: float = 2500.0,
-                        advance=None, max_frames: int = 10) -> np.ndarray:
-    """White-frontal amplitude per pixel from a wall dataset (the amplitude reference of the scan).
-
-    Per station: mean IR and robust mean depth of the first ``max_frames`` frames, calibrated with
-    ``calibration`` when given, then :func:`white_amplitude_map`.
-
-    Parameters
-    ----------
-    wall_dir : path of a wall dataset (stations.csv + captures with IR; white, frontal wall)
-    calibration : tofmetry.calibrate.DepthCalibration or None; its intrinsics are used when present
-    intrinsics : CameraIntrinsics used without calibration (None: the first station's own)
-    max_mm : stations farther than this [mm] are not used (the nearest one is kept if none remains)
-    advance : optional callable, called once per station processed (progress)
-
-    Returns
-    -------
-    (H, W) float64 white amplitude at 1 m [amplitude * m^2], NaN where unknown.
-
-    Raises
-    ------
-    InputError when a station has no IR frames or its size differs from the intrinsics.
-    """
-    from tofmetry.io import WallDataset
-    from tofmetry.pointcloud import robust_mean_depth
-
-    wall = WallDataset(wall_dir)
-    stations = [st for st in wall.stations if st.distance_mm <= max_mm] or wall.stations[:1]
-    intr = calibration.intrinsics if calibration is not None else intrinsics
-    irs, depths = [], []
-    for st in stations:
-        cap = st.open()
-        if intr is None:
-            intr = cap.intrinsics()[0]
-        if not cap.has_ir:
-            raise InputError(f"amplitude reference {wall_dir}: station {st.path} has no IR frames (IR is needed)")
-        if cap.shape != intr.shape:
-            raise InputError(f"amplitude reference {wall_dir}: station {st.path} is {cap.shape}, "
-                             f"expected {intr.shape} (the scan's depth size)")
-        d = robust_mean_depth(cap.depth_stack(range(min(max_frames, len(cap)))), 3.0, 1)
-        if calibration is not None:
-            from tofmetry.calibrate import apply_depth_calibration
-
-            d = np.asarray(apply_depth_calibration(d, calibration), np.float64)
-            d[~np.isfinite(d)] = 0.0
-        irs.append(cap.ir_mean())
-        depths.append(d)
-        if advance is not None:
-            advance()
-    return white_amplitude_map(irs, depths, intr)

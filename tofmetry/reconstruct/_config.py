@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pydantic import BaseModel, Field
 
+from tofmetry._shared.study_constants import AMPLITUDE_BIAS_MM_PER_LN
+
 
 class PreprocessConfig(BaseModel):
     """Per-view depth preparation (study §3.2, §5.2.1)."""
@@ -13,8 +15,9 @@ class PreprocessConfig(BaseModel):
     min_mm: float = Field(500.0, description="working range: nearest depth kept [mm] (Kinect v2 spec: 500)")
     max_mm: float = Field(2500.0, description="working range: farthest depth kept [mm]; small-object scans are at ~1 m")
     remove_flying: bool = Field(True, description="remove flying (mixed) pixels with tofmetry.assess.remove_flying_pixels")
-    amplitude_k_mm_per_ln: float = Field(6.7, description="amplitude bias k ln(A_white / A) [mm]; 12 mm for 1/6 of the "
-                                         "white amplitude (study §3.3.1) -> 12 / ln 6 = 6.7; used with an amplitude reference")
+    amplitude_k_mm_per_ln: float = Field(AMPLITUDE_BIAS_MM_PER_LN, description="amplitude bias k ln(A_white / A) [mm]; "
+                                         "12 mm for 1/6 of the white amplitude (study §3.3.1) -> 12 / ln 6 = 6.70; used "
+                                         "with an amplitude reference")
     amplitude_max_mm: float = Field(20.0, gt=0, description="clip of the amplitude correction [mm]")
     max_incidence_deg: float = Field(80.0, gt=0, le=90, description="drop grazing points (incidence angle above this) [deg]")
 

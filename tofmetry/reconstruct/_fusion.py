@@ -12,9 +12,11 @@ for both grids, so the resampling moves no point along the line of sight.
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from tofmetry.errors import EstimationError
+from tofmetry.reconstruct._o3d import to_pcd
 from tofmetry.sensor import CameraIntrinsics
 
 
@@ -46,8 +48,6 @@ def undistort_depth(depth_mm: np.ndarray, intr: CameraIntrinsics, jump_mm: float
     -------
     (H, W) float32 [mm] Z on the pinhole grid, 0 = invalid
     """
-    import cv2
-
     if not intr.has_distortion:
         return np.asarray(depth_mm, np.float32)
     mu, mv = undistort_maps(intr)
@@ -153,8 +153,6 @@ def poisson_mesh(points: np.ndarray, normals: np.ndarray, depth: int = 9, trim_q
     vertices (V, 3) [m], triangles (F, 3) int64
     """
     import open3d as o3d
-
-    from tofmetry.reconstruct._o3d import to_pcd
 
     mesh, dens = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(to_pcd(points, normals), depth=depth)
     dens = np.asarray(dens)

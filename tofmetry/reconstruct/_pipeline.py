@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+from tofmetry._shared.geometry import fit_plane_svd
 from tofmetry.errors import EstimationError, InputError, SensorMismatchError
 from tofmetry.reconstruct._adjust import (
     AdjustResult,
@@ -37,15 +38,6 @@ def _median_object_depth_m(views, segs) -> float:
     """Median depth Z [m] of the segmented object points over all views (1 m when there are none)."""
     z = np.concatenate([v.points[s.object_mask, 2] for v, s in zip(views, segs)])
     return float(np.median(z)) if len(z) else 1.0
-
-
-def _refit_plane(points: np.ndarray, plane: np.ndarray) -> np.ndarray:
-    """Least-squares plane (4,) through ``points`` (N, 3) [m], oriented like ``plane``."""
-    c = points.mean(0)
-    n = np.linalg.svd(points - c, full_matrices=False)[2][2]
-    if n @ plane[:3] < 0:
-        n = -n
-    return np.r_[n, -n @ c]
 
 
 @dataclass
@@ -202,7 +194,7 @@ class ReconstructionPipeline:
                 v.points = apply_depth_gain(v.points, res.depth_gain, z_ref)
                 v.depth_mm = np.where(v.depth_mm > 0, v.depth_mm + res.depth_gain * (v.depth_mm - z_ref * 1e3), 0.0)
                 if on_plane is not None and on_plane.sum() >= 3:  # the support plane moved with its points
-                    s.plane = _refit_plane(v.points[on_plane], s.plane)
+                    s.plane = fit_plane_svd(v.points[on_plane], orient=s.plane[:3])
         return res
 
     def fuse(self, views, segs, poses, intr):

@@ -7,13 +7,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.errors import EstimationError
 from tofmetry.reconstruct._register import PairResult
-
-
-def rotation_angle_deg(R: np.ndarray) -> float:
-    """Angle of a rotation matrix [deg]."""
-    return float(np.degrees(np.arccos(np.clip((np.trace(R[:3, :3]) - 1) / 2, -1, 1))))
 
 
 def relative_pose_errors(poses, true_poses) -> np.ndarray:

@@ -1,4 +1,9 @@
-"""Per-view depth preparation: robust temporal mean, calibration, flying pixels, range, normals."""
+"""Per-view depth preparation: calibration, robust temporal mean, flying pixels, range, normals.
+
+Each frame is corrected by the calibration's uint16 kernel (:func:`corrected_mean_depth`), the
+path every frame takes, before the robust temporal mean; the mean keeps sub-millimetre values, so
+it is back-projected in float (:func:`tofmetry.pointcloud.depth_to_points`), once per view.
+"""
 
 from __future__ import annotations
 
@@ -6,8 +11,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tofmetry.assess import remove_flying_pixels
 from tofmetry.errors import InputError
+from tofmetry.calibrate import DepthCalibration, apply_depth_calibration, count_outside_range
 from tofmetry.pointcloud import depth_to_points, robust_mean_depth
+from tofmetry.reconstruct._amplitude import amplitude_bias_mm
 from tofmetry.reconstruct._config import PreprocessConfig
 from tofmetry.sensor import CameraIntrinsics
 
@@ -38,11 +46,35 @@ class ViewData:
     stats: dict
 
 
-def _flying_filter(depth: np.ndarray, intr: CameraIntrinsics) -> np.ndarray:
-    """Flying-pixel removal via tofmetry.assess (the assessment helper's detector)."""
-    from tofmetry.assess.flying import remove_flying_pixels
+def corrected_mean_depth(stack: np.ndarray, calibration: DepthCalibration | None = None, k: float = 3.0,
+                         min_count: int = 1) -> np.ndarray:
+    """Robust temporal mean of raw depth frames, each corrected first by the calibration's uint16 kernel.
 
-    return remove_flying_pixels(depth, intr)
+    Parameters
+    ----------
+    stack : (T, H, W) uint16 [mm] raw depth frames of one pose, 0 = invalid
+    calibration : DepthCalibration or None (raw depth)
+    k, min_count : as :func:`tofmetry.pointcloud.robust_mean_depth`
+
+    Returns
+    -------
+    (H, W) float64 [mm], 0 where fewer than ``min_count`` samples survive; depths outside the
+    calibration's support get its fallback, frame by frame (see :func:`outside_support`).
+    """
+    correct = None if calibration is None else (lambda f: apply_depth_calibration(f, calibration))
+    mean = robust_mean_depth(stack, k=k, min_count=min_count, correct=correct)
+    mean[~np.isfinite(mean)] = 0.0
+    return mean
+
+
+def outside_support(stack: np.ndarray, calibration, valid: np.ndarray) -> int:
+    """Pixels of a view (valid after averaging) whose mean raw depth lies outside the calibration's
+    support: their correction is the calibration's fallback (0 without a calibration)."""
+    if calibration is None:
+        return 0
+    n = (stack > 0).sum(axis=0)
+    mean = stack.sum(axis=0, dtype=np.float64) / np.maximum(n, 1)
+    return int(count_outside_range(np.where(valid & (n > 0), mean, 0.0), calibration))
 
 
 def prepare_view(stack: np.ndarray, intr: CameraIntrinsics, calibration=None, config: PreprocessConfig | None = None,
@@ -67,28 +99,24 @@ def prepare_view(stack: np.ndarray, intr: CameraIntrinsics, calibration=None, co
     if stack.ndim != 3 or stack.shape[1:] != intr.shape:
         raise InputError(f"view {name}: depth stack shape {stack.shape} does not match the intrinsics {intr.shape} (T, H, W)")
     min_count = max(1, int(np.ceil(cfg.min_valid_share * stack.shape[0])))
-    depth = robust_mean_depth(stack, k=cfg.robust_k, min_count=min_count)
+    depth = corrected_mean_depth(stack, calibration, k=cfg.robust_k, min_count=min_count)
     n_valid0 = int((depth > 0).sum())
-    if calibration is not None:
-        from tofmetry.calibrate import apply_depth_calibration
-
-        depth = np.asarray(apply_depth_calibration(depth, calibration), dtype=np.float64)
-        depth[~np.isfinite(depth)] = 0.0
+    n_outside = outside_support(stack, calibration, depth > 0)
     amp_mean = 0.0
     if white_map is not None and ir is not None:
-        from tofmetry.reconstruct._amplitude import amplitude_bias_mm
-
         b = amplitude_bias_mm(depth, ir, white_map, intr, cfg.amplitude_k_mm_per_ln)
         b = np.clip(b, -cfg.amplitude_max_mm, cfg.amplitude_max_mm)
         depth = np.where(depth > 0, depth - b, 0.0)
         amp_mean = float(np.median(b[depth > 0])) if (depth > 0).any() else 0.0
     n_flying = 0
     if cfg.remove_flying:
-        cleaned = np.asarray(_flying_filter(depth, intr), dtype=np.float64)
+        cleaned = np.asarray(remove_flying_pixels(depth, intr), dtype=np.float64)
         n_flying = int(((depth > 0) & (cleaned <= 0)).sum())
         depth = cleaned
     lo, hi = cfg.min_mm, cfg.max_mm
-    if calibration is not None:  # uncorrected depth (outside the calibrated span) would be biased by cm
+    if calibration is not None and calibration.support is None:
+        # a calibration without a support map (format 1) leaves depth outside its range uncorrected,
+        # biased by centimetres: drop it
         lo, hi = max(lo, float(calibration.valid_range_mm[0])), min(hi, float(calibration.valid_range_mm[1]))
     out_range = (depth > 0) & ((depth < lo) | (depth > hi))
     depth = np.where(out_range, 0.0, depth)
@@ -100,7 +128,8 @@ def prepare_view(stack: np.ndarray, intr: CameraIntrinsics, calibration=None, co
     grazing = cos_inc < np.cos(np.radians(cfg.max_incidence_deg))
     keep = ~grazing
     depth.ravel()[idx[grazing]] = 0.0
-    stats = {"valid_after_averaging": n_valid0, "flying_removed": n_flying, "out_of_range": int(out_range.sum()),
+    stats = {"valid_after_averaging": n_valid0, "outside_calibration_support": n_outside,
+             "flying_removed": n_flying, "out_of_range": int(out_range.sum()),
              "grazing_removed": int(grazing.sum()), "points": int(keep.sum()),
              "amplitude_bias_median_mm": amp_mean}
     return ViewData(name, depth, pts[keep], idx[keep], normals[keep], cos_inc[keep], ir, stats)

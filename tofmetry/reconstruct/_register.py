@@ -16,8 +16,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.ndimage import minimum_filter
 from scipy.spatial import cKDTree
 
+from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.reconstruct._config import RegistrationConfig
 from tofmetry.reconstruct._o3d import (
     global_register,
@@ -86,8 +88,6 @@ def make_reg_view(view: ViewData, seg: Segmentation, cfg: RegistrationConfig, in
     pm, nm = voxel_down(view.points[sel], view.normals[sel], cfg.mid_voxel_mm * 1e-3)
     near = None
     if intr is not None:
-        from scipy.ndimage import minimum_filter
-
         d = np.where(view.depth_mm > 0, view.depth_mm * 1e-3, np.inf).astype(np.float32)
         near = minimum_filter(d, size=3, mode="nearest")
     return RegView(view.name, p, n, po, pf, nf, pc, nc, seg.plane, pm, nm, near, intr)
@@ -291,7 +291,7 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
     if init is not None:
         T = _refine_mid(src, tgt, init, cfg)
         E = np.linalg.inv(init) @ T
-        jump_deg = np.degrees(np.arccos(np.clip((np.trace(E[:3, :3]) - 1) / 2, -1, 1)))
+        jump_deg = rotation_angle_deg(E)
         if global_search or (jump_deg <= cfg.max_loop_jump_deg and np.linalg.norm(E[:3, 3]) * 1e3 <= cfg.max_loop_jump_mm):
             T = _refine_fine(src, tgt, T, cfg)
             cands.append((*object_fitness(src, tgt, T, r_final), T, "init+icp", vis(T)))
@@ -401,8 +401,7 @@ def registration_conditioning(src: RegView, tgt: RegView, T: np.ndarray, radius_
 
 def _same_pose(A: np.ndarray, B: np.ndarray, deg: float = 3.0, mm: float = 10.0) -> bool:
     E = np.linalg.inv(A) @ B
-    ang = np.degrees(np.arccos(np.clip((np.trace(E[:3, :3]) - 1) / 2, -1, 1)))
-    return bool(ang <= deg and np.linalg.norm(E[:3, 3]) * 1e3 <= mm)
+    return bool(rotation_angle_deg(E) <= deg and np.linalg.norm(E[:3, 3]) * 1e3 <= mm)
 
 
 def _passes(fit: float, rmse_m: float, cfg: RegistrationConfig) -> bool:

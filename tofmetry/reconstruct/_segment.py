@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from tofmetry._shared.geometry import fit_plane_svd
 from tofmetry.errors import EstimationError
 from tofmetry.reconstruct._config import SegmentConfig
 from tofmetry.reconstruct._o3d import quiet, to_pcd
@@ -53,12 +54,7 @@ def fit_support_plane(points: np.ndarray, threshold_m: float, seed: int = 0) -> 
     h = points @ plane[:3] + plane[3]
     sel = points[np.abs(h) < threshold_m]
     if len(sel) >= 3:
-        c = sel.mean(0)
-        _, _, vt = np.linalg.svd(sel - c, full_matrices=False)
-        n = vt[2]
-        if n @ plane[:3] < 0:
-            n = -n
-        plane = np.r_[n, -n @ c]
+        plane = fit_plane_svd(sel, orient=plane[:3])
     if plane[3] < 0:  # camera (origin) on the positive side: height(origin) = d > 0
         plane = -plane
     share = float(np.mean(np.abs(points @ plane[:3] + plane[3]) < threshold_m))

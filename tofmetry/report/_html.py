@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from plotly.offline import get_plotlyjs
 
 STATUS_BADGE = {"ok": ("#1a7f37", "done"), "skipped": ("#9a6700", "skipped"), "failed": ("#cf222e", "failed")}
 
@@ -108,8 +109,6 @@ def _section(s: Section) -> str:
 
 
 def _viewer(points: np.ndarray, values: np.ndarray, rng: float, max_points: int = 60000) -> str:
-    from plotly.offline import get_plotlyjs
-
     pts = np.asarray(points, float)
     vals = np.asarray(values, float)
     if len(pts) > max_points:

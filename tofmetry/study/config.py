@@ -12,6 +12,7 @@ from pathlib import Path
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from tofmetry.errors import InputError
+from tofmetry.io.board_dataset import BoardSpec
 
 
 class _Cfg(BaseModel):
@@ -63,8 +64,6 @@ class IntrinsicsConfig(_Cfg):
     @field_validator("board")
     @classmethod
     def _board(cls, v: str) -> str:
-        from tofmetry.io.board_dataset import BoardSpec
-
         BoardSpec.parse(v, 1.0)  # InputError (a ValueError) names the expected form
         return v
 
@@ -74,11 +73,14 @@ class DepthConfig(_Cfg):
 
     central_patch_px: int = Field(10, ge=1, description="Central patch for the range-error curve [px] (study: 10x10).")
     max_fit_distance_mm: float = Field(4500.0, gt=0, description="Stations beyond this are reported but not fitted (sensor range).")
-    cross_validate: bool = Field(True, description="Leave-one-station-out cross-validation on the training stations.")
-    cv_surfaces: list[str] = Field(default_factory=lambda: ["spline"],
-                                   description="Surface models cross-validated (spline, poly3); each costs one refit per station.")
-    compare_polynomial: bool = Field(True, description="Also fit the study's cubic-polynomial surfaces and compare them "
-                                     "with the tensor-spline surfaces on the held-out stations.")
+    cross_validate: bool = Field(True, description="Leave-one-station-out cross-validation on the training stations "
+                                 "of the methods in cv_methods (tofmetry's own calibration carries its blocked "
+                                 "validation already).")
+    cv_methods: list[str] = Field(default_factory=lambda: ["study"],
+                                  description="Methods cross-validated (tofmetry, study, study-poly3); each costs one "
+                                  "refit per station.")
+    compare_polynomial: bool = Field(True, description="Also fit the study's own method (range spline + cubic "
+                                     "polynomial per station) and compare it with tofmetry's on the held-out stations.")
     reference_offset_mm: float = Field(
         20.0, description="Distance from the stations' reference point (tripod fixing screw) forward to the optical "
         "centre, known from the mount; it is taken out of the station distances so that corrected depth is measured "

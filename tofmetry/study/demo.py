@@ -11,15 +11,16 @@ from typing import Callable
 
 import numpy as np
 
-from tofmetry.io import Capture, atomic_write_json, write_ply
-from tofmetry.pointcloud import amplitude_colors, depth_to_points, robust_mean_depth
+from tofmetry._shared.geometry import fit_plane_svd
+from tofmetry.io import Capture, atomic_write_json
+from tofmetry.pipelines.cloud import capture_cloud
+from tofmetry.simulate import datasets
 
 
 def _plane_residual_std_mm(points: np.ndarray) -> float:
     """Std of the orthogonal residuals of a least-squares plane [mm]; points (N, 3) [m]."""
-    c = points.mean(axis=0)
-    _, _, vt = np.linalg.svd(points - c, full_matrices=False)
-    return float(np.std((points - c) @ vt[2]) * 1000.0)
+    plane = fit_plane_svd(points)
+    return float(np.std(np.asarray(points, np.float64) @ plane[:3] + plane[3]) * 1000.0)
 
 
 def run_demo(out: Path, seed: int = 0, wall_distance_mm: float = 1500.0, n_frames: int = 10,
@@ -29,8 +30,6 @@ def run_demo(out: Path, seed: int = 0, wall_distance_mm: float = 1500.0, n_frame
     Writes ``out/data/{wall,scan}`` (simulated captures), ``out/wall.ply`` and ``out/object.ply``
     (clouds of the frame-averaged depth, metres, IR-coloured) and ``out/summary.json``.
     """
-    from tofmetry.simulate import datasets
-
     step = on_step or (lambda s: None)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -42,15 +41,13 @@ def run_demo(out: Path, seed: int = 0, wall_distance_mm: float = 1500.0, n_frame
     for name, cap_path in (("wall", out / "data" / "wall" / "capture"), ("object", out / "data" / "scan" / "views" / "00")):
         step(f"processing {name}")
         cap = Capture(cap_path)
-        intr, src = cap.intrinsics()
-        stack = cap.depth_stack()
-        depth = robust_mean_depth(stack)
-        pts, idx = depth_to_points(depth, intr, return_index=True)
-        cols = amplitude_colors(cap.ir_mean().ravel()[idx])
-        write_ply(out / f"{name}.ply", pts, colors=cols)
+        run = capture_cloud(cap, out / f"{name}.ply", average=True, force=True)  # IR-coloured, averaged
+        pts = run.points
+        depth = np.zeros(cap.shape)
+        depth.ravel()[run.index] = pts[:, 2] * 1e3  # the averaged depth [mm] that was back-projected
         entry = {
-            "frames": len(cap), "intrinsics": src, "points": int(len(pts)),
-            "valid_fraction": float((stack[0] > 0).mean()),
+            "frames": len(cap), "intrinsics": run.intrinsics_source, "points": int(len(pts)),
+            "valid_fraction": float((cap.depth(0) > 0).mean()),
             "depth_range_mm": [float(depth[depth > 0].min()), float(depth[depth > 0].max())],
             "cloud": f"{name}.ply",
         }

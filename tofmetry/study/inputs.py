@@ -12,12 +12,14 @@ default): rendering and PNG encoding are CPU-bound.
 
 from __future__ import annotations
 
+import multiprocessing as mp
 import os
 import shutil
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Callable
 
+from tofmetry.simulate import datasets
 from tofmetry.study.config import SimulationConfig
 
 
@@ -51,8 +53,6 @@ def _tasks(data_dir: Path, cfg: SimulationConfig) -> list[tuple[str, str, dict, 
 
 
 def _run_task(func: str, kwargs: dict) -> str:
-    from tofmetry.simulate import datasets
-
     getattr(datasets, func)(**kwargs)
     return func
 
@@ -75,8 +75,6 @@ def simulate_study_inputs(data_dir: Path, cfg: SimulationConfig, on_step: Callab
             step(label)
             _run_task(func, kw)
     else:
-        import multiprocessing as mp
-
         # 'spawn' keeps workers independent of this process's threads (numba/OpenMP, rich)
         with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
             futs = {pool.submit(_run_task, func, kw): label for label, func, kw, _ in tasks}

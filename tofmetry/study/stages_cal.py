@@ -9,8 +9,14 @@ from pathlib import Path
 
 import numpy as np
 
-from tofmetry.io import atomic_write_json, write_intrinsics
-from tofmetry.study.pipeline import StageOutcome, StudyContext
+from tofmetry.calibrate import StudyFitConfig, SurfaceSpec
+from tofmetry.io import atomic_write_json, read_json, write_intrinsics
+from tofmetry.io.board_dataset import BoardSpec
+from tofmetry.pipelines import (
+    calibrate_depth_dataset, intrinsics_from_images, save_calibration, validate_depth, write_depth_report,
+    write_intrinsics_report, write_validation_report,
+)
+from tofmetry.study.stage import StageOutcome, StudyContext
 
 
 def _figs(paths, prefix: str = "") -> list[tuple[str, Path]]:
@@ -19,17 +25,11 @@ def _figs(paths, prefix: str = "") -> list[tuple[str, Path]]:
 
 def stage_intrinsics(ctx: StudyContext, out: StageOutcome) -> None:
     """Brown model of the IR camera from checkerboard images, with stability analysis (§4.1)."""
-    from tofmetry.pipelines import intrinsics_from_images, write_intrinsics_report
-
     folder = ctx.input("checkerboard", "IR images of a planar checkerboard")
     c = ctx.config.intrinsics
-    from tofmetry.io.board_dataset import BoardSpec
-
     board, square = BoardSpec.parse(c.board, c.square_mm).size, c.square_mm
     bj = folder / "board.json"
     if bj.is_file():  # the board's own description wins over the config default
-        from tofmetry.io import read_json
-
         b = read_json(bj, "board.json")
         board, square = (int(b["cols"]), int(b["rows"])), float(b["square_mm"])
     run = intrinsics_from_images(folder, board, square, leave_one_out=True)
@@ -72,9 +72,6 @@ def _dev_range(rows: list[dict], key: str, max_mm: float) -> list[float] | None:
 def stage_depth(ctx: StudyContext, out: StageOutcome) -> None:
     """Range-error B-spline + per-pixel deformation surfaces from the wall stations (§4.2),
     validated on held-out stations never used for fitting (beyond §4.3)."""
-    from tofmetry.calibrate import save_calibration
-    from tofmetry.pipelines import calibrate_depth_dataset, validate_depth, write_depth_report, write_validation_report
-
     wall = ctx.input("wall", "a wall dataset: stations.csv + one capture per station")
     d = ctx.stage_dir("depth")
     dc = ctx.config.depth
@@ -96,7 +93,7 @@ def stage_depth(ctx: StudyContext, out: StageOutcome) -> None:
     out.paragraphs += list(run.notes)
     # training stations (in-sample, the study's own validation)
     tr = validate_depth(wall, cal, intrinsics=ctx.intrinsics, cross_validate=dc.cross_validate,
-                        cv_surfaces=tuple(dc.cv_surfaces), reference_offset_mm=dc.reference_offset_mm)
+                        cv_methods=tuple(dc.cv_methods), reference_offset_mm=dc.reference_offset_mm)
     out.data["training"] = tr.summary
     before = [r.dev_before_mm for r in tr.stations if r.distance_mm <= dc.max_fit_distance_mm]
     if before:
@@ -131,19 +128,18 @@ def stage_depth(ctx: StudyContext, out: StageOutcome) -> None:
                              r.rms_before_mm / r.rms_after_mm if r.rms_after_mm > 0 else float("nan")]
                             for r in va.stations]))
         if dc.compare_polynomial and run.kind == "wall":
-            from tofmetry.calibrate import DepthFitConfig, SurfaceSpec
-
             poly = calibrate_depth_dataset(wall, intrinsics=ctx.intrinsics, reference_offset_mm=dc.reference_offset_mm,
-                                           config=DepthFitConfig(surface=SurfaceSpec(model="poly", degree=3)))
+                                           config=StudyFitConfig(surface=SurfaceSpec(model="poly", degree=3)))
             vp = validate_depth(held, poly.calibration, intrinsics=ctx.intrinsics, reference_offset_mm=dc.reference_offset_mm)
             out.data["heldout_poly3"] = vp.summary
             rows = []
-            for label, v in (("tensor-product spline (default)", va), ("cubic polynomial (the study's choice)", vp)):
+            for label, v in (("tofmetry (range error along the ray + surfaces)", va),
+                             ("the study's method (range spline + cubic polynomial per station)", vp)):
                 after = [r.rms_after_mm for r in v.stations]
                 rows.append([label, float(np.median(after)), float(max(after)), v.summary["median_rms_reduction"],
                              v.summary["min_rms_reduction"], v.summary["max_abs_dev_after_mm"]])
-            out.tables.append(("Per-pixel surfaces: spline vs polynomial on the held-out stations",
-                               ["surface model", "median RMS after [mm]", "max RMS after [mm]", "median reduction",
+            out.tables.append(("tofmetry vs the study's method on the held-out stations",
+                               ["method", "median RMS after [mm]", "max RMS after [mm]", "median reduction",
                                 "min reduction", "max |central dev| after [mm]"], rows))
     else:
         out.paragraphs.append("No wall-validation/ folder: only leave-one-station-out cross-validation is reported.")

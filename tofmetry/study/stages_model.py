@@ -6,7 +6,13 @@ from pathlib import Path
 
 import numpy as np
 
-from tofmetry.study.pipeline import StageOutcome, StudyContext
+from tofmetry._shared.study_constants import AMPLITUDE_BIAS_MM_PER_LN
+from tofmetry.evaluate import EvaluationConfig
+from tofmetry.pipelines import load_calibration
+from tofmetry.pipelines.evaluate import evaluate_files
+from tofmetry.pipelines.reconstruct import reconstruct_scan, white_map_from_wall
+from tofmetry.reconstruct import ReconstructionConfig
+from tofmetry.study.stage import StageOutcome, StudyContext
 
 
 def _reference_path(ctx: StudyContext) -> Path | None:
@@ -31,21 +37,17 @@ def _stats_row(label: str, s: dict, comp: dict | None, comp_obs: dict | None) ->
 
 def _amplitude_slope(ctx: StudyContext) -> tuple[float, str]:
     """Slope of the amplitude bias: config > this run's materials assessment > the study's figure."""
-    import math
-
     mc = ctx.config.model
     if mc.amplitude_k_mm_per_ln is not None:
         return mc.amplitude_k_mm_per_ln, "configured"
     m = ctx.outcomes.get("materials")
     if m is not None and m.status == "ok" and "materials" in m.data:
         return float(m.data["materials"]["fit"]["slope_mm_per_ln"]), "measured on the grey-level board in this run"
-    return 12.0 / math.log(6.0), "the study's +12 mm at 1/6 amplitude (§3.3.1)"
+    return AMPLITUDE_BIAS_MM_PER_LN, "the study's +12 mm at 1/6 amplitude (§3.3.1)"
 
 
 def _white_map(ctx: StudyContext, cal, out: StageOutcome):
     """White-wall amplitude reference per pixel from the wall stations (None, with a note, if impossible)."""
-    from tofmetry.reconstruct import white_map_from_wall
-
     wall = ctx.data_dir / "wall"
     if not wall.exists():
         out.paragraphs.append("Amplitude correction skipped: no wall/ dataset to take the white amplitude from.")
@@ -59,14 +61,7 @@ def _white_map(ctx: StudyContext, cal, out: StageOutcome):
 
 def stage_model(ctx: StudyContext, out: StageOutcome) -> None:
     """Reconstruct the scan with and without the depth calibration and assess both against the reference."""
-    from tofmetry.calibrate import load_calibration
-    from tofmetry.evaluate import EvaluationConfig, evaluate_model, write_evaluation
-    from tofmetry.io import ScanDataset
-    from tofmetry.io.mesh import read_geometry
-    from tofmetry.reconstruct import ReconstructionConfig, ReconstructionPipeline, write_reconstruction
-
     scan = ctx.input("scan", "views/<name>/ captures around the object")
-    ds = ScanDataset(scan)
     mc = ctx.config.model
     ref_path = _reference_path(ctx)
     runs = [("calibrated", ctx.calibration_path)] if ctx.calibration_path is not None else []
@@ -87,9 +82,8 @@ def stage_model(ctx: StudyContext, out: StageOutcome) -> None:
             white = _white_map(ctx, cal, out)
             if white is not None:
                 cfg.preprocess.amplitude_k_mm_per_ln = k_amp
-        res = ReconstructionPipeline(ds, cal, cfg, white_map=white).run()
         rdir = d / label
-        write_reconstruction(rdir, res, force=True)
+        res = reconstruct_scan(scan, cal, rdir, config=cfg, white_map=white, force=True)
         tm = res.diagnostics.get("timings_s", {})
         edges = [e for e in res.edges if e.get("accepted")]
         cons = res.diagnostics.get("consistency", {})
@@ -116,12 +110,10 @@ def stage_model(ctx: StudyContext, out: StageOutcome) -> None:
             continue
         ecfg = EvaluationConfig(align=True, thresholds_mm=tuple(mc.thresholds_mm),
                                 exclude_normal=(0.0, 0.0, -1.0) if ctx.simulated else None)
-        model = read_geometry(rdir / "mesh.ply", "model")
-        ref = read_geometry(ref_path, "reference")
-        from tofmetry.io import read_json
-
-        ev = evaluate_model(model, ref, ecfg, poses=read_json(rdir / "poses.json", "poses.json"))
-        files = write_evaluation(d / f"evaluation-{label}", ev, title=f"model ({label}) vs reference")
+        edir = d / f"evaluation-{label}"
+        run = evaluate_files(rdir / "mesh.ply", ref_path, edir, config=ecfg, poses=rdir / "poses.json",
+                             title=f"model ({label}) vs reference")
+        ev, files = run.result, run.files
         ed = ev.to_dict()
         st = ed["stats_trimmed"]
         sw = st["share_within"]

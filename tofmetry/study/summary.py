@@ -7,7 +7,7 @@ import datetime as _dt
 import numpy as np
 
 from tofmetry.report import ComparisonRow, Report, Section
-from tofmetry.study.pipeline import StudyContext
+from tofmetry.study.stage import StudyContext
 
 
 def _get(ctx: StudyContext, key: str) -> dict | None:

@@ -1,0 +1,74 @@
+"""Atomic file and folder writing: write to a temporary sibling, then rename into place.
+
+A reader never sees a half-written file or folder under its final name: an interrupted run
+leaves at most a hidden ``.NAME.*.tmp`` sibling, never an output that looks complete.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator
+
+from tofmetry.errors import InputError
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically (same-folder temporary file + ``os.replace``).
+
+    Parameters
+    ----------
+    path : the file to write; its folder is created if needed
+    data : the bytes
+
+    Returns
+    -------
+    Path of the written file.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+@contextmanager
+def atomic_dir(path: str | os.PathLike, force: bool = False) -> Iterator[Path]:
+    """Build a folder in a temporary sibling and move it into place on success.
+
+    Refuses to replace an existing non-empty folder (or a file) unless ``force``; the previous
+    folder is then removed only after the new one is complete. On any exception (including
+    ``KeyboardInterrupt``) the temporary folder is removed and ``path`` is left as it was.
+
+    Yields
+    ------
+    Path of the temporary folder to fill.
+    """
+    path = Path(path)
+    occupied = (path.is_dir() and any(path.iterdir())) or (path.exists() and not path.is_dir())
+    if occupied and not force:
+        raise InputError(f"output {path} already exists; refusing to overwrite (pass --force to replace it)")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    try:
+        yield tmp
+        if path.exists():
+            old = path.with_name(f".{path.name}.old-{os.getpid()}")
+            os.replace(path, old)
+            os.replace(tmp, path)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise

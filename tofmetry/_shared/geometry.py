@@ -1,0 +1,69 @@
+"""Small geometric helpers used by several packages: rotation angle, SVD plane fit, principal axes.
+
+Pure functions on arrays; points are (N, 3) in any length unit (the result keeps it).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tofmetry.errors import InputError
+
+
+def rotation_angle_deg(transform: np.ndarray) -> float:
+    """Angle [deg] of the rotation part of a pose: ``arccos((trace(R) - 1) / 2)``.
+
+    Parameters
+    ----------
+    transform : (3, 3) rotation or (4, 4) rigid transform (its upper-left 3x3 is used)
+
+    Returns
+    -------
+    float in [0, 180]; the argument of the arccos is clipped to [-1, 1] (rounding).
+    """
+    R = np.asarray(transform, dtype=np.float64)[:3, :3]
+    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+def principal_axes(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Centroid and principal axes of a point set (eigen-decomposition of the 3 x 3 scatter matrix
+    of the centred points: the SVD's axes, at a fraction of its cost for 10^5 points).
+
+    Parameters
+    ----------
+    points : (N, 3) float, N >= 3
+
+    Returns
+    -------
+    centroid : (3,) float64
+    axes : (3, 3) float64, one unit axis per row, by decreasing spread; the last row is the
+        normal of the least-squares plane.
+    """
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(p) < 3:
+        raise InputError(f"points: at least 3 points are needed for principal axes, found {len(p)}")
+    c = p.mean(axis=0)
+    q = p - c
+    _, vec = np.linalg.eigh(np.einsum("ni,nj->ij", q, q))
+    return c, vec[:, ::-1].T
+
+
+def fit_plane_svd(points: np.ndarray, orient: np.ndarray | None = None) -> np.ndarray:
+    """Least-squares (orthogonal) plane through points.
+
+    Parameters
+    ----------
+    points : (N, 3) float, N >= 3
+    orient : optional (3,) direction; the normal is flipped to make a non-negative dot product
+        with it (e.g. the normal of a previous fit, or the optical axis).
+
+    Returns
+    -------
+    (4,) float64 plane ``(n, d)`` with unit normal ``n``: a point ``X`` is on it when
+    ``n . X + d = 0``; ``n . X + d`` is the signed distance of ``X``.
+    """
+    c, axes = principal_axes(points)
+    n = axes[2]
+    if orient is not None and n @ np.asarray(orient, dtype=np.float64)[:3] < 0:
+        n = -n
+    return np.r_[n, -n @ c]
