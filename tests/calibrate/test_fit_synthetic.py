@@ -16,7 +16,7 @@ from tofmetry.calibrate import (
     DepthFitConfig, DepthSample, JointSpec, StudyFitConfig, SurfaceSpec, apply_depth_calibration, fit_any,
     fit_depth_model, fit_surface, wall_reference, wall_sample,
 )
-from tofmetry.errors import InputError
+from tofmetry.errors import EstimationError, InputError
 
 from .conftest import render_wall, render_wall_ray
 
@@ -205,3 +205,16 @@ def test_cross_validation_compares_methods(small_intr):
     # the study's range spline through stations 200 mm apart cannot follow a 600 mm wiggle
     far_study = [r for r in study if r.distance_mm >= 1600]
     assert max(abs(r.dev_after_mm) for r in far_study) > 2 * max(abs(r.dev_after_mm) for r in far)
+
+
+def test_a_sample_without_usable_cells_is_left_out_with_its_reason(small_intr):
+    """A station whose pixels all drop out in some frames (beyond the sensor's range) gets weight 0
+    everywhere: it is left out of the fit and named, the others are fitted."""
+    s = _samples(small_intr, render_wall_ray)
+    dead = DepthSample(s[-1].measured_mm, s[-1].reference_mm, np.zeros(small_intr.shape), name="dead", free_tilt=True)
+    res = fit_depth_model(s[:-1] + [dead], small_intr, DepthFitConfig(spec=JointSpec(), predict=False))
+    assert [n for n, _ in res.skipped] == ["dead"] and "usable image cells" in res.skipped[0][1]
+    assert "dead" not in [r["name"] for r in res.samples]
+    assert res.calibration.diagnostics["skipped_samples"][0][0] == "dead"
+    with pytest.raises(EstimationError, match="fewer than 2 usable"):
+        fit_depth_model([s[0], dead], small_intr, DepthFitConfig(spec=JointSpec(), predict=False))

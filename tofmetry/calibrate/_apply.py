@@ -3,8 +3,8 @@
 uint16 kernels (see :mod:`._tables`): per pixel ``p`` one 16-byte entry of a 65 536-entry table
 (``d - R(dh)``, the offset of the linear-form plane of ``dh``'s node interval, ``dh`` as float,
 the ray-term switch) and one 8-byte ``(b, a)`` pair: ``corrected = (d - R(dh)) - (b dh + a)``,
-minus ``W(dh rho) rho**-gamma`` for a calibration with a ray term (one more 8-byte table entry,
-cache resident, and the pixel's ``(rho, rho**-gamma)``). No temporaries, ``parallel=True``.
+minus ``dh**gamma V(dh rho)`` for a calibration with a ray term (one more 8-byte table entry,
+cache resident, and the pixel's ``rho``). No temporaries, ``parallel=True``.
 Float input (e.g. averaged depth) is corrected with the model's numpy definition
 (:meth:`DepthCalibration.correction`).
 
@@ -30,15 +30,15 @@ def _apply_u16(depth, lut_f, lut_i, coef, out):  # pragma: no cover - numba
 
 
 @nb.njit(inline="always")
-def ray_term(k, dh, ray_w, q0, nmax, pix):  # pragma: no cover - numba
-    """``W(dh rho) rho**-gamma`` [mm] from the tables, ``(rho, rho**-gamma)`` at ``pix[k], pix[k + 1]``
-    (linear in each mm of ray length, clamped). Signed 32-bit conversions: one instruction each
-    way on x86, where unsigned 64-bit ones are not."""
-    t = min(max(dh * pix[k] - q0, np.float32(0.0)), nmax)
+def ray_term(rho, dh, ray_w, q0, nmax):  # pragma: no cover - numba
+    """``V(dh rho)`` from the tables (see :mod:`._tables`; linear in each mm of ray length,
+    clamped). Signed 32-bit conversions: one instruction each way on x86, where unsigned
+    64-bit ones are not."""
+    t = min(max(dh * rho - q0, np.float32(0.0)), nmax)
     j = np.int32(t)
     f = t - np.float32(j)
     j2 = np.int64(j) * 2
-    return (ray_w[j2] + f * ray_w[j2 + 1]) * pix[k + np.uint64(1)]
+    return ray_w[j2] + f * ray_w[j2 + 1]
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
@@ -49,7 +49,7 @@ def _apply_u16_ray(depth, lut_f, lut_i, coef, ray_w, q0, nmax, pix, out):  # pra
         q = (np.uint64(lut_i[t4 + np.uint64(1)]) + np.uint64(i)) * np.uint64(2)
         dh = lut_f[t4 + np.uint64(2)]
         z = lut_f[t4] - (coef[q] * dh + coef[q + np.uint64(1)])
-        out[i] = z - lut_f[t4 + np.uint64(3)] * ray_term(np.uint64(i) * np.uint64(2), dh, ray_w, q0, nmax, pix)
+        out[i] = z - lut_f[t4 + np.uint64(3)] * ray_term(pix[i], dh, ray_w, q0, nmax)
 
 
 def _check(depth: np.ndarray, cal: DepthCalibration) -> np.ndarray:

@@ -87,21 +87,21 @@ def _correct_backproject_block(depth, lut_f, lut_i, coef, rays, out, p0, p1, j):
 
 
 @nb.njit(inline="always")
-def _z_ray(i, d, lut_f, lut_i, coef, ray_w, q0, nmax, rays4):  # pragma: no cover - numba
-    """:func:`_z` minus the ray term, for raw depth ``d`` [mm] of pixel ``i``; ``rays4`` holds
-    ``(x, y, rho, rho**-gamma)`` per pixel (one 16-byte record)."""
+def _z_ray(i, d, lut_f, lut_i, coef, ray_w, q0, nmax, rays3):  # pragma: no cover - numba
+    """:func:`_z` minus the ray term, for raw depth ``d`` [mm] of pixel ``i``; ``rays3`` holds
+    ``(x, y, rho)`` per pixel (one 12-byte record)."""
     t4 = np.uint64(d) * np.uint64(4)
     dh = lut_f[t4 + np.uint64(2)]
     z = _z(i, np.uint64(lut_i[t4 + np.uint64(1)]), lut_f, coef, t4)
-    w = ray_term(i * np.uint64(4) + np.uint64(2), dh, ray_w, q0, nmax, rays4)
+    w = ray_term(rays3[i * np.uint64(3) + np.uint64(2)], dh, ray_w, q0, nmax)
     return z - lut_f[t4 + np.uint64(3)] * w * np.float32(0.001)
 
 
 @nb.njit(fastmath=True, cache=True, inline="never")
-def _correct_backproject_block_ray(depth, lut_f, lut_i, coef, rays4, out, p0, p1, j, ray_w, q0,
+def _correct_backproject_block_ray(depth, lut_f, lut_i, coef, rays3, out, p0, p1, j, ray_w, q0,
                                    nmax):  # pragma: no cover - numba
     """:func:`_correct_backproject_block` for a calibration with a ray term (see :mod:`._tables`):
-    ``rays4`` (4 H W,) float32 holds ``(x, y, rho, rho**-gamma)`` per pixel, one 16-byte record.
+    ``rays3`` (3 H W,) float32 holds ``(x, y, rho)`` per pixel, one 12-byte record.
 
     ``ray_term`` is imported from :mod:`._apply`: numba caches a kernel by its own file, so after
     editing ``ray_term`` touch this file too (or clear ``__pycache__``)."""
@@ -109,28 +109,28 @@ def _correct_backproject_block_ray(depth, lut_f, lut_i, coef, rays4, out, p0, p1
     while last > p0 and depth[last - np.uint64(1)] == 0:
         last -= np.uint64(1)
     p_vec = last - np.uint64(1) if last > p0 else p0
-    one, two, four = np.uint64(1), np.uint64(2), np.uint64(4)
+    one, two, three = np.uint64(1), np.uint64(2), np.uint64(3)
     for i in range(p0, p_vec):
         d = depth[i]
         if d == 0:
             continue
-        store_point4(out, j, rays4, i * four, _z_ray(i, d, lut_f, lut_i, coef, ray_w, q0, nmax, rays4))
+        store_point4(out, j, rays3, i * three, _z_ray(i, d, lut_f, lut_i, coef, ray_w, q0, nmax, rays3))
         j += np.uint64(3)
     for i in range(p_vec, p1):  # the last valid pixel (and the invalid ones after it)
         d = depth[i]
         if d == 0:
             continue
-        z = _z_ray(i, d, lut_f, lut_i, coef, ray_w, q0, nmax, rays4)
-        i4 = i * four
-        out[j] = rays4[i4] * z
-        out[j + one] = rays4[i4 + one] * z
+        z = _z_ray(i, d, lut_f, lut_i, coef, ray_w, q0, nmax, rays3)
+        i3 = i * three
+        out[j] = rays3[i3] * z
+        out[j + one] = rays3[i3 + one] * z
         out[j + two] = z
         j += np.uint64(3)
     return j
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
-def _correct_backproject_ray(depth, lut_f, lut_i, coef, rays4, out, nthreads, ray_w, q0,
+def _correct_backproject_ray(depth, lut_f, lut_i, coef, rays3, out, nthreads, ray_w, q0,
                              nmax):  # pragma: no cover - numba
     """:func:`_correct_backproject` for a calibration with a ray term."""
     npix = depth.shape[0]
@@ -141,23 +141,23 @@ def _correct_backproject_ray(depth, lut_f, lut_i, coef, rays4, out, nthreads, ra
         p0 = np.uint64(npix * (1.0 - keep ** c) / (1.0 - keep ** nb_)) if c > 0 else np.uint64(0)
         p1 = np.uint64(npix * (1.0 - keep ** (c + 1)) / (1.0 - keep ** nb_)) if c < nb_ - 1 else np.uint64(npix)
         j = _count_valid(depth, p0) * np.uint64(3)
-        ends[c] = _correct_backproject_block_ray(depth, lut_f, lut_i, coef, rays4, out, p0, p1, j, ray_w, q0, nmax)
+        ends[c] = _correct_backproject_block_ray(depth, lut_f, lut_i, coef, rays3, out, p0, p1, j, ray_w, q0, nmax)
     return ends[nb_ - 1] // np.uint64(3)
 
 
-def _rays4(rays: np.ndarray, t) -> np.ndarray:
-    """(4 H W,) float32 ``(x, y, rho, rho**-gamma)`` records from interleaved rays and the tables."""
-    r4 = np.empty((len(rays) // 2, 4), np.float32)
-    r4[:, :2] = rays.reshape(-1, 2)
-    r4[:, 2:] = t.pix_rho.reshape(-1, 2)
-    return r4.reshape(-1)
+def _rays3(rays: np.ndarray, t) -> np.ndarray:
+    """(3 H W,) float32 ``(x, y, rho)`` records from interleaved rays and the tables."""
+    r3 = np.empty((len(rays) // 2, 3), np.float32)
+    r3[:, :2] = rays.reshape(-1, 2)
+    r3[:, 2] = t.pix_rho
+    return r3.reshape(-1)
 
 
-def _run_kernel(flat, t, rays, out, nthreads, rays4=None) -> int:
+def _run_kernel(flat, t, rays, out, nthreads, rays3=None) -> int:
     """Dispatch to the kernel of the calibration's tables; returns the number of points.
-    ``rays4``: the ray-term records (:func:`_rays4`), built here when not given."""
+    ``rays3``: the ray-term records (:func:`_rays3`), built here when not given."""
     if t.has_ray:
-        r4 = rays4 if rays4 is not None else _rays4(rays, t)
+        r4 = rays3 if rays3 is not None else _rays3(rays, t)
         return int(_correct_backproject_ray(flat, t.lut_f, t.lut_i, t.coef, r4, out, nthreads, t.ray_w,
                                             np.float32(t.ray_q0), t.ray_tmax))
     return int(_correct_backproject(flat, t.lut_f, t.lut_i, t.coef, rays, out, nthreads))
@@ -271,7 +271,7 @@ class FrameCorrector:
             ray_table = cal.intrinsics.ray_table()
         self.rays = _check_rays(np.asarray(ray_table), self.shape).copy()
         self._tables = cal.tables
-        self._rays4 = _rays4(self.rays, self._tables) if self._tables.has_ray else None
+        self._rays3 = _rays3(self.rays, self._tables) if self._tables.has_ray else None
         self.buffer = np.empty((self.shape[0] * self.shape[1], 3), np.float32)
         # blocks per frame (one per thread); numba.get_num_threads() costs ~2 us per call
         self.n_threads = nb.get_num_threads()
@@ -298,5 +298,5 @@ class FrameCorrector:
             _check_out(out, depth.size)
         if not depth.flags.c_contiguous:
             depth = np.ascontiguousarray(depth)
-        n = _run_kernel(depth.reshape(-1), self._tables, self.rays, out.reshape(-1), self.n_threads, self._rays4)
+        n = _run_kernel(depth.reshape(-1), self._tables, self.rays, out.reshape(-1), self.n_threads, self._rays3)
         return out[:n]

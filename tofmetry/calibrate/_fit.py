@@ -29,13 +29,13 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from tofmetry.calibrate._joint import Cells, JointSpec, Layout, block_cells, check_cells
+from tofmetry.calibrate._joint import Cells, JointSpec, Layout, block_cells, unusable_cells
 from tofmetry.calibrate._joint_fit import JointFit, blocked_folds, fit_joint, select_spec
 from tofmetry.calibrate._model import DepthCalibration
 from tofmetry.calibrate._prediction import before_after, prediction_record
 from tofmetry.calibrate._sample import DepthSample
 from tofmetry.calibrate._support import CalibrationSupport
-from tofmetry.errors import InputError
+from tofmetry.errors import EstimationError, InputError
 from tofmetry.sensor import CameraIntrinsics
 
 
@@ -84,6 +84,7 @@ class DepthCalibrationResult:
     spec : the JointSpec used; tried : list of (label, CV score) of the candidates
     prediction : dict, the predicted error (also in ``calibration.prediction``)
     seconds : float
+    skipped : list of (name, reason) of the samples left out of the fit
     """
 
     calibration: DepthCalibration
@@ -94,6 +95,7 @@ class DepthCalibrationResult:
     prediction: dict
     seconds: float
     history: list = field(default_factory=list)
+    skipped: list = field(default_factory=list)
 
 
 def model_calibration(layout: Layout, theta: np.ndarray, intrinsics: CameraIntrinsics, data_mm: tuple, *,
@@ -212,7 +214,14 @@ def fit_depth_model(samples: list[DepthSample], intrinsics: CameraIntrinsics, co
     with threadpool_limits(1, user_api="blas"):
         block = cfg.block or max(2, int(round(shape[1] / 64)))
         cells = [_cells(s, rays, block, n) for s, n in zip(samples, names)]
-        check_cells(cells)
+        bad = unusable_cells(cells)
+        skipped = [(names[j], why) for j, why in bad.items()]
+        if bad:
+            keep = [j for j in range(len(samples)) if j not in bad]
+            if len(keep) < 2:
+                raise EstimationError("depth calibration: fewer than 2 usable samples; "
+                                      + "; ".join(f"{n}: {w}" for n, w in skipped))
+            samples, names, cells = [samples[j] for j in keep], [names[j] for j in keep], [cells[j] for j in keep]
         centers = _centers(samples, intrinsics)
         if len(np.unique(np.round(centers, -1))) < 2:
             raise InputError("depth calibration needs samples at 2 or more distinct distances (10 mm apart)")
@@ -242,13 +251,13 @@ def fit_depth_model(samples: list[DepthSample], intrinsics: CameraIntrinsics, co
     cal = model_calibration(
         fit.layout, fit.theta, intrinsics, (lo, hi), sensor=sensor, support=support, fallback=fallback, trend=trend,
         provenance={**(provenance or {}), "config": cfg.to_dict(), "samples": names},
-        diagnostics={"samples": table, "model": spec.label, "spec": asdict(spec),
+        diagnostics={"samples": table, "model": spec.label, "spec": asdict(spec), "skipped_samples": skipped,
                      "candidates": [(t.spec.label, float(t.score)) for t in tried],
                      "tilt_calibrated": not any(s.free_tilt for s in samples)},
         prediction=pred)
     rp = np.array([[r["center_mm"], r["central_before_mm"]] for r in table])
     return DepthCalibrationResult(cal, table, rp, spec, [(t.spec.label, t.score) for t in tried], pred,
-                                  time.perf_counter() - t0)
+                                  time.perf_counter() - t0, skipped=skipped)
 
 
 def _cells(s: DepthSample, rays: np.ndarray, block: int, name: str) -> Cells:

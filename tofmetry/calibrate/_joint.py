@@ -40,7 +40,7 @@ import scipy.linalg as sla
 from scipy import sparse
 from scipy.interpolate import BSpline
 
-from tofmetry.errors import EstimationError, InputError
+from tofmetry.errors import InputError
 
 
 @dataclass(frozen=True)
@@ -358,7 +358,12 @@ def residual(layout: Layout, sys: SampleSystem, c: Cells, theta: np.ndarray, w: 
     return res
 
 
-def check_cells(cells: list[Cells]) -> None:
-    for c in cells:
-        if len(c.e) < 8:
-            raise EstimationError(f"sample {c.name!r}: only {len(c.e)} usable image cells with a reference depth")
+#: fewest image cells with data a sample needs to enter the fit
+MIN_CELLS = 8
+
+
+def unusable_cells(cells: list[Cells]) -> dict[int, str]:
+    """Samples (by index) with too few usable image cells, and why."""
+    return {j: f"only {len(c.e)} usable image cells with a reference depth (at least {MIN_CELLS} needed: pixels "
+               "invalid in some frames, e.g. beyond the sensor's range, are left out)"
+            for j, c in enumerate(cells) if len(c.e) < MIN_CELLS}

@@ -12,20 +12,21 @@ Per integer depth ``d`` [mm], one 16-byte entry of ``lut`` (a float32 and an int
   node interval (the identity plane when no surface term applies);
 * ``lut_f[4 d + 2]`` = ``dh`` [mm], the depth the model is evaluated at: ``d`` inside the
   calibration's overall supported range, the nearest end of it under the hold fallback;
-* ``lut_f[4 d + 3]`` = 1 where the ray term applies, else 0.
+* ``lut_f[4 d + 3]`` = ``dh**gamma`` where the ray term applies, else 0 (see below).
 
 Per-pixel linear form of the surface term: on each interval between two nodes
 ``S(p, d) = a[k, p] + b[k, p] d`` exactly; ``coef`` holds the pairs ``(b, a)`` plane by plane
 (pixel-minor): planes ``0`` (below the first node), ``1 .. K-1`` (between nodes), ``K`` (above
 the last) and ``K + 1`` (identity, zero).
 
-Ray term ``W(dh rho) / rho**gamma`` (when the calibration has one): ``ray_w`` holds
-``(W, dW/dq)`` at every mm of ray length from ``ray_q0`` (linear interpolation: error below
-``h^2/8 max|W''|``, about 1e-4 mm for any wiggle of period above 0.3 m), clamped at its ends as
-``W`` is; ``pix_rho`` holds per pixel ``(rho, rho**-gamma)``.
+Ray term ``W(dh rho) / rho**gamma`` (when the calibration has one), written with the ray length
+``q = dh rho`` as ``dh**gamma V(q)``, ``V(q) = W(q) / q**gamma``: ``ray_w`` holds ``(V, dV/dq)`` at
+every mm of ray length from ``ray_q0`` over every ray length the kernels can meet (linear
+interpolation: error below ``h^2/8 max|V''|``, about 1e-4 mm for any wiggle of period above
+0.3 m), and ``pix_rho`` holds ``rho`` per pixel: one float per pixel, no per-pixel power.
 
 The corrected depth of pixel ``p`` is then
-``lut_f[4d] - (b dh + a) - lut_f[4d+3] * W(dh rho) rho**-gamma``.
+``lut_f[4d] - (b dh + a) - lut_f[4d+3] * V(dh rho)``.
 """
 
 from __future__ import annotations
@@ -50,10 +51,10 @@ class CorrectionTables:
     lut_f, lut_i : (262144,) float32 / int32 views of one buffer of 16-byte entries
     coef : (2 (K + 2) H W,) float32 ``(b, a)`` pairs
     has_ray : bool
-    ray_w : (2 n,) float32 ``(W [mm], dW/dq [mm/mm])`` per mm of ray length (zeros when no ray term)
+    ray_w : (2 n,) float32 ``(V, dV/dq)`` per mm of ray length (zeros when no ray term)
     ray_q0 : float, ray length [mm] of the first entry
     ray_tmax : float32, the last index of ``ray_w``'s entries as a float (the clamp)
-    pix_rho : (2 H W,) float32 ``(rho, rho**-gamma)`` per pixel
+    pix_rho : (H W,) float32 ``rho`` per pixel
     """
 
     lut_f: np.ndarray
@@ -109,22 +110,23 @@ def build_tables(cal: "DepthCalibration") -> CorrectionTables:
     lut = np.zeros((65536, 4), np.float32)
     lut[:, 0] = lane0
     lut[:, 2] = dh
-    lut[:, 3] = applies.astype(np.float32) if cal.ray_knots is not None else 0.0
+    lut[:, 3] = np.where(applies, dh ** cal.ray_gamma, 0.0) if cal.ray_knots is not None else 0.0
     lut_i = lut.view(np.int32)
     lut_i[:, 1] = plane * npix
     coef = _linear_form(cal)
     rho = cal.rho.reshape(-1)
-    pix = np.empty((npix, 2), np.float32)
-    pix[:, 0] = rho
-    pix[:, 1] = rho ** -cal.ray_gamma
+    pix = rho.astype(np.float32)
     if cal.ray_knots is not None:
-        q_lo, q_hi = cal.ray_data_mm
+        # every ray length the kernels can meet: dh over [1, 65535] where the term applies
+        dh_on = dh[applies & (d > 0)]
+        q_lo = min(float(cal.ray_data_mm[0]), float(dh_on.min()) * float(rho.min()))
+        q_hi = max(float(cal.ray_data_mm[1]), float(dh_on.max()) * float(rho.max()))
         q0 = float(np.floor(q_lo))
         q = np.arange(q0, np.ceil(q_hi) + 2.0)
-        wv = cal.ray_error(q)
+        vv = cal.ray_error(q) / q ** cal.ray_gamma
         ray = np.zeros((len(q), 2), np.float32)
-        ray[:, 0] = wv
-        ray[:-1, 1] = np.diff(wv)  # the last entry's slope is 0: the clamp lands exactly on it
+        ray[:, 0] = vv
+        ray[:-1, 1] = np.diff(vv)  # the last entry's slope is 0: the clamp lands exactly on it
     else:
         q0, ray = 0.0, np.zeros((2, 2), np.float32)
     return CorrectionTables(lut_f=lut.reshape(-1), lut_i=lut_i.reshape(-1), coef=coef.reshape(-1),

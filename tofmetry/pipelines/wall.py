@@ -15,6 +15,7 @@ from tofmetry.errors import EstimationError, SensorMismatchError
 from tofmetry.io import EmptyFrameWarning, WallDataset
 from tofmetry.pipelines._common import _adv, _provenance
 from tofmetry.pipelines.depth_run import DepthRun
+from tofmetry.pipelines.plausibility import check_correction, check_station, enforce
 from tofmetry.sensor import CameraIntrinsics
 
 #: a station whose temporal mean has fewer valid pixels than this fraction is skipped (with a note)
@@ -62,12 +63,28 @@ def _usable(stats, stations, notes) -> list[int]:
     return keep
 
 
+def station_findings(stations, stats, reference_offset_mm: float) -> list[str]:
+    """Plausibility of each station's stated distance against the central depth the sensor measured
+    (:func:`~tofmetry.pipelines.plausibility.check_station`)."""
+    out = []
+    for st, s in zip(stations, stats):
+        f = s.frame_center_mm[np.isfinite(s.frame_center_mm)]
+        out += check_station(st.name, st.distance_mm - reference_offset_mm, float(np.median(f)) if f.size else np.nan)
+    return out
+
+
 def calibrate_wall(path: Path, *, intrinsics: CameraIntrinsics | None = None, config=None, tilted: bool = True,
-                   reference_offset_mm: float = 0.0, advance=None, provenance: dict | None = None) -> DepthRun:
+                   reference_offset_mm: float = 0.0, advance=None, provenance: dict | None = None,
+                   accept_implausible: bool = False) -> DepthRun:
     """Depth calibration of a wall dataset (``stations.csv``); see :func:`tofmetry.pipelines.calibrate_depth_dataset`.
 
     ``config``: :class:`~tofmetry.calibrate.DepthFitConfig` (tofmetry's method, the default) or
     :class:`~tofmetry.calibrate.StudyFitConfig` (the study's method, a baseline).
+
+    Plausibility gates (:mod:`tofmetry.pipelines.plausibility`): before the fit, every station's
+    stated distance against its measured central depth; after it, the size of the correction.
+    Either raises :class:`~tofmetry.errors.ImplausibleResultError` unless ``accept_implausible``;
+    the run's and the calibration's ``plausibility`` record what was found and accepted.
     """
     path = Path(path)
     t0 = time.perf_counter()
@@ -75,6 +92,9 @@ def calibrate_wall(path: Path, *, intrinsics: CameraIntrinsics | None = None, co
     ds, caps, intr, src, sensor, notes = _open_wall(path, intrinsics, 2)
     stats = _station_stats(caps, intr, _adv(advance))
     keep = _usable(stats, ds.stations, notes)
+    what = f"the depth calibration of {path}"
+    findings = station_findings([ds.stations[i] for i in keep], [stats[i] for i in keep], reference_offset_mm)
+    enforce(findings, what, accept_implausible)
     samples, used = [], []
     for i in keep:
         st, s = ds.stations[i], stats[i]
@@ -96,6 +116,13 @@ def calibrate_wall(path: Path, *, intrinsics: CameraIntrinsics | None = None, co
                         **(provenance or {})})
     res = fit_any(samples, intr, cfg, sensor=sensor, provenance=prov)
     cal = res.calibration
+    gate = enforce(findings + check_correction(cal), what, accept_implausible)
+    cal.provenance["plausibility"] = gate
+    for name, why in getattr(res, "skipped", []):  # samples the fit could not use
+        notes.append(f"station {name} left out of the fit: {why}")
+    fitted = {row["name"] for row in res.samples}
+    kept = [k for k, st in enumerate(stations) if st.name in fitted]
+    stations, stats = [stations[k] for k in kept], [stats[k] for k in kept]
     rows = []
     for st, row, s in zip(stations, res.samples, stats):
         sl = s.std_mm[np.isfinite(s.std_mm)]
@@ -109,7 +136,7 @@ def calibrate_wall(path: Path, *, intrinsics: CameraIntrinsics | None = None, co
            "method": "study" if isinstance(cfg, StudyFitConfig) else "tofmetry",
            "candidates": cal.diagnostics.get("candidates", []), "prediction": cal.prediction,
            "support": cal.support.summary() if cal.support is not None else None,
-           "tilt_calibrated": cal.diagnostics.get("tilt_calibrated", not tilted)}
+           "tilt_calibrated": cal.diagnostics.get("tilt_calibrated", not tilted), "plausibility": gate}
     return DepthRun("wall", cal, intr, src, sensor, rows, fit, time.perf_counter() - t0, notes, str(path),
                     res.range_points, frame_points)
 

@@ -19,6 +19,13 @@ from tofmetry.pipelines import (
 from tofmetry.study.stage import StageOutcome, StudyContext
 
 
+def _implausible(record: dict | None) -> list[str]:
+    """Report paragraphs for implausible findings that ``--accept-implausible`` let through."""
+    if not record or not record.get("accepted"):
+        return []
+    return [f"IMPLAUSIBLE, accepted with --accept-implausible: {f}" for f in record.get("findings", [])]
+
+
 def _figs(paths, prefix: str = "") -> list[tuple[str, Path]]:
     return [(prefix + Path(p).stem.replace("_", " "), Path(p)) for p in paths if str(p).endswith(".png")]
 
@@ -32,7 +39,7 @@ def stage_intrinsics(ctx: StudyContext, out: StageOutcome) -> None:
     if bj.is_file():  # the board's own description wins over the config default
         b = read_json(bj, "board.json")
         board, square = (int(b["cols"]), int(b["rows"])), float(b["square_mm"])
-    run = intrinsics_from_images(folder, board, square, leave_one_out=True)
+    run = intrinsics_from_images(folder, board, square, leave_one_out=True, accept_implausible=ctx.accept_implausible)
     res = run.result
     d = ctx.stage_dir("intrinsics")
     write_intrinsics(d / "intrinsics.json", res.intrinsics, rms_px=res.rms_px, std=res.std)
@@ -47,7 +54,7 @@ def stage_intrinsics(ctx: StudyContext, out: StageOutcome) -> None:
                 "loo_range": res.loo_range, "loo_max_spread_px": float(np.nanmax(spread)) if res.loo_range else None,
                 "n_images_used": len(res.used), "rejected": list(run.rejected) + list(getattr(run, "rejected_views", [])),
                 "flagged": res.flagged, "coverage": res.coverage, "warnings": res.warnings,
-                "cross_validation": getattr(run, "cv", None)}
+                "cross_validation": getattr(run, "cv", None), "plausibility": run.plausibility}
     out.tables.append((f"Brown model of the IR camera ({len(res.used)} images, reprojection RMS {res.rms_px:.3f} px)",
                        ["parameter", "value", "std. uncertainty", "leave-one-out std", "leave-one-out range"],
                        [[p, v, res.std.get(p, float("nan")), res.loo.get(p, float("nan")), res.loo_range.get(p, float("nan"))]
@@ -57,6 +64,7 @@ def stage_intrinsics(ctx: StudyContext, out: StageOutcome) -> None:
     if res.flagged:
         out.paragraphs.append(f"Images whose removal moves a parameter beyond its uncertainty: {', '.join(res.flagged)}.")
     out.paragraphs += res.warnings
+    out.paragraphs += _implausible(run.plausibility)
     cv = out.data["cross_validation"]
     if cv:
         out.paragraphs.append("Pose-wise cross-validation (reprojection error on images left out of the fit): "
@@ -75,7 +83,8 @@ def stage_depth(ctx: StudyContext, out: StageOutcome) -> None:
     wall = ctx.input("wall", "a wall dataset: stations.csv + one capture per station")
     d = ctx.stage_dir("depth")
     dc = ctx.config.depth
-    run = calibrate_depth_dataset(wall, intrinsics=ctx.intrinsics, reference_offset_mm=dc.reference_offset_mm)
+    run = calibrate_depth_dataset(wall, intrinsics=ctx.intrinsics, reference_offset_mm=dc.reference_offset_mm,
+                                  accept_implausible=ctx.accept_implausible)
     cal = run.calibration
     save_calibration(d / "calibration.npz", cal)
     ctx.calibration_path = d / "calibration.npz"
@@ -84,13 +93,14 @@ def stage_depth(ctx: StudyContext, out: StageOutcome) -> None:
     src = ctx.intrinsics_source if ctx.intrinsics is not None else run.intrinsics_source
     out.data = {"kind": run.kind, "intrinsics_source": src, "offset_mm": cal.offset_mm,
                 "valid_range_mm": list(cal.valid_range_mm), "surface_model": cal.surface_model,
-                "fit_seconds": run.seconds, "notes": list(run.notes), "stations": rows}
+                "fit_seconds": run.seconds, "notes": list(run.notes), "stations": rows, "plausibility": run.plausibility}
     out.paragraphs.append(
         f"Fitted on {len(rows)} stations ({run.kind}); intrinsics: {src}. The stations' distances were reduced by "
         f"the mount's known {dc.reference_offset_mm:g} mm (reference point → optical centre); the remaining constant, "
         f"absorbed by the range curve, is {cal.offset_mm:+.1f} mm. "
         f"Corrected range {cal.valid_range_mm[0]:.0f}–{cal.valid_range_mm[1]:.0f} mm; surfaces: {cal.surface_model}.")
     out.paragraphs += list(run.notes)
+    out.paragraphs += _implausible(run.plausibility)
     # training stations (in-sample, the study's own validation)
     tr = validate_depth(wall, cal, intrinsics=ctx.intrinsics, cross_validate=dc.cross_validate,
                         cv_methods=tuple(dc.cv_methods), reference_offset_mm=dc.reference_offset_mm)
@@ -110,6 +120,19 @@ def stage_depth(ctx: StudyContext, out: StageOutcome) -> None:
         out.figures += _figs(figs, "held-out: ")
         s = va.summary
         out.data["heldout"] = s
+        # the calibration's own predicted error (blocked validation) beside the held-out stations
+        chk = va.prediction_check
+        out.data["prediction"] = (cal.prediction or {}).get("interpolation", {})
+        out.data["prediction_check"] = chk
+        out.data["prediction_warnings"] = list((cal.prediction or {}).get("warnings", []))
+        if chk and chk.get("verdict") != "no prediction":
+            names = {"central_abs_mm": "|central deviation|", "rms_mm": "per-pixel RMS",
+                     "rms_systematic_mm": "per-pixel RMS, systematic part", "p95_mm": "p95 |error| (4x4 px means)"}
+            out.tables.append(("The calibration's own predicted error (blocked validation on its training stations) "
+                               "vs the held-out stations (tilt removed, RMS over stations) [mm]",
+                               ["metric", "predicted", "90 % interval", "measured", "measured / predicted", "verdict"],
+                               [[label, c["predicted"], f"{c['interval'][0]:.2f}–{c['interval'][1]:.2f}", c["measured"],
+                                 c["ratio"], c["verdict"]] for key, label in names.items() if (c := chk.get(key))]))
         sel = [r for r in va.stations if r.distance_mm <= 4000]
         out.data["heldout_central_after_max_mm"] = float(max(abs(r.dev_after_mm) for r in sel)) if sel else None
         out.data["plane_std_before_mm"] = [float(min(r.plane_std_before_mm for r in va.stations)),
@@ -129,7 +152,8 @@ def stage_depth(ctx: StudyContext, out: StageOutcome) -> None:
                             for r in va.stations]))
         if dc.compare_polynomial and run.kind == "wall":
             poly = calibrate_depth_dataset(wall, intrinsics=ctx.intrinsics, reference_offset_mm=dc.reference_offset_mm,
-                                           config=StudyFitConfig(surface=SurfaceSpec(model="poly", degree=3)))
+                                           config=StudyFitConfig(surface=SurfaceSpec(model="poly", degree=3)),
+                                           accept_implausible=ctx.accept_implausible)
             vp = validate_depth(held, poly.calibration, intrinsics=ctx.intrinsics, reference_offset_mm=dc.reference_offset_mm)
             out.data["heldout_poly3"] = vp.summary
             rows = []

@@ -81,6 +81,14 @@ def comparison_rows(ctx: StudyContext) -> list[ComparisonRow]:
             rows.append(ComparisonRow("central deviation after correction", f"|dev| ≤ {d['heldout_central_after_max_mm']:.1f} mm on held-out stations",
                                       "≈ 0 on the training stations only", "§4.3, Fig. 9a", "better",
                                       "validated on stations never used for fitting"))
+        chk = d.get("prediction_check") or {}
+        if chk.get("central_abs_mm") and chk.get("rms_mm"):
+            c, r = chk["central_abs_mm"], chk["rms_mm"]
+            rows.append(ComparisonRow("the calibration's own predicted error (held-out stations)",
+                                      f"central {c['predicted']:.2f} mm predicted, {c['measured']:.2f} measured; "
+                                      f"per-pixel RMS {r['predicted']:.2f} predicted, {r['measured']:.2f} measured",
+                                      "not reported", "§4.3", "better" if chk.get("verdict") in ("holds", "pessimistic")
+                                      else "differs", f"verdict: {chk.get('verdict')} (RMS over stations, tilt removed)"))
         h = d.get("heldout") or {}
         if isinstance(h.get("min_rms_reduction"), (int, float)) and np.isfinite(h["min_rms_reduction"]):
             rows.append(ComparisonRow("per-pixel RMS error reduction (central 90 %)",
@@ -133,6 +141,10 @@ def build_report(ctx: StudyContext) -> Report:
         "total time": f"{getattr(ctx, 'total_seconds', float('nan')):.0f} s",
         "stages": ", ".join(f"{o.key}: {o.status}" for o in ctx.outcomes.values()),
     }
+    accepted = implausible_accepted(ctx)
+    if ctx.accept_implausible:
+        meta["--accept-implausible"] = (f"given; {len(accepted)} implausible finding(s) accepted" if accepted
+                                        else "given; every result passed the plausibility gates")
     return Report(
         title="tofmetry study: assessment and calibration of a ToF RGB-D camera",
         subtitle=("Protocol of Lachat et al. 2015 (Kinect v2), automated: assessment → calibration → validation → "
@@ -142,9 +154,20 @@ def build_report(ctx: StudyContext) -> Report:
     )
 
 
+def implausible_accepted(ctx: StudyContext) -> list[str]:
+    """The implausible findings ``--accept-implausible`` let through, as ``"stage: finding"``."""
+    out = []
+    for o in ctx.outcomes.values():
+        rec = o.data.get("plausibility") if isinstance(o.data, dict) else None
+        if rec and rec.get("accepted"):
+            out += [f"{o.key}: {f}" for f in rec.get("findings", [])]
+    return out
+
+
 def report_json(ctx: StudyContext, report: Report) -> dict:
     return {
         "meta": report.meta,
+        "accept_implausible": {"given": ctx.accept_implausible, "accepted_findings": implausible_accepted(ctx)},
         "total_seconds": getattr(ctx, "total_seconds", None),
         "simulation_seconds": getattr(ctx, "simulation_seconds", None),
         "stages": {k: o.to_dict() for k, o in ctx.outcomes.items()},
