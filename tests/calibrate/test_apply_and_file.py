@@ -19,7 +19,7 @@ from tofmetry.calibrate import (
     fit_range_curve,
 )
 from tofmetry.pipelines import load_calibration, save_calibration
-from tofmetry.calibrate._backproject import FrameCorrector, _correct_backproject
+from tofmetry.calibrate._backproject import FrameCorrector, _run_kernel
 from tofmetry.errors import FormatError, InputError, SensorMismatchError
 from tofmetry.pointcloud import depth_to_points
 
@@ -150,7 +150,7 @@ def test_backproject_blocks_and_buffers(small_intr):
     t = cal.tables
     for nthreads in (1, 2, 3, 7, 10**9):  # 12288 pixels: 1, 2, 3, 4, 4 blocks
         out = np.full((d.size, 3), np.nan, np.float32)
-        n = _correct_backproject(d.ravel(), t.lut_f, t.lut_i, t.coef, rays.ravel(), out.reshape(-1), nthreads)
+        n = _run_kernel(d.ravel(), t, rays.ravel(), out.reshape(-1), nthreads)
         assert n == len(ref)
         np.testing.assert_array_equal(out[:n], ref)
         assert np.isnan(out[n:]).all()  # nothing written past the N points
@@ -202,7 +202,7 @@ def test_backproject_stores_stay_inside_the_points(small_intr):
         expect = np.column_stack([rays[d > 0] * z[:, None], z])
         for nthreads in (1, 2, 3, 4):
             guarded = np.full(3 * n + 8, np.nan, np.float32)  # exactly N points, then a guard zone
-            got = _correct_backproject(d.ravel(), t.lut_f, t.lut_i, t.coef, rays.ravel(), guarded, nthreads)
+            got = _run_kernel(d.ravel(), t, rays.ravel(), guarded, nthreads)
             assert got == n, name
             assert np.isnan(guarded[3 * n:]).all(), f"{name}, {nthreads} threads: wrote past the last point"
             # float32 correction (< 2e-3 mm, see above) and float32 products: 1e-6 m

@@ -170,3 +170,25 @@ def test_not_a_calibration_is_a_format_error(tmp_path):
     (tmp_path / "o.npz").write_bytes(obj.getvalue())
     with pytest.raises(FormatError):
         load_calibration(tmp_path / "o.npz")
+
+
+def test_ray_kernel_stores_stay_inside_the_points(small_intr):
+    """The ray-term kernel reads (x, y, rho) records (stride 3) and writes with the same 16-byte
+    stores: nothing may land past the last point, whatever the split into thread blocks."""
+    from tofmetry.calibrate._backproject import _run_kernel
+
+    cal = _ray_cal(small_intr)
+    t = cal.tables
+    rays = small_intr.ray_table().astype(np.float32).ravel()
+    rng = np.random.default_rng(5)
+    base = _depth(small_intr, 8)
+    for name, d in {"all valid": np.maximum(base, 1), "end only": np.where(np.arange(base.size).reshape(base.shape)
+                                                                            == base.size - 1, 1800, 0).astype(np.uint16),
+                    "sparse": np.where(rng.random(base.shape) < 0.05, base, 0).astype(np.uint16)}.items():
+        n = int(np.count_nonzero(d))
+        ref = apply_depth_calibration_reference(d, cal)[d > 0] * 1e-3
+        for nthreads in (1, 2, 3):
+            guarded = np.full(3 * n + 8, np.nan, np.float32)
+            assert _run_kernel(d.ravel(), t, rays, guarded, nthreads) == n, name
+            assert np.isnan(guarded[3 * n:]).all(), f"{name}, {nthreads} threads: wrote past the last point"
+            np.testing.assert_allclose(guarded[2:3 * n:3], ref, atol=2e-6, err_msg=name)

@@ -48,8 +48,22 @@ def _z(i, plane, lut_f, coef, t4):  # pragma: no cover - numba
     return (lut_f[t4] - (coef[q] * lut_f[t4 + np.uint64(2)] + coef[q + np.uint64(1)])) * np.float32(0.001)
 
 
+@nb.njit(inline="always")
+def _z_px(i, d, lut_f, lut_i, coef, rays, stride, ray_w, q0, nmax, with_ray):  # pragma: no cover - numba
+    """Corrected depth [m] of pixel ``i`` with raw depth ``d`` [mm]: :func:`_z`, minus the ray term
+    ``dh**gamma V(dh rho) / 1000`` when ``with_ray`` (``rho`` is the third value of the pixel's
+    record in ``rays``, see :mod:`._tables`)."""
+    t4 = np.uint64(d) * np.uint64(4)
+    z = _z(i, np.uint64(lut_i[t4 + np.uint64(1)]), lut_f, coef, t4)
+    if with_ray:
+        w = ray_term(rays[i * stride + np.uint64(2)], lut_f[t4 + np.uint64(2)], ray_w, q0, nmax)
+        z -= lut_f[t4 + np.uint64(3)] * w * np.float32(0.001)
+    return z
+
+
 @nb.njit(fastmath=True, cache=True, inline="never")
-def _correct_backproject_block(depth, lut_f, lut_i, coef, rays, out, p0, p1, j):  # pragma: no cover - numba
+def _correct_backproject_block(depth, lut_f, lut_i, coef, rays, stride, out, p0, p1, j, ray_w, q0, nmax,
+                               with_ray):  # pragma: no cover - numba
     """Pixels ``p0 .. p1-1`` of :func:`_correct_backproject`, points written from ``out[j]``;
     returns the index after the last value written.
 
@@ -58,7 +72,11 @@ def _correct_backproject_block(depth, lut_f, lut_i, coef, rays, out, p0, p1, j):
     this block overwrites; the last point is written with three 4-byte stores, so nothing lands
     past it (the next block belongs to another thread, the buffer may end there). A function
     of its own (not inlined into the parallel loop), so that LLVM keeps the base pointers in
-    registers: about 17 instructions and one store per pixel.
+    registers: about 17 instructions and one store per pixel without a ray term. ``with_ray`` is
+    the same for every pixel: the branch is hoisted out of the loop.
+
+    ``ray_term`` is imported from :mod:`._apply`: numba caches a kernel by its own file, so after
+    editing ``ray_term`` touch this file too (or clear ``__pycache__``).
     """
     last = p1  # one past the last valid pixel of the block
     while last > p0 and depth[last - np.uint64(1)] == 0:
@@ -69,107 +87,30 @@ def _correct_backproject_block(depth, lut_f, lut_i, coef, rays, out, p0, p1, j):
         d = depth[i]
         if d == 0:
             continue
-        t4 = np.uint64(d) * np.uint64(4)
-        store_point4(out, j, rays, i * two, _z(i, np.uint64(lut_i[t4 + one]), lut_f, coef, t4))
+        store_point4(out, j, rays, i * stride, _z_px(i, d, lut_f, lut_i, coef, rays, stride, ray_w, q0, nmax, with_ray))
         j += np.uint64(3)
     for i in range(p_vec, p1):  # the last valid pixel (and the invalid ones after it)
         d = depth[i]
         if d == 0:
             continue
-        t4 = np.uint64(d) * np.uint64(4)
-        z = _z(i, np.uint64(lut_i[t4 + one]), lut_f, coef, t4)
-        i2 = i * two
-        out[j] = rays[i2] * z
-        out[j + one] = rays[i2 + one] * z
-        out[j + two] = z
-        j += np.uint64(3)
-    return j
-
-
-@nb.njit(inline="always")
-def _z_ray(i, d, lut_f, lut_i, coef, ray_w, q0, nmax, rays3):  # pragma: no cover - numba
-    """:func:`_z` minus the ray term, for raw depth ``d`` [mm] of pixel ``i``; ``rays3`` holds
-    ``(x, y, rho)`` per pixel (one 12-byte record)."""
-    t4 = np.uint64(d) * np.uint64(4)
-    dh = lut_f[t4 + np.uint64(2)]
-    z = _z(i, np.uint64(lut_i[t4 + np.uint64(1)]), lut_f, coef, t4)
-    w = ray_term(rays3[i * np.uint64(3) + np.uint64(2)], dh, ray_w, q0, nmax)
-    return z - lut_f[t4 + np.uint64(3)] * w * np.float32(0.001)
-
-
-@nb.njit(fastmath=True, cache=True, inline="never")
-def _correct_backproject_block_ray(depth, lut_f, lut_i, coef, rays3, out, p0, p1, j, ray_w, q0,
-                                   nmax):  # pragma: no cover - numba
-    """:func:`_correct_backproject_block` for a calibration with a ray term (see :mod:`._tables`):
-    ``rays3`` (3 H W,) float32 holds ``(x, y, rho)`` per pixel, one 12-byte record.
-
-    ``ray_term`` is imported from :mod:`._apply`: numba caches a kernel by its own file, so after
-    editing ``ray_term`` touch this file too (or clear ``__pycache__``)."""
-    last = p1
-    while last > p0 and depth[last - np.uint64(1)] == 0:
-        last -= np.uint64(1)
-    p_vec = last - np.uint64(1) if last > p0 else p0
-    one, two, three = np.uint64(1), np.uint64(2), np.uint64(3)
-    for i in range(p0, p_vec):
-        d = depth[i]
-        if d == 0:
-            continue
-        store_point4(out, j, rays3, i * three, _z_ray(i, d, lut_f, lut_i, coef, ray_w, q0, nmax, rays3))
-        j += np.uint64(3)
-    for i in range(p_vec, p1):  # the last valid pixel (and the invalid ones after it)
-        d = depth[i]
-        if d == 0:
-            continue
-        z = _z_ray(i, d, lut_f, lut_i, coef, ray_w, q0, nmax, rays3)
-        i3 = i * three
-        out[j] = rays3[i3] * z
-        out[j + one] = rays3[i3 + one] * z
+        z = _z_px(i, d, lut_f, lut_i, coef, rays, stride, ray_w, q0, nmax, with_ray)
+        r = i * stride
+        out[j] = rays[r] * z
+        out[j + one] = rays[r + one] * z
         out[j + two] = z
         j += np.uint64(3)
     return j
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
-def _correct_backproject_ray(depth, lut_f, lut_i, coef, rays3, out, nthreads, ray_w, q0,
-                             nmax):  # pragma: no cover - numba
-    """:func:`_correct_backproject` for a calibration with a ray term."""
-    npix = depth.shape[0]
-    nb_ = max(1, min(nthreads, 64, npix // 4096 + 1))
-    ends = np.empty(nb_, np.uint64)
-    keep = 1.0 - _COUNT_COST
-    for c in nb.prange(nb_):
-        p0 = np.uint64(npix * (1.0 - keep ** c) / (1.0 - keep ** nb_)) if c > 0 else np.uint64(0)
-        p1 = np.uint64(npix * (1.0 - keep ** (c + 1)) / (1.0 - keep ** nb_)) if c < nb_ - 1 else np.uint64(npix)
-        j = _count_valid(depth, p0) * np.uint64(3)
-        ends[c] = _correct_backproject_block_ray(depth, lut_f, lut_i, coef, rays3, out, p0, p1, j, ray_w, q0, nmax)
-    return ends[nb_ - 1] // np.uint64(3)
-
-
-def _rays3(rays: np.ndarray, t) -> np.ndarray:
-    """(3 H W,) float32 ``(x, y, rho)`` records from interleaved rays and the tables."""
-    r3 = np.empty((len(rays) // 2, 3), np.float32)
-    r3[:, :2] = rays.reshape(-1, 2)
-    r3[:, 2] = t.pix_rho
-    return r3.reshape(-1)
-
-
-def _run_kernel(flat, t, rays, out, nthreads, rays3=None) -> int:
-    """Dispatch to the kernel of the calibration's tables; returns the number of points.
-    ``rays3``: the ray-term records (:func:`_rays3`), built here when not given."""
-    if t.has_ray:
-        r4 = rays3 if rays3 is not None else _rays3(rays, t)
-        return int(_correct_backproject_ray(flat, t.lut_f, t.lut_i, t.coef, r4, out, nthreads, t.ray_w,
-                                            np.float32(t.ray_q0), t.ray_tmax))
-    return int(_correct_backproject(flat, t.lut_f, t.lut_i, t.coef, rays, out, nthreads))
-
-
-@nb.njit(parallel=True, fastmath=True, cache=True)
-def _correct_backproject(depth, lut_f, lut_i, coef, rays, out, nthreads):  # pragma: no cover - numba
+def _correct_backproject(depth, lut_f, lut_i, coef, rays, stride, out, nthreads, ray_w, q0, nmax,
+                         with_ray):  # pragma: no cover - numba
     """Fused correction + back-projection; returns the number N of points written.
 
-    depth (H*W,) uint16 [mm]; lut_f, lut_i, coef: :class:`CorrectionTables` arrays; rays (2*H*W,)
-    float32 interleaved (x, y); out (>= 3 N,) float32 interleaved (x, y, z) [m]. One block of
-    pixels per thread; each block first counts the valid pixels before it (a vectorised pass)
+    depth (H*W,) uint16 [mm]; lut_f, lut_i, coef, ray_w: :class:`CorrectionTables` arrays; rays
+    float32 per-pixel records of ``stride`` values: ``(x, y)`` (stride 2) or ``(x, y, rho)``
+    (stride 3, needed with a ray term); out (>= 3 N,) float32 interleaved (x, y, z) [m]. One block
+    of pixels per thread; each block first counts the valid pixels before it (a vectorised pass)
     to know where its points start, and the later blocks are made shorter to pay for that.
     ``nthreads`` = ``numba.get_num_threads()`` (not callable here: it would prevent caching).
     Flat arrays with constant strides and unsigned indices keep the loop free of multiplies
@@ -184,8 +125,29 @@ def _correct_backproject(depth, lut_f, lut_i, coef, rays, out, nthreads):  # pra
         p0 = np.uint64(npix * (1.0 - keep ** c) / (1.0 - keep ** nb_)) if c > 0 else np.uint64(0)
         p1 = np.uint64(npix * (1.0 - keep ** (c + 1)) / (1.0 - keep ** nb_)) if c < nb_ - 1 else np.uint64(npix)
         j = _count_valid(depth, p0) * np.uint64(3)
-        ends[c] = _correct_backproject_block(depth, lut_f, lut_i, coef, rays, out, p0, p1, j)
+        ends[c] = _correct_backproject_block(depth, lut_f, lut_i, coef, rays, stride, out, p0, p1, j, ray_w, q0,
+                                             nmax, with_ray)
     return ends[nb_ - 1] // np.uint64(3)
+
+
+def _records(rays: np.ndarray, t) -> np.ndarray:
+    """Per-pixel float32 records for the kernel: the interleaved ``(x, y)`` rays, or ``(x, y, rho)``
+    for a calibration with a ray term."""
+    if not t.has_ray:
+        return rays
+    r3 = np.empty((len(rays) // 2, 3), np.float32)
+    r3[:, :2] = rays.reshape(-1, 2)
+    r3[:, 2] = t.pix_rho
+    return r3.reshape(-1)
+
+
+def _run_kernel(flat, t, rays, out, nthreads, records=None) -> int:
+    """The kernel for the calibration's tables; returns the number of points. ``records``: the
+    per-pixel records (:func:`_records`), built here when not given."""
+    rec = records if records is not None else _records(rays, t)
+    stride = np.uint64(3 if t.has_ray else 2)
+    return int(_correct_backproject(flat, t.lut_f, t.lut_i, t.coef, rec, stride, out, nthreads, t.ray_w,
+                                    np.float32(t.ray_q0), t.ray_tmax, t.has_ray))
 
 
 def _check_rays(ray_table: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -271,7 +233,7 @@ class FrameCorrector:
             ray_table = cal.intrinsics.ray_table()
         self.rays = _check_rays(np.asarray(ray_table), self.shape).copy()
         self._tables = cal.tables
-        self._rays3 = _rays3(self.rays, self._tables) if self._tables.has_ray else None
+        self._records = _records(self.rays, self._tables)
         self.buffer = np.empty((self.shape[0] * self.shape[1], 3), np.float32)
         # blocks per frame (one per thread); numba.get_num_threads() costs ~2 us per call
         self.n_threads = nb.get_num_threads()
@@ -298,5 +260,5 @@ class FrameCorrector:
             _check_out(out, depth.size)
         if not depth.flags.c_contiguous:
             depth = np.ascontiguousarray(depth)
-        n = _run_kernel(depth.reshape(-1), self._tables, self.rays, out.reshape(-1), self.n_threads, self._rays3)
+        n = _run_kernel(depth.reshape(-1), self._tables, self.rays, out.reshape(-1), self.n_threads, self._records)
         return out[:n]

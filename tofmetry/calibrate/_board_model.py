@@ -27,6 +27,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from scipy import sparse
+from scipy.linalg import cho_factor, cho_solve
+
+from tofmetry.calibrate._model import DepthCalibration
+from tofmetry.calibrate._support import CalibrationSupport
+from tofmetry.sensor import CameraIntrinsics
 from tofmetry.errors import EstimationError, InputError
 
 RANGE_VARIABLES = ("radial", "z")
@@ -121,8 +127,6 @@ class BoardDepthModel:
     def _rho(self) -> np.ndarray | None:
         if self.range_variable != "radial":
             return None
-        from tofmetry.sensor import CameraIntrinsics
-
         return ray_length(CameraIntrinsics.from_dict(self.intrinsics, source="board model intrinsics"))
 
     def range_value(self, u: np.ndarray, v: np.ndarray, z_mm: np.ndarray) -> np.ndarray:
@@ -245,8 +249,6 @@ def _bilinear_eval(gx, gy, grid, u, v) -> np.ndarray:
 
 def _membrane(Gu: int, Gv: int, offset: int, n_cols: int):
     """First-difference operator over a (Gv, Gu) grid whose unknowns start at ``offset``."""
-    from scipy import sparse
-
     node = np.arange(Gu * Gv).reshape(Gv, Gu)
     pairs = np.concatenate([np.stack([node[:, :-1].ravel(), node[:, 1:].ravel()], 1),
                             np.stack([node[:-1].ravel(), node[1:].ravel()], 1)])
@@ -294,9 +296,6 @@ def fit_board_model(u: np.ndarray, v: np.ndarray, measured_mm: np.ndarray, refer
     constant lives in ``a``; ``g`` has zero mean at ``x_ref`` by construction of ``zeta`` and its
     mean is left to ``a`` through the same hard penalty.
     """
-    from scipy import sparse
-    from scipy.linalg import cho_factor, cho_solve
-
     spec = spec or ModelSpec("spline+surface", surface_smooth=3.0)
     u = np.asarray(u, float)
     v = np.asarray(v, float)
@@ -419,9 +418,6 @@ def to_depth_calibration(model: BoardDepthModel, intrinsics, sensor: str = "unkn
       correction is held at the nearest supported depth (``fallback = "hold"``); without one the
       whole depth range is corrected with the same hold.
     """
-    from tofmetry.calibrate._model import DepthCalibration
-    from tofmetry.calibrate._support import CalibrationSupport
-
     if tuple(intrinsics.shape) != tuple(model.shape):
         raise InputError(f"to_depth_calibration: intrinsics {intrinsics.shape} do not match the model {tuple(model.shape)}")
     k = np.asarray(model.x_knots_mm, float)

@@ -41,15 +41,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
+from scipy.special import gammaincinv
+from threadpoolctl import threadpool_limits
 
-from tofmetry.calibrate._support import CalibrationSupport
 from tofmetry.calibrate._board_model import (
     RANGE_VARIABLES, BoardDepthModel, ModelSpec, fit_board_model, to_depth_calibration,
 )
 from tofmetry.calibrate._board_pose import board_object_points, check_corners, reprojection_rms_with, solve_board_pose
 from tofmetry.calibrate._corners import detect_corners, normalize_ir
 from tofmetry.calibrate._lens_fit import _folds, calibrate_intrinsics, cross_validate_intrinsics
+from tofmetry.calibrate._model import DepthCalibration
+from tofmetry.calibrate._support import CalibrationSupport
 from tofmetry.errors import EstimationError, InputError
 from tofmetry.sensor.intrinsics import CameraIntrinsics
 
@@ -208,8 +212,6 @@ def board_samples(depth: np.ndarray, ir: np.ndarray, corners: np.ndarray, board:
 # ----------------------------------------------------------------------------- grids
 def _chi2_ppf(q: float, dof: int) -> float:
     """Quantile of the chi-square law (scipy.special, lighter than scipy.stats)."""
-    from scipy.special import gammaincinv
-
     return float(2.0 * gammaincinv(0.5 * dof, q))
 
 
@@ -291,8 +293,6 @@ def find_boards(ir: np.ndarray, board: tuple[int, int], max_boards: int = 4) -> 
     -------
     list of (cols*rows, 2) float64 corner arrays [px] (possibly empty).
     """
-    import cv2
-
     a = np.asarray(ir)
     img = (a if (a.dtype == np.uint8 and a.ndim == 2) else normalize_ir(a)).copy()
     cols, rows = board
@@ -333,8 +333,6 @@ def constant_shift_calibration(shift_mm: float, intrinsics: CameraIntrinsics, se
                                provenance: dict | None = None):
     """A core ``DepthCalibration`` equal to a constant shift (iai_kinect2 ``depthShift``):
     zero surfaces and a constant range curve ``R = -shift`` (corrected = measured + shift)."""
-    from tofmetry.calibrate._model import DepthCalibration
-
     s = float(shift_mm)
     return DepthCalibration(
         sensor=sensor, intrinsics=intrinsics, range_knots=np.array([1.0, 1.0, 65535.0, 65535.0]),
@@ -875,8 +873,6 @@ def calibrate_depth_from_board(poses: list, board: tuple[int, int], square_mm: f
     ------
     EstimationError : no usable view, or no intrinsics given and fewer than 3 grids to fit them.
     """
-    from threadpoolctl import threadpool_limits
-
     # hundreds of small dense solves: one BLAS thread (threads thrash on a busy machine, 10-100x)
     with threadpool_limits(1, user_api="blas"):
         return _calibrate(poses, board, square_mm, intrinsics, names, seed, sensor, min_samples, candidates,

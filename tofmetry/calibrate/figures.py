@@ -1,14 +1,18 @@
-"""Calibration figures (matplotlib, Agg): return Figure objects, the caller saves them."""
+"""Calibration figures: return matplotlib Figure objects, the caller saves them.
+
+Made without pyplot (:func:`tofmetry._shared.figures.subplots`): nothing switches the backend of
+the caller's session and nothing has to be closed.
+"""
 
 from __future__ import annotations
 
-import matplotlib
+import numpy as np
+from matplotlib.colors import PowerNorm
+from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from tofmetry.calibrate._model import DepthCalibration  # noqa: E402
+from tofmetry._shared.figures import subplots
+from tofmetry.calibrate._model import DepthCalibration
 
 
 def _range_label(cal) -> str:
@@ -30,7 +34,7 @@ def fig_range_curve(cal: DepthCalibration, points_mm: np.ndarray, frame_points: 
     frame_points : optional list of (distance_mm, (T,) per-frame deviations) to scatter
     held_out : optional list of (distance_mm, deviation_mm) of validation stations (before)
     """
-    fig, ax = plt.subplots(figsize=(7, 4.2))
+    fig, ax = subplots(figsize=(7, 4.2))
     off = cal.offset_mm
     if frame_points:
         for d, devs in frame_points:
@@ -59,7 +63,7 @@ def fig_range_curve(cal: DepthCalibration, points_mm: np.ndarray, frame_points: 
 
 def fig_std_vs_range(distances_mm, center_std_mm, pixel_std_mm=None, after_std_mm=None):
     """Study Fig. 7b: temporal std [mm] per station against range [m]."""
-    fig, ax = plt.subplots(figsize=(7, 4.2))
+    fig, ax = subplots(figsize=(7, 4.2))
     d = np.asarray(distances_mm, float) / 1000.0
     ax.plot(d, center_std_mm, "o-", label="std of per-frame central-patch means")
     if pixel_std_mm is not None:
@@ -78,7 +82,7 @@ def fig_std_vs_range(distances_mm, center_std_mm, pixel_std_mm=None, after_std_m
 def fig_residual_maps(before: np.ndarray, after: np.ndarray, title: str, limit_mm: float | None = None):
     """Study Figs. 8/9: plane-fit residual maps [mm] before and after correction."""
     lim = limit_mm or float(np.nanpercentile(np.abs(before), 99)) or 1.0
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    fig, axes = subplots(1, 2, figsize=(11, 4.2))
     for ax, m, t in zip(axes, (before, after), ("before correction", "after correction")):
         im = ax.imshow(m, cmap="RdBu_r", vmin=-lim, vmax=lim)
         ax.set_title(f"{t}: std {np.nanstd(m):.2f} mm")
@@ -90,10 +94,10 @@ def fig_residual_maps(before: np.ndarray, after: np.ndarray, title: str, limit_m
     return fig
 
 
-def fig_validation(reports) -> "plt.Figure":
+def fig_validation(reports) -> "Figure":
     """Before/after per station: central deviation, plane std, per-pixel RMS against range."""
     d = np.array([r.distance_mm for r in reports]) / 1000.0
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    fig, axes = subplots(1, 3, figsize=(13, 3.8))
     pairs = [("dev_before_mm", "dev_after_mm", "central deviation [mm]"),
              ("plane_std_before_mm", "plane_std_after_mm", "plane-fit residual std [mm]"),
              ("rms_before_mm", "rms_after_mm", "per-pixel RMS error, central 90 % [mm]\n(before: offset removed)")]
@@ -128,13 +132,11 @@ def fig_coverage(corners_px: list, shape: tuple[int, int], title: str = "Checker
     predicted_ray : optional ``RayError`` (``IntrinsicsResult.predicted_ray``): adds a panel with
         the predicted ray-error map [px] from the parameter covariance
     """
-    from matplotlib.patches import Rectangle
-
     h, w = shape
     cell = 32
     grid = np.zeros((-(-h // cell), -(-w // cell)))
     panels = 2 if predicted_ray is not None else 1
-    fig, axes = plt.subplots(1, panels, figsize=(7 * panels, 5.2), squeeze=False)
+    fig, axes = subplots(1, panels, figsize=(7 * panels, 5.2), squeeze=False)
     ax = axes[0, 0]
     for c in corners_px:
         c = np.asarray(c).reshape(-1, 2)
@@ -169,8 +171,6 @@ def fig_coverage(corners_px: list, shape: tuple[int, int], title: str = "Checker
         pr = predicted_ray
         ax2 = axes[0, 1]
         m = pr.map_px
-        from matplotlib.colors import PowerNorm
-
         im2 = ax2.pcolormesh(pr.u_px, pr.v_px, m, cmap="magma", shading="gouraud",
                              norm=PowerNorm(0.5, vmin=0.0, vmax=float(np.nanmax(m))))
         nice = np.array([0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0])
@@ -197,7 +197,7 @@ def fig_intrinsics_per_image(run):
     names = list(run.names)
     rms = [res.per_image_rms_px.get(n, res.rejected_rms_px.get(n, np.nan)) for n in names]
     colours = ["C3" if n in res.rejected_views else ("C1" if n in res.flagged else "C0") for n in names]
-    fig, ax = plt.subplots(2, 1, figsize=(max(7, 0.18 * len(names) + 3), 6.5), sharex=True)
+    fig, ax = subplots(2, 1, figsize=(max(7, 0.18 * len(names) + 3), 6.5), sharex=True)
     x = np.arange(len(names))
     ax[0].bar(x, rms, color=colours)
     if np.isfinite(res.reject_threshold_px):
@@ -232,7 +232,7 @@ def fig_board_calibration(res):
     selection on blocked folds (held-out RMS per candidate and design) and the dark-square
     bias measured against the dark squares' IR amplitude."""
     m = res.model
-    fig, ax = plt.subplots(2, 2, figsize=(14, 9.5))
+    fig, ax = subplots(2, 2, figsize=(14, 9.5))
     ax = ax.ravel()
     lo, hi = m.x_support_mm
     x = np.linspace(lo - 0.15 * (hi - lo + 1), hi + 0.15 * (hi - lo + 1), 300)
