@@ -25,3 +25,12 @@ class SensorMismatchError(InputError):
 
 class EstimationError(TofmetryError, RuntimeError):
     """An estimator could not produce a trustworthy result; the message says why."""
+
+
+class ImplausibleResultError(EstimationError):
+    """A result far outside what the sensor can be (a plausibility gate failed): the message names
+    each finding, the threshold and where it comes from; ``--accept-implausible`` overrides it."""
+
+    def __init__(self, message: str, findings: list[str] | None = None):
+        super().__init__(message)
+        self.findings = list(findings or [])

@@ -144,7 +144,7 @@ def test_an_interrupted_correct_leaves_no_output(capture, tmp_path):
 
 
 def test_correct_refuses_its_input_and_an_existing_output(capture, tmp_path):
-    with pytest.raises(InputError, match="input capture"):
+    with pytest.raises(InputError, match="is the input folder"):
         correct_capture(capture, _calibration(), capture)
     correct_capture(capture, _calibration(), tmp_path / "out")
     with pytest.raises(InputError, match="exists"):

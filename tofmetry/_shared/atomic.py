@@ -2,6 +2,10 @@
 
 A reader never sees a half-written file or folder under its final name: an interrupted run
 leaves at most a hidden ``.NAME.*.tmp`` sibling, never an output that looks complete.
+
+The temporary file / folder is created private (``tempfile`` uses 0600 / 0700); before it is
+renamed into place it gets the mode an ordinary ``open`` / ``mkdir`` would have given it under the
+process's umask (0644 / 0755 under the usual 022), so that colleagues can read the results.
 """
 
 from __future__ import annotations
@@ -14,6 +18,31 @@ from pathlib import Path
 from typing import Iterator
 
 from tofmetry.errors import InputError
+
+
+def _umask() -> int:
+    """The process's umask, read without changing it where the system tells it (Linux
+    ``/proc/self/status``; elsewhere a quick set-and-restore)."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def file_mode() -> int:
+    """Mode of a new file under the current umask (``0o666 & ~umask``)."""
+    return 0o666 & ~_umask()
+
+
+def dir_mode() -> int:
+    """Mode of a new folder under the current umask (``0o777 & ~umask``)."""
+    return 0o777 & ~_umask()
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
@@ -33,6 +62,7 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as fh:
+            os.fchmod(fh.fileno(), file_mode())
             fh.write(data)
         os.replace(tmp, path)
     except BaseException:
@@ -61,6 +91,7 @@ def atomic_dir(path: str | os.PathLike, force: bool = False) -> Iterator[Path]:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
     try:
+        os.chmod(tmp, dir_mode())
         yield tmp
         if path.exists():
             old = path.with_name(f".{path.name}.old-{os.getpid()}")

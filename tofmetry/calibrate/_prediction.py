@@ -119,7 +119,8 @@ def _qmean(v) -> float:
     return float(np.sqrt(np.mean(v ** 2))) if v.size else float("nan")
 
 
-#: a calibration whose predicted central deviation at new stations exceeds this warns [mm]
+#: a calibration whose predicted central deviation at new stations may exceed this (the upper end
+#: of its 90 % interval) warns [mm]
 WARN_CENTRAL_MM = 1.5
 
 
@@ -127,20 +128,22 @@ def prediction_record(interp_rows: list[dict], extrap_rows: list[dict], note: st
                       warn_central_mm: float = WARN_CENTRAL_MM) -> dict:
     """The ``prediction`` stored in a calibration (JSON-able), with its ``warnings``.
 
-    A predicted central deviation above ``warn_central_mm`` means the stations do not sample the
-    range error finely enough (e.g. a wiggle of Z shorter than twice the station spacing, which
-    no station between two others can see): the record says so and what to do.
+    A predicted central deviation whose 90 % interval reaches above ``warn_central_mm`` means the
+    stations do not sample the range error finely enough (e.g. a wiggle of Z shorter than twice
+    the station spacing, which no station between two others can see): the record says so and
+    what to do.
     """
     interp = summarize_folds(interp_rows) if interp_rows else {}
     warnings = []
     c = interp.get("central_abs_mm", {})
-    if c.get("n") and c["predicted"] > warn_central_mm:
+    if c.get("n") and c["p95"] > warn_central_mm:
         centers = np.sort([r["center_mm"] for r in interp_rows])
         spacing = float(np.median(np.diff(centers))) if len(centers) > 1 else float("nan")
         warnings.append(
             f"the range error changes faster than the stations ({spacing:.0f} mm apart) sample it: a station left "
-            f"out is predicted to {c['predicted']:.1f} mm on the axis (90 %: {c['p5']:.1f}-{c['p95']:.1f} mm), so "
-            f"expect that much between stations; add stations in between or calibrate on a wall seen at an angle")
+            f"out is predicted to {c['predicted']:.1f} mm on the axis (RMS; 90 %: {c['p5']:.1f}-{c['p95']:.1f} mm), "
+            f"so expect up to that much between stations; add stations in between or calibrate on a wall seen at an "
+            f"angle")
     return {
         "method": note,
         "interpolation": interp,

@@ -13,11 +13,20 @@ import typer
 from rich.table import Table
 
 from tofmetry._shared.study_constants import BLACK_AMPLITUDE_RATIO
-from tofmetry.cli._common import console, load_intrinsics_option, progress
+from tofmetry.cli._common import console, load_intrinsics_option, progress, refuse_existing
 from tofmetry.errors import InputError
 
+_FORCE = typer.Option(False, "--force", help="Replace the files of an existing, non-empty output folder.")
+
 assess_app = typer.Typer(help="Sensor assessment (study §3): warm-up, noise, materials, outdoor/flying pixels.",
+                         rich_markup_mode=None,
                          no_args_is_help=True)
+
+
+def _refuse_inside(out: Path, capture: Path) -> None:
+    from tofmetry.pipelines.paths import refuse_inside_inputs
+
+    refuse_inside_inputs(out, capture)
 
 
 def _open(capture: Path):
@@ -56,10 +65,13 @@ def warmup(capture: Path = typer.Argument(..., help="Capture of a static wall wi
            tolerance_mm: float = typer.Option(1.0, "--tolerance-mm", help="Stability tolerance around the final level [mm]."),
            smooth_s: Optional[float] = typer.Option(None, "--smooth-s", help="Smoothing window [s] (default max(120, 5 intervals))."),
            final_window_s: float = typer.Option(600.0, "--final-window-s", help="Final level = median over this last stretch [s]."),
+           force: bool = _FORCE,
            ) -> None:
     """Warm-up drift: mean distance of the brightest patch against operating time."""
     from tofmetry.assess import assess_warmup
 
+    refuse_existing([out], force)
+    _refuse_inside(out, capture)
     cap = _open(capture)
     with progress("warm-up frames", len(cap)) as adv:
         res = assess_warmup(cap, patch=patch, tolerance_mm=tolerance_mm, smooth_window_s=smooth_s,
@@ -81,10 +93,13 @@ def warmup(capture: Path = typer.Argument(..., help="Capture of a static wall wi
 def noise(capture: Path = typer.Argument(..., help="Capture of N >= 2 frames of a static scene (100 recommended)."),
           out: Path = typer.Option(..., "-o", "--out", help="Output folder (JSON + PNG)."),
           row: Optional[int] = typer.Option(None, "--row", help="Image row of the std profile (default: middle)."),
+          force: bool = _FORCE,
           ) -> None:
     """Temporal noise: std maps for 10/25/50/100 frames, row profile, precision of averaging."""
     from tofmetry.assess import assess_noise
 
+    refuse_existing([out], force)
+    _refuse_inside(out, capture)
     cap = _open(capture)
     with progress("noise frames", len(cap)) as adv:
         res = assess_noise(cap, row=row, progress=adv)
@@ -103,6 +118,7 @@ def materials(capture: Path = typer.Argument(..., help="Capture (depth + IR) of 
               regions: Optional[Path] = typer.Option(None, "--regions", help='regions.json {"regions": [{"name", "rect": [u0, v0, u1, v1], "reference"}]}.'),
               auto_grey_board: bool = typer.Option(False, "--auto-grey-board", help="Find the squares of a grey-level checkerboard from IR."),
               intrinsics: Optional[Path] = typer.Option(None, "--intrinsics", help="intrinsics.json overriding the capture's."),
+              force: bool = _FORCE,
               ) -> None:
     """Materials/intensity: amplitude and depth bias per sample, amplitude-bias fit."""
     from tofmetry.assess import assess_materials, regions_from_dict
@@ -110,6 +126,8 @@ def materials(capture: Path = typer.Argument(..., help="Capture (depth + IR) of 
 
     if (regions is None) == (not auto_grey_board):
         raise InputError("materials: give exactly one of --regions regions.json or --auto-grey-board")
+    refuse_existing([out], force)
+    _refuse_inside(out, capture)
     cap = _open(capture)
     intr, _ = cap.intrinsics(load_intrinsics_option(intrinsics))
     regs = None
@@ -129,10 +147,13 @@ def outdoor(capture: Path = typer.Argument(..., help="Capture (strong light)."),
             out: Path = typer.Option(..., "-o", "--out", help="Output folder (JSON + PNG + PLY)."),
             frame: int = typer.Option(0, "--frame", help="Frame shown in the figure and exported as PLY."),
             intrinsics: Optional[Path] = typer.Option(None, "--intrinsics", help="intrinsics.json overriding the capture's."),
+            force: bool = _FORCE,
             ) -> None:
     """Valid fraction and flying pixels; coloured cloud (flying in red) as PLY, profile view PNG."""
     from tofmetry.assess import assess_outdoor
 
+    refuse_existing([out], force)
+    _refuse_inside(out, capture)
     cap = _open(capture)
     intr, _ = cap.intrinsics(load_intrinsics_option(intrinsics))
     if not 0 <= frame < len(cap):

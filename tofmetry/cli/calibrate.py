@@ -7,10 +7,12 @@ from typing import Optional
 
 import typer
 
-from tofmetry.cli._common import console, load_intrinsics_option, progress
+from tofmetry.cli._common import (
+    ACCEPT_IMPLAUSIBLE_HELP, console, load_intrinsics_option, print_plausibility, progress, refuse_existing,
+)
 
 calibrate_app = typer.Typer(help="Calibrate the camera: IR intrinsics (checkerboard) and ToF depth (wall).",
-                            no_args_is_help=True)
+                            rich_markup_mode=None, no_args_is_help=True)
 
 
 # ------------------------------------------------------------------ helpers
@@ -123,7 +125,8 @@ def intrinsics_cmd(
                                           "(default: <output stem>_report next to the output)."),
     fix_k3: bool = typer.Option(False, "--fix-k3", help="Keep k3 = 0."),
     no_loo: bool = typer.Option(False, "--no-loo", help="Skip the leave-one-out stability analysis."),
-    force: bool = typer.Option(False, "--force", help="Overwrite outputs."),
+    force: bool = typer.Option(False, "--force", help="Overwrite outputs (the JSON, the YAML and the report)."),
+    accept_implausible: bool = typer.Option(False, "--accept-implausible", help=ACCEPT_IMPLAUSIBLE_HELP),
 ) -> None:
     """Estimate fx, fy, cx, cy, k1, k2, p1, p2, k3 from checkerboard images (outlier views rejected,
     uncertainties, predicted ray error over the whole image, uncovered image corners, leave-one-out
@@ -132,17 +135,17 @@ def intrinsics_cmd(
 
     from tofmetry.calibrate import PARAMS
     from tofmetry.pipelines import intrinsics_from_images, write_intrinsics_report
-    from tofmetry.errors import InputError
     from tofmetry.io import write_intrinsics
     from tofmetry.io.board_dataset import BoardSpec
     from tofmetry.io.iai_kinect2 import write_calib_ir
 
     spec = BoardSpec.parse(board, square_mm)
-    if output.exists() and not force:
-        raise InputError(f"output {output} exists; pass --force to overwrite it")
+    ypath = yaml or output.with_name("calib_ir.yaml")
+    rdir = report or output.with_name(f"{output.stem}_report")
+    refuse_existing([output, ypath, rdir], force)
     with progress("detect corners, calibrate, leave-one-out, cross-validate", None) as adv:
         run = intrinsics_from_images(images_dir, spec.size, spec.square_mm, leave_one_out=not no_loo, fix_k3=fix_k3,
-                                     advance=adv)
+                                     advance=adv, accept_implausible=accept_implausible)
     res = run.result
     if run.rejected:
         why = getattr(run, "rejected_reasons", {})
@@ -168,10 +171,10 @@ def intrinsics_cmd(
                       f"p90 {pr.p90_px:.3f} px, image corners up to {pr.corners_max_px:.3f} px")
     for w in res.warnings:
         console.print(f"[yellow]warning:[/] {w}")
-    write_intrinsics(output, res.intrinsics, rms_px=res.rms_px, std=res.std, n_images=len(res.used))
-    ypath = yaml or output.with_name("calib_ir.yaml")
+    print_plausibility(run.plausibility)
+    write_intrinsics(output, res.intrinsics, rms_px=res.rms_px, std=res.std, n_images=len(res.used),
+                     plausibility=run.plausibility)
     write_calib_ir(ypath, res.intrinsics)
-    rdir = report or output.with_name(f"{output.stem}_report")
     write_intrinsics_report(run, rdir)
     console.print(f"wrote {output}, {ypath} and {rdir}/")
 
@@ -206,7 +209,8 @@ def depth(
     judge_poses: Optional[str] = typer.Option(None, "--judge-poses", help="Board: poses held out of every fit "
                                               "(intrinsics included) and judged with the written calibration, e.g. 50-69."),
     report: Optional[Path] = typer.Option(None, "--report", help="Folder for the fit report (JSON + figures)."),
-    force: bool = typer.Option(False, "--force", help="Overwrite the output."),
+    force: bool = typer.Option(False, "--force", help="Overwrite the output (and the report's files)."),
+    accept_implausible: bool = typer.Option(False, "--accept-implausible", help=ACCEPT_IMPLAUSIBLE_HELP),
 ) -> None:
     """Fit a depth calibration on a wall dataset (range B-spline + per-pixel surfaces) or, when the
     folder holds board.json, on a board dataset (board planes as reference, cross-validated over poses)."""
@@ -218,22 +222,24 @@ def depth(
     from tofmetry.pipelines import calibrate_depth_dataset, write_depth_report
     from tofmetry.errors import InputError
 
-    if output.exists() and not force:
-        raise InputError(f"output {output} exists; pass --force to overwrite it")
+    refuse_existing([output, report], force)
     cfg = _fit_config(method, surface, poly_degree, fallback)
     with progress(f"calibrating depth on {dataset.name}", None) as adv:
         if (dataset / "board.json").is_file():
             from tofmetry.pipelines.board import calibrate_board
 
             run = calibrate_board(dataset, load_intrinsics_option(intrinsics), squares, folds, adv,
-                                  {"command": " ".join(sys.argv)}, train_poses=train_poses, judge_poses=judge_poses)
+                                  {"command": " ".join(sys.argv)}, train_poses=train_poses, judge_poses=judge_poses,
+                                  accept_implausible=accept_implausible)
         elif train_poses is not None or judge_poses is not None:
             raise InputError("--train-poses / --judge-poses apply to board datasets (board.json) only")
         else:
             run = calibrate_depth_dataset(dataset, intrinsics=load_intrinsics_option(intrinsics), config=cfg,
                                           tilted=tilted, reference_offset_mm=reference_offset_mm, advance=adv,
-                                          squares=squares, k_folds=folds, provenance={"command": " ".join(sys.argv)})
+                                          squares=squares, k_folds=folds, provenance={"command": " ".join(sys.argv)},
+                                          accept_implausible=accept_implausible)
     _notes(run.notes)
+    print_plausibility(run.plausibility)
     cal = run.calibration
     save_calibration(output, cal)
     if run.kind == "wall":
@@ -364,10 +370,8 @@ def validate(
     pose of a board dataset (board.json: white squares against the board planes)."""
     from tofmetry.pipelines import load_calibration
     from tofmetry.pipelines import validate_depth, write_validation_report
-    from tofmetry.errors import InputError
 
-    if output is not None and (output / "validation.json").exists() and not force:
-        raise InputError(f"{output / 'validation.json'} exists; pass --force to overwrite it")
+    refuse_existing([output], force)
     cal = load_calibration(calibration)
     if (wall_dir / "board.json").is_file():
         _validate_board(wall_dir, cal, poses, load_intrinsics_option(intrinsics), output)
@@ -394,6 +398,7 @@ def correct(
     output: Path = typer.Option(..., "-o", "--output", help="Output capture folder."),
     float32: bool = typer.Option(False, "--float32", help="Write float32 .npy depth frames instead of uint16 PNG."),
     force: bool = typer.Option(False, "--force", help="Replace an existing output folder."),
+    accept_implausible: bool = typer.Option(False, "--accept-implausible", help=ACCEPT_IMPLAUSIBLE_HELP),
 ) -> None:
     """Apply a depth calibration to every frame of a capture (same format out)."""
     from tofmetry.io import Capture
@@ -401,7 +406,9 @@ def correct(
 
     cap = Capture(capture)
     with progress("correcting frames", len(cap)) as adv:
-        run = correct_capture(cap, calibration, output, float32=float32, force=force, advance=adv)
+        run = correct_capture(cap, calibration, output, float32=float32, force=force, advance=adv,
+                              accept_implausible=accept_implausible)
+    print_plausibility(run.plausibility)
     if run.outside_range:
         console.print(f"[yellow]warning:[/] {run.outside_range} valid depth samples ({100 * run.outside_share:.2f} % of "
                       f"all pixels) lie outside the calibration's support; {_outside_how(run.calibration)}")

@@ -8,16 +8,20 @@ from typing import Optional
 
 import typer
 
-from tofmetry.cli._common import console, load_intrinsics_option, progress
+from tofmetry.cli._common import ACCEPT_IMPLAUSIBLE_HELP, console, load_intrinsics_option, print_plausibility, progress
 
 
 def info(capture: Path = typer.Argument(..., help="Capture folder (capture.json + depth/) or a depth calibration "
                                          "file (.npz).")) -> None:
     """Validate a capture and print a summary (frames, valid fraction, depth range), or describe a
     depth calibration: its model, support and its own predicted error on new data."""
-    import numpy as np
+    import warnings
 
-    from tofmetry.io import Capture
+    import numpy as np
+    from rich.markup import escape
+
+    from tofmetry.errors import FormatError, TofmetryError
+    from tofmetry.io import Capture, EmptyFrameWarning
 
     if capture.is_file() and capture.suffix.lower() == ".npz":
         _info_calibration(capture)
@@ -25,19 +29,31 @@ def info(capture: Path = typer.Argument(..., help="Capture folder (capture.json 
     cap = Capture(capture)
     intr, src = cap.intrinsics()
     n = len(cap)
-    vf, lo, hi = [], np.inf, 0
-    step = max(1, n // 20)
-    for i in range(0, n, step):
-        d = cap.depth(i)
-        v = d[d > 0]
-        vf.append(v.size / d.size)
-        if v.size:
-            lo, hi = min(lo, int(v.min())), max(hi, int(v.max()))
-    console.print(f"[bold]{cap.path}[/]: valid capture")
+    vf, lo, hi, bad = [], np.inf, 0, []
+    with warnings.catch_warnings(), progress("reading every frame", n) as adv:
+        warnings.simplefilter("ignore", EmptyFrameWarning)   # counted below as 0 % valid
+        for i in range(n):                                   # every frame: a validation reads them all
+            try:
+                d = cap.depth(i)
+                if cap.has_ir:
+                    cap.ir(i)
+            except TofmetryError as exc:
+                bad.append(str(exc))
+                adv()
+                continue
+            v = d[d > 0]
+            vf.append(v.size / d.size)
+            if v.size:
+                lo, hi = min(lo, int(v.min())), max(hi, int(v.max()))
+            adv()
+    if bad:
+        raise FormatError(f"{cap.path}: {len(bad)} of {n} frames cannot be read: " + "; ".join(bad[:5])
+                          + (" ..." if len(bad) > 5 else ""))
+    console.print(f"[bold]{escape(str(cap.path))}[/]: valid capture (all {n} frames read)", highlight=False)
     console.print(f"  sensor        {cap.sensor}")
     console.print(f"  frames        {n} of {cap.shape[1]}x{cap.shape[0]} (IR: {'yes' if cap.has_ir else 'no'}, colour: {'yes' if cap.has_color else 'no'})")
     console.print(f"  intrinsics    fx={intr.fx:.2f} fy={intr.fy:.2f} cx={intr.cx:.2f} cy={intr.cy:.2f} ({src})")
-    console.print(f"  valid pixels  {np.mean(vf) * 100:.1f} % (mean over {len(vf)} sampled frames)")
+    console.print(f"  valid pixels  {np.mean(vf) * 100:.1f} % (mean over the {len(vf)} frames)")
     if hi > 0:
         console.print(f"  depth range   {lo} .. {hi} mm")
     ts = cap.timestamps_s
@@ -81,6 +97,7 @@ def cloud(
     frame: int = typer.Option(0, "--frame", help="Frame index when not averaging."),
     no_undistort: bool = typer.Option(False, "--no-undistort", help="Plain pinhole back-projection."),
     force: bool = typer.Option(False, "--force", help="Overwrite an existing output."),
+    accept_implausible: bool = typer.Option(False, "--accept-implausible", help=ACCEPT_IMPLAUSIBLE_HELP),
 ) -> None:
     """Write the point cloud of a capture as binary PLY (metres, camera frame)."""
     from tofmetry.pipelines.cloud import capture_cloud
@@ -88,8 +105,10 @@ def cloud(
     with progress("loading frames", None) if average else nullcontext(None) as adv:
         run = capture_cloud(capture, output, average=average, calibration=calibration,
                             intrinsics=load_intrinsics_option(intrinsics), color=color, frame=frame,
-                            undistort=not no_undistort, force=force, advance=adv)
+                            undistort=not no_undistort, force=force, advance=adv,
+                            accept_implausible=accept_implausible)
     console.print(f"wrote {len(run.points)} points to {output} (intrinsics: {run.intrinsics_source})")
+    print_plausibility(run.plausibility)
     if run.outside_support:
         from tofmetry.cli.calibrate import _outside_how
         from tofmetry.pipelines import load_calibration

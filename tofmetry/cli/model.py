@@ -59,33 +59,42 @@ def reconstruct(
     res = reconstruct_scan(scan_dir, calibration, output, config=cfg, amplitude_wall=amplitude_reference,
                            amplitude_max_mm=amplitude_max_mm, force=force, progress=progress)
     console.print(f"{len(res.names)} views: {', '.join(res.names)}")
-    t = Table(title="registration edges (fitness = matched share of object points)")
-    for col in ("source", "target", "method", "fitness", "RMSE [mm]", "seen-through", "alternatives", "kept", "resid [deg]",
-                "resid [mm]"):
+    t = Table(title="registration edges (fitness = matched share of the object points the other camera could see)")
+    for col in ("source", "target", "method", "fitness", "RMSE [mm]", "seen-through", "kept", "resid [deg]",
+                "resid [mm]", "verdict"):
         t.add_column(col, justify="right")
     for e in res.edges:
         if e["accepted"]:
             t.add_row(e["source"], e["target"], e["method"], f"{e['fitness']:.3f}", f"{e['inlier_rmse_mm']:.2f}",
-                      f"{e.get('see_through', 0.0):.1%}", str(len(e.get("alternatives", []))),
-                      "yes" if e["kept"] else "pruned", f"{e.get('residual_rot_deg', float('nan')):.3f}",
-                      f"{e.get('residual_trans_mm', float('nan')):.2f}")
+                      f"{e.get('see_through', 0.0):.1%}", "yes" if e["kept"] else "pruned",
+                      f"{e.get('residual_rot_deg', float('nan')):.3f}", f"{e.get('residual_trans_mm', float('nan')):.2f}",
+                      e.get("verdict", ""))
     console.print(t)
-    n_rej = sum(not e["accepted"] for e in res.edges)
+    rel = res.diagnostics.get("reliability") or {}
+    for e in res.edges:
+        if not e["accepted"]:
+            console.print(f"edge {e['source']}->{e['target']}: {e.get('verdict', 'rejected')}: {e.get('reason', '')}")
     sel = (res.diagnostics.get("consistency") or {}).get("selection") or {}
     if sel.get("changed") or sel.get("dropped"):
         console.print(f"multi-view selection: alternative hypothesis taken for {', '.join(sel.get('changed', [])) or 'none'}; "
                       f"dropped (contradict the other views): {', '.join(sel.get('dropped', [])) or 'none'}")
+    if sel.get("spread"):
+        console.print("the loops close only within the wider bounds: their error is spread over the edges")
     f = res.diagnostics["fusion"]
-    console.print(f"{n_rej} pair(s) rejected (no overlap / failed gates); TSDF voxel {f['voxel_mm']:.2f} mm, "
-                  f"truncation {f['trunc_mm']:.2f} mm; mesh {len(res.mesh_vertices)} vertices / "
-                  f"{len(res.mesh_triangles)} triangles; cloud {len(res.points)} points")
+    console.print(f"TSDF voxel {f['voxel_mm']:.2f} mm, truncation {f['trunc_mm']:.2f} mm; mesh {len(res.mesh_vertices)} "
+                  f"vertices / {len(res.mesh_triangles)} triangles; cloud {len(res.points)} points")
     adj = res.diagnostics.get("adjustment")
     if adj and "failed" in adj:
         console.print(f"[yellow]global adjustment failed ({adj['failed']}); the pose-graph poses are used[/yellow]")
     elif adj:
         console.print(f"global adjustment: {adj['iterations']} iterations, residual RMS {adj['rms_mm'][-1]:.2f} mm, poses "
                       f"moved up to {max(adj['moved_deg'].values()):.3f} deg / {max(adj['moved_mm'].values()):.2f} mm; "
-                      f"depth gain {adj['depth_gain'] * 100:+.3f} % of (z - {adj['z_ref_mm']:.0f} mm)")
+                      f"depth gain {adj['depth_gain'] * 100:+.3f} % of (z - {adj['z_ref_mm']:.0f} mm): {adj.get('gain_note', '')}")
+    sc = res.diagnostics.get("scale") or {}
+    if sc.get("predicted_scale_sigma_pct") is not None:
+        console.print(f"scale: predicted uncertainty +-{sc['predicted_scale_sigma_pct']:.2f} % (1 sigma), surface offset "
+                      f"+-{sc['predicted_offset_sigma_mm']:.2f} mm ({sc['source']})")
+    console.print(f"world frame: {(res.diagnostics.get('world') or {}).get('frame', '')}")
     tm = res.diagnostics["timings_s"]
     console.print(f"wrote {output} in {tm['total_s']:.1f} s (views {tm['views_s']:.1f}, registration "
                   f"{tm['registration_s']:.1f}, adjustment {tm['adjustment_s']:.1f}, fusion {tm['fusion_s']:.1f}, meshing {tm['meshing_s']:.1f})")
@@ -94,11 +103,16 @@ def reconstruct(
         console.print(f"consistency: view circle closes to {cons['cycle_closure_deg']:.2f} deg / {cons['cycle_closure_mm']:.1f} mm "
                       f"({cons['cycle_per_edge_deg']:.2f} deg / {cons['cycle_per_edge_mm']:.1f} mm per edge), worst kept edge "
                       f"residual {cons['max_kept_residual_deg']:.2f} deg / {cons['max_kept_residual_mm']:.1f} mm")
+    for w in rel.get("warnings", []):
+        console.print(f"[yellow]warning:[/yellow] {w}")
+    if plan_report := res.diagnostics.get("plan"):
+        console.print(f"plan: {plan_report.get('summary', '')}")
     if not res.diagnostics.get("reliable", True):
         console.print("[bold red]WARNING: registration UNRELIABLE[/bold red] (flagged in poses.json): "
-                      + "; ".join(cons.get("reasons", [])))
+                      + "; ".join(rel.get("reasons", []) or cons.get("reasons", [])))
         console.print("The model was written for inspection; do not use it as a measurement. Typical causes: raw "
-                      "(uncalibrated) depth, a nearly symmetric object registered flipped, too little overlap.")
+                      "(uncalibrated) depth, a nearly symmetric object, too little overlap, a depth calibration that "
+                      "warns about its own error.")
         if not allow_unreliable:
             raise typer.Exit(3)
 
@@ -158,7 +172,53 @@ def evaluate(
     console.print(f"wrote {output}")
 
 
+def plan(
+    output: Path = typer.Option(..., "-o", "--output", help="plan.json to write."),
+    size: str | None = typer.Option(None, "--size", help="W,D,H: the object's rough size [m]."),
+    mesh: Path | None = typer.Option(None, "--mesh", help="A mesh of the object (PLY/OBJ/STL)."),
+    mesh_scale: float = typer.Option(1.0, "--mesh-scale", help="Factor from the mesh's units to metres."),
+    mesh_up: str = typer.Option("0,0,1", "--mesh-up", help="x,y,z: the mesh's up axis."),
+    first_view: Path | None = typer.Option(None, "--first-view", help="A capture of the object on its support."),
+    calibration: Path | None = typer.Option(None, "--calibration", help="Depth calibration (intrinsics, predicted error)."),
+    distance: float | None = typer.Option(None, "--distance", help="Distance of the views from the object centre [m]."),
+    target: float = typer.Option(0.9, "--target", help="Completeness to reach (0-1)."),
+    frames: int = typer.Option(10, "--frames", help="Frames per view."),
+    views: str | None = typer.Option(None, "--views", help="Also predict these views: ring:N:ELEV[:M:ELEV2] (N views at "
+                                     "ELEV deg, plus M zenithal views at ELEV2)."),
+    force: bool = typer.Option(False, "--force", help="Replace an existing plan.json."),
+) -> None:
+    """Acquisition planning: predicted completeness and accuracy of views around an object, and the views to take."""
+    from tofmetry.pipelines.plan import plan_acquisition
+
+    sz = None if size is None else _parse_floats(size, "--size", 3)
+    run = plan_acquisition(size=sz, mesh=mesh, mesh_scale=mesh_scale, mesh_up=_parse_floats(mesh_up, "--mesh-up", 3),
+                           first_view=first_view, calibration=calibration, distance_m=distance, target=target,
+                           n_frames=frames, views=views, output=output, force=force)
+    ext = run.object.extent_m
+    console.print(f"object ({run.object.source}): {ext[0]:.3f} x {ext[1]:.3f} x {ext[2]:.3f} m; views at "
+                  f"{run.settings['distance_m']:.2f} m")
+    t = Table(title="candidate view sets (best first)")
+    for col in ("views", "n", "completeness", "min overlap", "mean |d| [mm]", "p95 [mm]"):
+        t.add_column(col, justify="right")
+    for c in run.candidates[:10]:
+        p = c.prediction
+        t.add_row(c.name, str(p.n_views), f"{p.completeness:.1%}", f"{p.min_overlap:.2f}", f"{p.mean_abs_mm:.2f}",
+                  f"{p.p95_mm:.2f}")
+    console.print(t)
+    if run.asked is not None:
+        p = run.asked.prediction
+        console.print(f"asked {run.asked.name}: completeness {p.completeness:.1%}, smallest overlap {p.min_overlap:.2f}, "
+                      f"mean |d| {p.mean_abs_mm:.2f} mm")
+    if run.proposal is None:
+        console.print(f"[yellow]no candidate reaches {target:.0%} with enough overlap; the best is listed first[/yellow]")
+    else:
+        p = run.proposal.prediction
+        console.print(f"proposal: {run.proposal.name}: completeness {p.completeness:.1%}, mean |d| {p.mean_abs_mm:.2f} mm")
+    console.print(f"wrote {output}")
+
+
 def register(app: typer.Typer) -> None:
     """Add this module's commands to the main app."""
     app.command("reconstruct")(reconstruct)
     app.command("evaluate")(evaluate)
+    app.command("plan")(plan)

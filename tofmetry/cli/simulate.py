@@ -19,6 +19,7 @@ from tofmetry.cli._common import console, progress
 RANDOM_TILT_JITTER_DEG = 1.5
 
 sim_app = typer.Typer(name="simulate", help="Simulated Kinect v2 datasets (virtual sensor with the paper's errors).",
+                      rich_markup_mode=None,
                       no_args_is_help=True)
 
 _OUT = typer.Option(..., "-o", "--output", help="Output folder (refused if it exists, unless --force).")

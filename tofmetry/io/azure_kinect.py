@@ -214,6 +214,32 @@ class AzureInfo:
     color_index: int | None
 
 
+def _damaged(path, exc) -> FormatError:
+    msg = " ".join(str(exc).split())[:200]
+    return FormatError(f"{path}: not a readable Azure Kinect recording ({type(exc).__name__}: {msg})")
+
+
+def _guarded(fn):
+    """Turn any error a damaged recording provokes in PyAV, json or the calibration parser into a
+    FormatError naming the file (found by fuzzing: bad attachments, undecodable tags, broken streams)."""
+    import functools
+
+    @functools.wraps(fn)
+    def wrapper(path, *args, **kwargs):
+        import av
+
+        try:
+            return fn(path, *args, **kwargs)
+        except (FormatError, InputError):
+            raise
+        except (av.error.FFmpegError, ValueError, KeyError, TypeError, IndexError, AttributeError, OSError,
+                cv2.error, np.linalg.LinAlgError, ZeroDivisionError, OverflowError) as exc:
+            raise _damaged(path, exc) from None
+
+    return wrapper
+
+
+@_guarded
 def probe_azure_mkv(path: str | os.PathLike) -> AzureInfo:
     """Open an Azure Kinect ``.mkv`` and check its tracks and calibration attachment.
 
@@ -316,6 +342,7 @@ def iter_azure_frames(info: AzureInfo, max_frames: int | None = None):
                     return
 
 
+@_guarded
 def read_azure_mkv(path: str | os.PathLike, max_frames: int | None = None) -> AzureRecording:
     """Decode an Azure Kinect ``.mkv`` into memory (short recordings; :func:`import_azure_kinect` streams).
 
@@ -335,6 +362,7 @@ def read_azure_mkv(path: str | os.PathLike, max_frames: int | None = None) -> Az
     return AzureRecording(depth, ir, color, ts, info.calibration, info.tags, info.depth_mode, info.color_height)
 
 
+@_guarded
 def import_azure_kinect(src: str | os.PathLike, out: str | os.PathLike, force: bool = False,
                         max_frames: int | None = None, progress=None) -> dict:
     """Write an Azure Kinect ``.mkv`` as a capture folder (sensor ``azure_kinect``).

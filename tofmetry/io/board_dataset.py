@@ -266,10 +266,16 @@ def export_iai_kinect2(src: str | os.PathLike, out: str | os.PathLike, force: bo
         from tofmetry.io.calibration_file import read_calibration_file
 
         head, arrays = read_calibration_file(src)
+        missing = [k for k in ("sensor", "offset_mm", "intrinsics") if k not in head]
+        if missing:
+            raise FormatError(f"{src}: not a valid tofmetry calibration: its header lacks {missing}")
         if head.get("sensor") not in ("kinect_v2", "unknown"):
             from tofmetry.errors import SensorMismatchError
 
             raise SensorMismatchError(f"{src}: calibration is for sensor {head.get('sensor')!r}; iai_kinect2 is for kinect_v2")
+        if not isinstance(head["offset_mm"], (int, float)) or not isinstance(head["intrinsics"], dict):
+            raise FormatError(f"{src}: not a valid tofmetry calibration: 'offset_mm' must be a number and "
+                              "'intrinsics' an object in its header")
         shift = -float(head["offset_mm"]) if depth_shift_mm is None else float(depth_shift_mm)
         if head.get("surface_model") != "none" or len(arrays["node_mm"]) > 1 or "ray_knots" in arrays:
             dropped.append("per-pixel surfaces")

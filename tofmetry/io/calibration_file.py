@@ -25,7 +25,6 @@ from __future__ import annotations
 import io
 import json
 import os
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -61,30 +60,69 @@ def write_calibration_file(path: str | os.PathLike, header: dict, arrays: dict[s
     return atomic_write_bytes(Path(path), buf.getvalue())
 
 
+_MAGIC = ((b"\x89PNG", "a PNG image"), (b"\xff\xd8\xff", "a JPEG image"), (b"II*\x00", "a TIFF image"),
+          (b"MM\x00*", "a TIFF image"), (b"ply", "a PLY file"), (b"%YAML", "a YAML file"), (b"\x1aE\xdf\xa3", "a Matroska video"),
+          (b"\x93NUMPY", "a single .npy array"), (b"\x80", "a Python pickle"), (b"{", "a JSON file"))
+
+
+def _what_is(head: bytes) -> str:
+    """A short description of a file from its first bytes (for messages)."""
+    for magic, what in _MAGIC:
+        if head.startswith(magic):
+            return what
+    if not head:
+        return "an empty file"
+    try:
+        head.decode("utf-8")
+        return "a text file"
+    except UnicodeDecodeError:
+        return f"a binary file starting with {head[:8]!r}"
+
+
+def _not_ours(path: Path, why: str) -> FormatError:
+    return FormatError(f"{path}: not a tofmetry calibration (expected an .npz written by 'tofmetry calibrate depth', "
+                       f"with a JSON header): {why}")
+
+
 def read_calibration_file(path: str | os.PathLike) -> tuple[dict, dict[str, np.ndarray]]:
     """Read and check a calibration container: ``(header, arrays)``.
+
+    Nothing is unpickled: a file holding Python objects is refused like any other foreign file.
 
     Raises
     ------
     InputError
         The file does not exist.
     FormatError
-        Not a tofmetry calibration, an unknown version, or required arrays missing.
+        Not a tofmetry calibration (naming what the file looks like instead), an unknown version,
+        or required arrays missing.
     """
     path = Path(path)
     if not path.is_file():
         raise InputError(f"calibration file not found: {path}")
+    with open(path, "rb") as fh:
+        head = fh.read(16)
+    if not head.startswith((b"PK\x03\x04", b"PK\x05\x06")):
+        raise _not_ours(path, f"it is {_what_is(head)}")
     try:
         z = np.load(path, allow_pickle=False)
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
-        raise FormatError(f"{path}: not a tofmetry calibration (.npz with a JSON header): {exc}") from None
-    if not hasattr(z, "files"):
-        raise FormatError(f"{path}: a single .npy array, not a tofmetry calibration (.npz with a JSON header)")
+    except Exception:  # noqa: BLE001 - zipfile/zlib/numpy raise many types; none of their text helps a user
+        raise _not_ours(path, "a zip archive that numpy cannot read as .npz") from None
     with z:
         if "header" not in z.files:
-            raise FormatError(f"{path}: no 'header' entry; not a tofmetry calibration file")
+            raise _not_ours(path, f"no 'header' entry (entries: {', '.join(z.files[:8]) or 'none'})")
         try:
-            header = json.loads(str(z["header"][()]))
+            raw = z["header"]
+        except ValueError:  # object arrays would need pickle: never loaded
+            raise _not_ours(path, "its 'header' entry holds Python objects, which tofmetry never loads") from None
+        except Exception:  # noqa: BLE001 - a damaged member (zlib, CRC, truncated)
+            raise _not_ours(path, "its 'header' entry is damaged") from None
+        if not isinstance(raw, np.ndarray):
+            raise _not_ours(path, "its 'header' entry is not a numpy array")
+        if raw.dtype.kind != "U" or raw.ndim != 0:
+            raise _not_ours(path, f"its 'header' entry is a {raw.dtype} array of shape {raw.shape}, not JSON text")
+        try:
+            header = json.loads(str(raw[()]))
         except (json.JSONDecodeError, ValueError) as exc:
             raise FormatError(f"{path}: header is not valid JSON ({exc})") from None
         if not isinstance(header, dict) or header.get("format") != FORMAT_NAME:
@@ -96,10 +134,18 @@ def read_calibration_file(path: str | os.PathLike) -> tuple[dict, dict[str, np.n
         missing = [a for a in REQUIRED if a not in z.files]
         if missing:
             raise FormatError(f"{path}: missing arrays {missing}")
-        try:
-            arrays = {a: z[a] for a in z.files if a != "header"}
-        except ValueError as exc:  # an object array would need pickle
-            raise FormatError(f"{path}: unreadable array ({exc})") from None
+        arrays = {}
+        for a in z.files:
+            if a == "header":
+                continue
+            try:
+                arrays[a] = z[a]
+            except ValueError:  # an object array would need pickle
+                raise FormatError(f"{path}: array {a!r} holds Python objects, which tofmetry never loads") from None
+            except Exception:  # noqa: BLE001 - a damaged member
+                raise FormatError(f"{path}: array {a!r} is damaged (truncated or corrupt zip member)") from None
+            if not isinstance(arrays[a], np.ndarray) or arrays[a].dtype.kind not in "biuf":
+                raise FormatError(f"{path}: array {a!r} is {getattr(arrays[a], 'dtype', 'not an array')}, expected numbers")
     return header, arrays
 
 

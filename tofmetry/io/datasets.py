@@ -16,11 +16,32 @@ from __future__ import annotations
 import csv
 import os
 from dataclasses import dataclass
-from pathlib import Path
+from pathlib import Path, PureWindowsPath
 
 from tofmetry.errors import InputError
 from tofmetry.io._atomic import atomic_write_bytes
 from tofmetry.io.capture import Capture
+
+
+def safe_relative(name: str, what: str) -> Path:
+    """``name`` (a path read from inside a data file) as a relative path that stays in its folder.
+
+    Raises
+    ------
+    InputError
+        ``name`` is empty, absolute (``/x``, ``C:\\x``) or climbs out of the folder (a ``..`` part).
+    """
+    text = str(name).strip()
+    p = Path(text)
+    win = PureWindowsPath(text)
+    if not text:
+        raise InputError(f"{what}: empty path")
+    if p.is_absolute() or win.is_absolute() or win.drive or text.startswith(("/", "\\")):
+        raise InputError(f"{what} {text!r} is an absolute path; paths inside a dataset must be relative to its folder")
+    if ".." in p.parts or ".." in win.parts:
+        raise InputError(f"{what} {text!r} points outside the dataset's folder ('..'); datasets may only name "
+                         "files and folders inside themselves")
+    return p
 
 
 @dataclass(frozen=True)
@@ -71,7 +92,7 @@ class WallDataset:
             if name in seen:
                 raise InputError(f"{csv_path}:{lineno}: station {name!r} listed twice (first on line {seen[name]})")
             seen[name] = lineno
-            sp = self.path / name
+            sp = self.path / safe_relative(name, f"{csv_path}:{lineno}: station capture")
             if not sp.is_dir():
                 raise InputError(f"{csv_path}:{lineno}: station capture folder {sp} is missing")
             stations.append(Station(name, d, sp))

@@ -77,7 +77,7 @@ def read_opencv_yaml(path: str | os.PathLike) -> dict[str, np.ndarray | float | 
         )
     try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except cv2.error as exc:
+    except (cv2.error, SystemError, UnicodeDecodeError) as exc:   # cv2.error, or a SystemError wrapping it
         msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else "parse error"
         raise FormatError(f"{path}: not readable as OpenCV FileStorage YAML ({msg})") from None
     try:
@@ -87,8 +87,16 @@ def read_opencv_yaml(path: str | os.PathLike) -> dict[str, np.ndarray | float | 
         if not root.isMap():
             raise FormatError(f"{path}: expected a map of named entries at the top level")
         out: dict = {}
-        for key in root.keys():
-            out[key] = _node_value(root.getNode(key), path, key)
+        try:
+            keys = list(root.keys())
+        except (cv2.error, SystemError, UnicodeDecodeError) as exc:
+            raise FormatError(f"{path}: top-level entries not readable ({type(exc).__name__})") from None
+        for key in keys:
+            try:
+                out[key] = _node_value(root.getNode(key), path, key)
+            except (cv2.error, SystemError, ValueError, TypeError, UnicodeDecodeError) as exc:
+                msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+                raise FormatError(f"{path}: entry {key!r} is not readable ({msg})") from None
         return out
     finally:
         fs.release()

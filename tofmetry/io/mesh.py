@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from tofmetry.errors import FormatError, InputError
-from tofmetry.io.ply import read_ply
+from tofmetry.io.ply import UnsupportedPlyError, read_ply
 
 SUPPORTED_SUFFIXES = (".ply", ".obj", ".stl")
 
@@ -66,8 +66,11 @@ def read_geometry(path: str | os.PathLike, what: str = "geometry") -> Geometry:
         try:
             d = read_ply(path)
             pts, faces, normals = d["points"], d.get("faces"), d.get("normals")
-        except (FormatError, UnicodeDecodeError, ValueError, KeyError, IndexError):
-            pts = None  # fall back to Open3D (e.g. polygons with mixed sizes)
+        except UnsupportedPlyError:
+            pts = None  # a valid PLY our reader does not handle (polygons of mixed sizes): Open3D reads it
+        except FormatError as exc:
+            # not handed to Open3D: its PLY parser crashes the process on some malformed files (fuzzing)
+            raise InputError(f"{what} {exc}") from None
     if pts is None:
         import open3d as o3d
 

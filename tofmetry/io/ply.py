@@ -16,6 +16,10 @@ import numpy as np
 from tofmetry.errors import FormatError
 from tofmetry.io._atomic import atomic_write_bytes
 
+class UnsupportedPlyError(FormatError):
+    """A well-formed PLY using a feature this reader does not implement (e.g. polygons of mixed sizes)."""
+
+
 _PLY_TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
     "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
@@ -25,7 +29,7 @@ _PLY_TYPES = {
 
 def write_ply(path: str | os.PathLike, points: np.ndarray, colors: np.ndarray | None = None,
               normals: np.ndarray | None = None, faces: np.ndarray | None = None,
-              scalars: dict[str, np.ndarray] | None = None) -> Path:
+              scalars: dict[str, np.ndarray] | None = None, comments: list[str] | None = None) -> Path:
     """Write a binary little-endian PLY atomically.
 
     Parameters
@@ -35,6 +39,7 @@ def write_ply(path: str | os.PathLike, points: np.ndarray, colors: np.ndarray | 
     normals : (N, 3) float, unit
     faces : (M, 3) int triangle vertex indices
     scalars : name -> (N,) float extra vertex properties
+    comments : extra header comment lines (one line each; line breaks are replaced by spaces)
     """
     pts = np.asarray(points, dtype=np.float32).reshape(-1, 3)
     n = len(pts)
@@ -65,7 +70,9 @@ def write_ply(path: str | os.PathLike, points: np.ndarray, colors: np.ndarray | 
             raise FormatError(f"write_ply: scalar {name!r} has {len(val)} values for {n} points")
         v[name] = val
     props = {"<f4": "float", "u1": "uchar"}
-    header = ["ply", "format binary_little_endian 1.0", "comment tofmetry, units: metres", f"element vertex {n}"]
+    header = ["ply", "format binary_little_endian 1.0", "comment tofmetry, units: metres"]
+    header += ["comment " + " ".join(str(c).split()) for c in comments or []]
+    header += [f"element vertex {n}"]
     header += [f"property {props[t]} {name}" for name, t in fields]
     body = [v.tobytes()]
     if faces is not None:
@@ -76,7 +83,7 @@ def write_ply(path: str | os.PathLike, points: np.ndarray, colors: np.ndarray | 
         fa["i"] = f
         body.append(fa.tobytes())
     header.append("end_header")
-    data = ("\n".join(header) + "\n").encode("ascii") + b"".join(body)
+    data = ("\n".join(header) + "\n").encode("ascii", "replace") + b"".join(body)
     return atomic_write_bytes(path, data)
 
 
@@ -87,11 +94,24 @@ def read_ply(path: str | os.PathLike) -> dict[str, np.ndarray]:
     -------
     dict with ``points`` (N, 3) float64 and, when present, ``normals`` (N, 3) float64,
     ``colors`` (N, 3) uint8, ``faces`` (M, 3) int64, plus every other vertex property by name.
+
+    Raises
+    ------
+    FormatError
+        Missing file, or anything that is not a PLY this reader understands (naming the file).
     """
     path = Path(path)
     if not path.is_file():
         raise FormatError(f"PLY file not found: {path}")
-    raw = path.read_bytes()
+    try:
+        return _read_ply(path, path.read_bytes())
+    except FormatError:
+        raise
+    except (ValueError, KeyError, IndexError, TypeError, OverflowError, UnicodeDecodeError, MemoryError) as exc:
+        raise FormatError(f"{path}: not a readable PLY file ({type(exc).__name__}: {str(exc)[:200]})") from None
+
+
+def _read_ply(path: Path, raw: bytes) -> dict[str, np.ndarray]:
     end = raw.find(b"end_header")
     if not raw.startswith(b"ply") or end < 0:
         raise FormatError(f"{path}: not a PLY file (missing 'ply' magic or end_header)")
@@ -107,13 +127,17 @@ def read_ply(path: str | os.PathLike) -> dict[str, np.ndarray]:
         if tok[0] == "format":
             fmt = tok[1]
         elif tok[0] == "element":
+            if len(tok) != 3 or not tok[2].isdigit():
+                raise FormatError(f"{path}: malformed element line {line!r}")
             elements.append([tok[1], int(tok[2]), []])
         elif tok[0] == "property" and elements:
             if tok[1] == "list":
+                if len(tok) != 5 or tok[2] not in _PLY_TYPES or tok[3] not in _PLY_TYPES:
+                    raise FormatError(f"{path}: malformed list property {line!r}")
                 elements[-1][2].append((tok[4], ("list", _PLY_TYPES[tok[2]], _PLY_TYPES[tok[3]])))
             else:
-                if tok[1] not in _PLY_TYPES:
-                    raise FormatError(f"{path}: unknown PLY property type {tok[1]!r}")
+                if len(tok) != 3 or tok[1] not in _PLY_TYPES:
+                    raise FormatError(f"{path}: unknown PLY property type in {line!r}")
                 elements[-1][2].append((tok[2], _PLY_TYPES[tok[1]]))
     if fmt not in ("binary_little_endian", "binary_big_endian", "ascii"):
         raise FormatError(f"{path}: unsupported PLY format {fmt!r}")
@@ -138,12 +162,12 @@ def read_ply(path: str | os.PathLike) -> dict[str, np.ndarray]:
                 # only triangle/uniform lists are supported (vertex_indices)
                 (pn, (_, ct, it)), = [p for p in props if isinstance(p[1], tuple)] or [(None, (None, None, None))]
                 if len(props) != 1:
-                    raise FormatError(f"{path}: face element with extra properties is not supported")
+                    raise UnsupportedPlyError(f"{path}: face element with extra properties is not supported")
                 cnt = np.frombuffer(body, dtype=bo + ct, count=1, offset=off)[0] if count else 3
                 dt = np.dtype([("n", bo + ct), ("i", bo + it, (int(cnt),))])
                 arr = np.frombuffer(body, dtype=dt, count=count, offset=off)
                 if count and np.any(arr["n"] != cnt):
-                    raise FormatError(f"{path}: mixed polygon sizes in faces are not supported")
+                    raise UnsupportedPlyError(f"{path}: mixed polygon sizes in faces are not supported")
                 off += dt.itemsize * count
                 if name == "face":
                     out["faces"] = arr["i"].astype(np.int64)

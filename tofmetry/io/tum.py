@@ -24,6 +24,7 @@ import numpy as np
 from tofmetry.errors import FormatError, InputError
 from tofmetry.io import images
 from tofmetry.io.capture import CaptureMeta, CaptureWriter
+from tofmetry.io.datasets import safe_relative
 from tofmetry.io.intrinsics_json import read_intrinsics
 
 TUM_DEPTH_SCALE = 5000.0
@@ -35,7 +36,11 @@ def read_tum_list(path: str | os.PathLike) -> list[tuple[float, str]]:
     if not path.is_file():
         raise InputError(f"TUM list not found: {path}")
     out = []
-    for n, line in enumerate(path.read_text().splitlines(), 1):
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise FormatError(f"{path}: not a TUM list (not UTF-8 text: byte {exc.start})") from None
+    for n, line in enumerate(text.splitlines(), 1):
         line = line.strip()
         if not line or line.startswith("#"):
             continue
@@ -43,7 +48,10 @@ def read_tum_list(path: str | os.PathLike) -> list[tuple[float, str]]:
         if len(tok) < 2:
             raise FormatError(f"{path}:{n}: expected 'timestamp filename', found {line!r}")
         try:
-            out.append((float(tok[0]), tok[1]))
+            t = float(tok[0])
+            if t != t or t in (float("inf"), float("-inf")):
+                raise ValueError
+            out.append((t, tok[1]))
         except ValueError:
             raise FormatError(f"{path}:{n}: timestamp {tok[0]!r} is not a number") from None
     if not out:
@@ -86,13 +94,14 @@ def import_depth_color_lists(root: Path, out, depth_list, color_list, scale: flo
                                                                  "depth_units_per_m": scale})
     with CaptureWriter(out, meta, force=force) as w:
         for k, (_, rel) in enumerate(depth_list):
-            f = root / rel
+            f = root / safe_relative(rel, f"{root}: listed depth file")
             if not f.is_file():
                 raise InputError(f"{root}: listed depth file missing: {f}")
             d = images.read_depth_image(f)
             if intrinsics is not None and d.shape != intrinsics.shape:
                 raise FormatError(f"{f}: {d.shape[1]}x{d.shape[0]} does not match the intrinsics {intrinsics.width}x{intrinsics.height}")
-            col = images.read_color_image(root / color_list[cidx[k]][1]) if with_color else None
+            col = images.read_color_image(root / safe_relative(color_list[cidx[k]][1], f"{root}: listed colour file")) \
+                if with_color else None
             w.add(d, color=col)
             if progress is not None:
                 progress()

@@ -19,6 +19,10 @@ Frames (all through the one frame path of :mod:`.frame_path`, streamed by :mod:`
 * :mod:`.cloud` — the point cloud of a capture (:func:`~.cloud.capture_cloud`)
 * :mod:`.flying` — a capture without its flying pixels (:func:`~.flying.filter_capture`)
 
+Safety: :mod:`.plausibility` (the plausibility gates of every estimator: thresholds from the sensor
+profile, :class:`~tofmetry.errors.ImplausibleResultError` unless accepted) and :mod:`.paths` (an output
+never goes into an input).
+
 Assessment, model, accuracy: :mod:`.assess` (an assessment's files), :mod:`.reconstruct`
 (:func:`~.reconstruct.reconstruct_scan`), :mod:`.evaluate` (:func:`~.evaluate.evaluate_files`).
 

@@ -14,3 +14,4 @@ def _adv(advance):
 def _provenance(extra: dict | None) -> dict:
     return {"tool": f"tofmetry {tofmetry.__version__}",
             "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), **(extra or {})}
+

@@ -24,6 +24,7 @@ from tofmetry.errors import EstimationError, InputError
 from tofmetry.io.board_dataset import BoardDataset
 from tofmetry.pipelines._common import _adv, _provenance
 from tofmetry.pipelines.depth_run import DepthRun
+from tofmetry.pipelines.plausibility import check_correction, check_intrinsics, enforce
 
 SQUARES = ("auto", "white", "dark")
 
@@ -67,7 +68,8 @@ def parse_pose_selection(spec: str | None, names: list[str], what: str = "--trai
 
 
 def calibrate_board(path: Path, intrinsics, squares: str = "auto", k_folds: int = 5, advance=None, provenance=None,
-                    *, train_poses: str | None = None, judge_poses: str | None = None) -> DepthRun:
+                    *, train_poses: str | None = None, judge_poses: str | None = None,
+                   accept_implausible: bool = False) -> DepthRun:
     """Board-based depth calibration of a board dataset.
 
     Parameters
@@ -82,6 +84,9 @@ def calibrate_board(path: Path, intrinsics, squares: str = "auto", k_folds: int 
     k_folds : folds of the time-blocked and random validation designs.
     train_poses, judge_poses : pose selections (:func:`parse_pose_selection`); judged poses are
         never seen by any fit (intrinsics included).
+    accept_implausible : keep a result that fails a plausibility gate (intrinsics fitted here: the
+        checks of :func:`~tofmetry.pipelines.plausibility.check_intrinsics`; the size of the depth
+        correction) instead of raising :class:`~tofmetry.errors.ImplausibleResultError`.
     """
     t0 = time.perf_counter()
     adv = _adv(advance)
@@ -142,6 +147,10 @@ def calibrate_board(path: Path, intrinsics, squares: str = "auto", k_folds: int 
                         "train_poses": [names[train[j]] for j in res.pose_index],
                         **(provenance or {})})
     cal = res.depth_calibration(intr, ds.sensor, prov)
+    findings = check_intrinsics(intr, res.intrinsics_fit["rms_px"], ds.sensor if ds.sensor != "unknown" else None) \
+        if res.intrinsics_fit is not None else []
+    gate = enforce(findings + check_correction(cal), f"the board depth calibration of {path}", accept_implausible)
+    cal.provenance["plausibility"] = gate
     adv()
     # iai_kinect2's constant on the training poses (it was fitted by iai on this recording: not held out)
     iai_train = None
@@ -197,7 +206,7 @@ def calibrate_board(path: Path, intrinsics, squares: str = "auto", k_folds: int 
     fitd = {"board": {"cols": ds.board.cols, "rows": ds.board.rows, "square_mm": ds.board.square_mm},
             "squares": squares, "iai_shift_mm": shift, "intrinsics_fit": ifit, **res.summary(),
             "iai_on_training_poses": iai_train, "judged": judged,
-            "train_poses": [names[i] for i in train], "judge_poses": [names[i] for i in judge],
+            "train_poses": [names[i] for i in train], "judge_poses": [names[i] for i in judge], "plausibility": gate,
             # the arrays themselves: run.board_result.samples (u, v, z_mm) and .support (counts, edges)
             "support_counts": {"counts_shape": list(res.support["counts"].shape), "cell_px": res.support["cell_px"],
                                "bin_mm": res.support["bin_mm"], "z_edges_mm": res.support["z_edges_mm"].tolist(),

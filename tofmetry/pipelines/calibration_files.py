@@ -6,6 +6,7 @@ import os
 from pathlib import Path
 
 from tofmetry.calibrate import DepthCalibration, calibration_from_arrays, calibration_to_arrays
+from tofmetry.errors import FormatError, TofmetryError
 from tofmetry.io.calibration_file import read_calibration_file, write_calibration_file
 
 
@@ -33,6 +34,13 @@ def load_calibration(path: str | os.PathLike, sensor: str | None = None,
         Made for another sensor or resolution than ``sensor`` / ``shape``.
     """
     header, arrays = read_calibration_file(path)
-    cal = calibration_from_arrays(header, arrays, source=str(path))
+    try:
+        cal = calibration_from_arrays(header, arrays, source=str(path))
+    except TofmetryError as exc:
+        msg = str(exc)
+        raise type(exc)(msg if "calibration" in msg else f"not a valid tofmetry calibration: {msg}") from None
+    except Exception as exc:  # noqa: BLE001 - a header or array the model cannot be built from
+        raise FormatError(f"{path}: not a valid tofmetry calibration: its content is inconsistent "
+                          f"({type(exc).__name__}: {exc})") from None
     cal.check_compatible(sensor=sensor, shape=shape)
     return cal

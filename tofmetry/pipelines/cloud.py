@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
@@ -20,9 +20,11 @@ import numpy as np
 from tofmetry.calibrate import DepthCalibration
 from tofmetry.errors import InputError
 from tofmetry.io import Capture, write_ply
+from tofmetry.pipelines.paths import refuse_inside_inputs
 from tofmetry.pipelines.calibration_files import load_calibration
 from tofmetry.pipelines.frame_path import FramePath
 from tofmetry.pipelines.frame_stream import stream_frames
+from tofmetry.pipelines.plausibility import check_support, enforce
 from tofmetry.pointcloud import amplitude_colors, robust_mean_depth, sample_colors
 from tofmetry.sensor import CameraIntrinsics, get_profile
 
@@ -43,6 +45,7 @@ class CloudRun:
     seconds : wall time [s]
     outside_support : valid pixels (of the frame, or of the mean) outside the calibration's support,
         corrected by its fallback (0 without calibration)
+    plausibility : the plausibility gate's record (every valid pixel outside the support fails it)
     """
 
     points: np.ndarray
@@ -56,13 +59,14 @@ class CloudRun:
     output: Path | None
     seconds: float
     outside_support: int = 0
+    plausibility: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return {"points": int(len(self.points)), "colored": self.colors is not None, "n_frames": self.n_frames,
                 "intrinsics": self.intrinsics.to_dict(), "intrinsics_source": self.intrinsics_source,
                 "calibrated": self.calibrated, "averaged": self.averaged,
                 "output": None if self.output is None else str(self.output), "seconds": self.seconds,
-                "outside_support": self.outside_support}
+                "outside_support": self.outside_support, "plausibility": self.plausibility}
 
 
 def _mean_corrected_depth(cap: Capture, path: FramePath, workers: int | None,
@@ -81,7 +85,7 @@ def capture_cloud(capture: str | os.PathLike | Capture, output: str | os.PathLik
                   average: bool = False, calibration: str | os.PathLike | DepthCalibration | None = None,
                   intrinsics: CameraIntrinsics | None = None, color: bool = False, frame: int = 0,
                   undistort: bool = True, force: bool = False, workers: int | None = None,
-                  advance: Callable[[], None] | None = None) -> CloudRun:
+                  advance: Callable[[], None] | None = None, accept_implausible: bool = False) -> CloudRun:
     """The point cloud of a capture, optionally written as a binary PLY [m].
 
     Parameters
@@ -97,6 +101,8 @@ def capture_cloud(capture: str | os.PathLike | Capture, output: str | os.PathLik
     force : replace an existing output
     workers : decoding threads when averaging (default: one per core, at least 2)
     advance : optional progress callable, called once per frame read when averaging
+    accept_implausible : write the cloud even when every valid pixel lies outside the calibration's
+        support (the PLY's header then says so in a comment)
 
     Returns
     -------
@@ -105,7 +111,10 @@ def capture_cloud(capture: str | os.PathLike | Capture, output: str | os.PathLik
     Raises
     ------
     InputError
-        ``frame`` outside the capture, or ``output`` exists without ``force``.
+        ``frame`` outside the capture, ``output`` inside the capture folder, or ``output`` exists
+        without ``force``.
+    ImplausibleResultError
+        Every valid pixel lies outside the calibration's support (nothing is written).
     SensorMismatchError
         The calibration was made for another sensor or frame size.
     """
@@ -113,6 +122,8 @@ def capture_cloud(capture: str | os.PathLike | Capture, output: str | os.PathLik
     if output is not None and Path(output).exists() and not force:
         raise InputError(f"output {output} exists; pass --force to overwrite it")
     cap = capture if isinstance(capture, Capture) else Capture(capture)
+    if output is not None:
+        refuse_inside_inputs(output, cap.path)
     intr, source = cap.intrinsics(intrinsics)
     cal = None
     if calibration is not None:
@@ -139,7 +150,12 @@ def capture_cloud(capture: str | os.PathLike | Capture, output: str | os.PathLik
     elif cap.has_ir:
         ir = cap.ir_mean() if average else cap.ir(frame)
         cols = amplitude_colors(ir.ravel()[idx])
-    out = None if output is None else write_ply(output, pts, colors=cols)
+    gate = {}
+    if cal is not None:
+        gate = enforce(check_support(outside, len(pts), cal.support_range_mm, str(cap.path)),
+                       f"the cloud of {cap.path}", accept_implausible)
+    comments = [f"accepted implausible: {f}" for f in gate.get("findings", [])] if gate.get("accepted") else None
+    out = None if output is None else write_ply(output, pts, colors=cols, comments=comments)
     return CloudRun(points=pts, colors=cols, index=idx, n_frames=len(cap) if average else 1, intrinsics=intr,
                     intrinsics_source=source, calibrated=cal is not None, averaged=average, output=out,
-                    seconds=time.perf_counter() - t0, outside_support=outside)
+                    seconds=time.perf_counter() - t0, outside_support=outside, plausibility=gate)

@@ -52,8 +52,14 @@ class DepthRun:
         """Alias of ``rows`` (per station / per pose table rows)."""
         return self.rows
 
+    @property
+    def plausibility(self) -> dict:
+        """The plausibility gate's record ``{"checked", "accepted", "findings"}`` (empty if not checked)."""
+        return self.fit.get("plausibility") or {}
+
     def to_dict(self) -> dict:
-        return {"kind": self.kind, "dataset": self.path, "sensor": self.sensor, "intrinsics": self.intrinsics.to_dict(),
+        return {"plausibility": self.plausibility, "kind": self.kind, "dataset": self.path, "sensor": self.sensor,
+                "intrinsics": self.intrinsics.to_dict(),
                 "intrinsics_source": self.intrinsics_source, "summary": self.calibration.summary(), "rows": self.rows,
                 "fit": self.fit, "seconds": self.seconds, "notes": self.notes}
 

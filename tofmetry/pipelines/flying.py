@@ -16,8 +16,8 @@ from typing import Callable
 import numpy as np
 
 from tofmetry.assess import FlyingPixelParams, remove_flying_pixels
-from tofmetry.errors import InputError
 from tofmetry.io import Capture, CaptureMeta, CaptureWriter
+from tofmetry.pipelines.paths import refuse_inside_inputs
 from tofmetry.pipelines.frame_stream import stream_frames
 from tofmetry.sensor import CameraIntrinsics
 
@@ -76,9 +76,7 @@ def filter_capture(capture: str | os.PathLike | Capture, output: str | os.PathLi
     t0 = time.perf_counter()
     cap = capture if isinstance(capture, Capture) else Capture(capture)
     output = Path(output)
-    if output.resolve() == cap.path.resolve():
-        raise InputError(f"filter: output {output} is the input capture; choose another folder "
-                         "(inputs are never overwritten)")
+    refuse_inside_inputs(output, cap.path)
     intr, _ = cap.intrinsics(intrinsics)
     p = params or FlyingPixelParams()
     m = cap.meta

@@ -15,6 +15,7 @@ from tofmetry.io import atomic_write_json
 from tofmetry.io.images import GRAY_IMAGE_SUFFIXES, read_gray_image
 from tofmetry._shared.figures import save_png
 from tofmetry.pipelines._common import _adv
+from tofmetry.pipelines.plausibility import check_intrinsics, enforce
 from tofmetry.sensor import CameraIntrinsics
 
 
@@ -36,6 +37,9 @@ class IntrinsicsRun:
         ``model_fraction`` (share of corners refined by the X-junction fit), ``median_corner_std_px``
         (median standard uncertainty of its corners from the fit residuals [px]), ``median_blur_px``
         (fitted edge blur, Gaussian sigma [px]), ``dtype`` (of the file)
+    plausibility : the plausibility gate's record (:mod:`tofmetry.pipelines.plausibility`):
+        ``{"checked", "accepted", "findings"}``; ``accepted`` is True when implausible findings were
+        accepted by the caller (``--accept-implausible``)
     """
 
     result: IntrinsicsResult
@@ -51,6 +55,7 @@ class IntrinsicsRun:
     seconds: float = float("nan")
     detections: dict = field(default_factory=dict)
     rejected_reasons: dict = field(default_factory=dict)
+    plausibility: dict = field(default_factory=dict)
 
     @property
     def intrinsics(self) -> CameraIntrinsics:
@@ -63,7 +68,7 @@ class IntrinsicsRun:
         return {**self.result.to_dict(), "images_dir": self.images_dir, "board": list(self.board),
                 "square_mm": self.square_mm, "image_size": list(self.image_size), "detected": self.names,
                 "rejected": self.rejected, "rejected_reasons": self.rejected_reasons, "cross_validation": cv,
-                "detections": self.detections, "seconds": self.seconds}
+                "detections": self.detections, "seconds": self.seconds, "plausibility": self.plausibility}
 
 
 def list_board_images(images_dir: Path) -> list[Path]:
@@ -80,7 +85,8 @@ def list_board_images(images_dir: Path) -> list[Path]:
 
 
 def intrinsics_from_images(images_dir: Path, board: tuple[int, int], square_mm: float, *, leave_one_out: bool = True,
-                           fix_k3: bool = False, advance=None, k_folds: int = 5) -> IntrinsicsRun:
+                           fix_k3: bool = False, advance=None, k_folds: int = 5,
+                           accept_implausible: bool = False) -> IntrinsicsRun:
     """Detect the board in every image of ``images_dir``, calibrate, reject outlier views,
     analyse stability (leave-one-out) and cross-validate (k-fold over views, held-out views'
     pose solved with the fitted intrinsics).
@@ -92,6 +98,9 @@ def intrinsics_from_images(images_dir: Path, board: tuple[int, int], square_mm: 
         (:func:`~tofmetry.io.images.read_gray_image`); all of one size
     board : (cols, rows) inner corners; square_mm : square size [mm]
     advance : optional progress callable (one call per image, per leave-one-out refit, per fold)
+    accept_implausible : return a result that fails the plausibility gate
+        (:func:`~tofmetry.pipelines.plausibility.check_intrinsics`: reprojection RMS above 1 px, a
+        focal length far from the sensor profile's ...) instead of raising; ``run.plausibility`` says so
 
     Raises
     ------
@@ -99,6 +108,8 @@ def intrinsics_from_images(images_dir: Path, board: tuple[int, int], square_mm: 
         An unreadable image (the message names it); InputError for mixed sizes, no images.
     EstimationError
         Fewer than 3 images with a board.
+    ImplausibleResultError
+        The result fails the plausibility gate (unless ``accept_implausible``).
     """
     t0 = time.perf_counter()
     images_dir = Path(images_dir)
@@ -134,11 +145,13 @@ def intrinsics_from_images(images_dir: Path, board: tuple[int, int], square_mm: 
         adv()
     res = calibrate_intrinsics(corners, names, (cols, rows), square_mm, size, leave_one_out=leave_one_out,
                                fix_k3=fix_k3, advance=adv)
+    gate = enforce(check_intrinsics(res.intrinsics, res.rms_px), f"the intrinsic calibration of {images_dir} "
+                   f"(board {cols}x{rows}, {square_mm:g} mm squares)", accept_implausible)
     excl = [names.index(n) for n in res.rejected_views]
     cv = cross_validate_intrinsics(corners, (cols, rows), square_mm, size, k=k_folds, fix_k3=fix_k3, exclude=excl) \
         if len(corners) - len(excl) >= 4 else {}
     return IntrinsicsRun(res, names, rejected, list(res.rejected_views), corners, size, (cols, rows), float(square_mm),
-                         cv, str(images_dir), time.perf_counter() - t0, detections, rejected_reasons)
+                         cv, str(images_dir), time.perf_counter() - t0, detections, rejected_reasons, gate)
 
 
 def write_intrinsics_report(run: IntrinsicsRun, folder: Path) -> list[Path]:

@@ -108,6 +108,29 @@ def _section(s: Section) -> str:
     return "\n".join(parts)
 
 
+#: stops of the viewer's colour scale (the deviation map sampled this finely; Plotly interpolates
+#: linearly in RGB between them, as matplotlib does between the map's own stops)
+COLORSCALE_STOPS = 33
+
+
+def deviation_colorscale(rng: float, n: int = COLORSCALE_STOPS) -> list[list]:
+    """The deviation colour map as a Plotly colour scale over ``-rng .. +rng`` [mm].
+
+    Sampled from :func:`tofmetry.evaluate.deviation_colors`, the one definition of the map that the
+    evaluation's figures and the coloured ``deviation.ply`` use: negative (model inside the reference)
+    blue, zero white, positive red, saturating at ``±rng``.
+
+    Returns
+    -------
+    ``[[t, "rgb(r,g,b)"], ...]`` with ``t`` from 0 (``-rng``) to 1 (``+rng``).
+    """
+    from tofmetry.evaluate import deviation_colors
+
+    t = np.linspace(0.0, 1.0, n)
+    rgb = deviation_colors((2.0 * t - 1.0) * rng / 1000.0, rng)
+    return [[float(x), f"rgb({r},{g},{b})"] for x, (r, g, b) in zip(t, rgb.tolist())]
+
+
 def _viewer(points: np.ndarray, values: np.ndarray, rng: float, max_points: int = 60000) -> str:
     pts = np.asarray(points, float)
     vals = np.asarray(values, float)
@@ -116,19 +139,21 @@ def _viewer(points: np.ndarray, values: np.ndarray, rng: float, max_points: int 
         pts, vals = pts[sel], vals[sel]
     pts_mm = np.round(pts * 1000.0, 1)
     data = {"x": pts_mm[:, 0].tolist(), "y": pts_mm[:, 1].tolist(), "z": pts_mm[:, 2].tolist(),
-            "d": np.round(vals, 2).tolist(), "r": rng}
+            "d": np.round(vals, 2).tolist(), "r": rng, "scale": deviation_colorscale(rng)}
     return f"""
 <section id="viewer" class="study-section"><h2>Interactive deviation model</h2>
 <p>Drag to rotate, scroll to zoom. Colour: signed deviation from the reference [mm], fixed scale
-±{rng:g} mm (saturating). Coordinates in mm.</p>
+±{rng:g} mm (saturating), the same colour map as the figures and the coloured deviation.ply (blue: model
+inside the reference, red: outside). Coordinates in mm.</p>
 <div id="viewer3d" style="width:100%;height:560px" data-points="0"></div>
 <script>{get_plotlyjs()}</script>
 <script>
 (function() {{
   const D = {json.dumps(data)};
   const trace = {{type: 'scatter3d', mode: 'markers', x: D.x, y: D.y, z: D.z,
-    marker: {{size: 1.6, color: D.d, cmin: -D.r, cmax: D.r, colorscale: 'RdBu', reversescale: true,
-      colorbar: {{title: 'deviation [mm]'}}}}, hovertemplate: '%{{marker.color:.2f}} mm<extra></extra>'}};
+    marker: {{size: 1.6, color: D.d, cmin: -D.r, cmax: D.r, colorscale: D.scale,
+      colorbar: {{title: {{text: 'deviation [mm]'}}, ticksuffix: ' mm'}}}},
+    hovertemplate: '%{{marker.color:.2f}} mm<extra></extra>'}};
   const layout = {{margin: {{l: 0, r: 0, t: 0, b: 0}}, scene: {{aspectmode: 'data',
     xaxis: {{title: 'x [mm]'}}, yaxis: {{title: 'y [mm]'}}, zaxis: {{title: 'z [mm]'}},
     camera: {{up: {{x: 0, y: -1, z: 0}}, eye: {{x: 0.2, y: -0.8, z: -1.6}}}}}}}};

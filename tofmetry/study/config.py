@@ -120,8 +120,10 @@ def load_config(path: str | Path | None) -> StudyConfig:
     if not path.is_file():
         raise InputError(f"config file not found: {path}")
     try:
-        data = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
+        data = tomllib.loads(path.read_bytes().decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: invalid TOML (not UTF-8 text: byte {exc.start})") from None
+    except (tomllib.TOMLDecodeError, RecursionError) as exc:
         raise InputError(f"{path}: invalid TOML ({exc})") from None
     try:
         return StudyConfig.model_validate(data)

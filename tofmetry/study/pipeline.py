@@ -31,14 +31,17 @@ class StudyPipeline:
     out_dir : output folder
     config : StudyConfig
     on_event : callable(kind, text) for progress display (``kind`` in start/done/skip/fail/info)
+    accept_implausible : keep results that fail a plausibility gate (recorded in the report) instead
+        of failing their stage
     """
 
     def __init__(self, data_dir: Path | None, out_dir: Path, config: StudyConfig,
-                 on_event: Callable[[str, str], None] | None = None):
+                 on_event: Callable[[str, str], None] | None = None, accept_implausible: bool = False):
         self.data_dir = None if data_dir is None else Path(data_dir)
         self.out_dir = Path(out_dir)
         self.config = config
         self.on_event = on_event or (lambda kind, text: None)
+        self.accept_implausible = accept_implausible
         if self.data_dir is not None and not self.data_dir.is_dir():
             raise InputError(f"DATA_DIR {self.data_dir} is not a folder")
 
@@ -55,7 +58,8 @@ class StudyPipeline:
             simulate_study_inputs(data_dir, self.config.simulation, on_step=lambda s: self.on_event("info", s))
             sim_seconds = time.perf_counter() - t0
             self.on_event("done", f"inputs simulated in {sim_seconds:.0f} s")
-        ctx = StudyContext(data_dir=data_dir, out_dir=self.out_dir, config=self.config, simulated=simulated)
+        ctx = StudyContext(data_dir=data_dir, out_dir=self.out_dir, config=self.config, simulated=simulated,
+                           accept_implausible=self.accept_implausible)
         for key, title, fn in STAGES:
             self.on_event("start", title)
             t0 = time.perf_counter()

@@ -52,6 +52,8 @@ class StudyContext:
     total_seconds: float = 0.0  # filled by the pipeline at the end
     simulation_seconds: float = 0.0
     machine: str = ""
+    #: ``--accept-implausible``: results failing a plausibility gate are kept (and recorded) instead of failing
+    accept_implausible: bool = False
 
     def stage_dir(self, key: str) -> Path:
         d = self.out_dir / key

@@ -1,0 +1,149 @@
+"""Pipeline ``plan``: an object (rough size, mesh or first view) -> predicted completeness and accuracy
+of a set of views, and the views proposed to reach a target (:mod:`tofmetry.plan`).
+
+``plan.json`` holds the object's proxy description, the proposal (camera-to-world poses in the
+object's z-up frame, ground z = 0) with its prediction, every candidate's prediction and, with
+``--views``, the prediction of the views asked for. ``tofmetry reconstruct --plan plan.json``
+compares it with what was registered.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from tofmetry.errors import InputError
+from tofmetry.io import atomic_write_json, read_json
+from tofmetry.plan import PlanObject, predict, propose, proxy_from_mesh, proxy_from_points, proxy_from_size, ring
+from tofmetry.sensor import KINECT_V2, CameraIntrinsics
+
+
+@dataclass
+class PlanRun:
+    """Result of :func:`plan_acquisition` (all JSON-able through :meth:`to_dict`)."""
+
+    object: PlanObject
+    intrinsics: CameraIntrinsics
+    proposal: object
+    candidates: list
+    asked: object = None
+    settings: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {"object": {"source": self.object.source, "extent_m": [round(float(x), 4) for x in self.object.extent_m],
+                           "frame": "z up, ground z = 0, object centred on the z axis, metres"},
+                "intrinsics": self.intrinsics.to_dict(), "settings": self.settings,
+                "proposal": None if self.proposal is None else self.proposal.to_dict(),
+                "asked": None if self.asked is None else self.asked.to_dict(),
+                "candidates": [{"name": c.name, **c.prediction.to_dict()} for c in self.candidates]}
+
+
+def parse_views(spec: str, obj: PlanObject, distance_m: float) -> list:
+    """Views from ``ring:N:ELEV[:M:ELEV2]`` (N views at ELEV deg, plus M zenithal views at ELEV2)."""
+    parts = spec.split(":")
+    if parts[0] != "ring" or len(parts) not in (3, 5):
+        raise InputError(f"--views: expected ring:N:ELEVATION or ring:N:ELEVATION:M:ELEVATION2, found {spec!r}")
+    try:
+        n, el = int(parts[1]), float(parts[2])
+        poses = ring(n, distance_m, el, obj.centre_m)
+        if len(parts) == 5:
+            m, el2 = int(parts[3]), float(parts[4])
+            poses += ring(m, distance_m, el2, obj.centre_m, 180.0 / n) if m > 0 else []
+    except ValueError:
+        raise InputError(f"--views: numbers expected in {spec!r}") from None
+    return poses
+
+
+def object_from_first_view(capture: str | os.PathLike, calibration=None) -> tuple[PlanObject, float, CameraIntrinsics]:
+    """The object as a first view shows it: segmented on its support plane, a prism over its footprint.
+
+    Returns (proxy, median distance of the object from the camera [m], intrinsics)."""
+    from tofmetry.io import Capture
+    from tofmetry.reconstruct import prepare_view, segment_object
+
+    cap = Capture(capture)
+    intr = calibration.intrinsics if calibration is not None else cap.intrinsics()[0]
+    v = prepare_view(cap.depth_stack(), intr, calibration, name=str(capture))
+    seg = segment_object(v.points)
+    n = seg.plane[:3]
+    obj = v.points[seg.object_mask]
+    h = obj @ n + seg.plane[3]
+    x = np.cross(n, [1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.cross(n, [0.0, 1.0, 0.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(n, x)
+    up = np.c_[obj @ x, obj @ y, h]
+    dist = float(np.median(np.linalg.norm(obj, axis=1)))
+    return proxy_from_points(up), dist, intr
+
+
+def plan_acquisition(*, size: tuple[float, float, float] | None = None, mesh: str | os.PathLike | None = None,
+                     mesh_scale: float = 1.0, mesh_up=(0.0, 0.0, 1.0), first_view: str | os.PathLike | None = None,
+                     calibration=None, distance_m: float | None = None, target: float = 0.9, n_frames: int = 10,
+                     views: str | None = None, output: str | os.PathLike | None = None, force: bool = False) -> PlanRun:
+    """Plan the acquisition of one object (exactly one of ``size``, ``mesh``, ``first_view``).
+
+    Parameters
+    ----------
+    size : (width, depth, height) [m]
+    mesh : PLY/OBJ/STL of the object (``mesh_scale`` converts its units to metres, ``mesh_up`` its up axis)
+    first_view : a capture of the object on its support
+    calibration : DepthCalibration or a calibration file (intrinsics and its predicted error) or None
+    distance_m : slant distance of the views from the object centre [m]; default: the first view's,
+        else 0.5 m + 1.5 x the largest side, within 0.7-1.5 m
+    target : completeness to reach (0-1)
+    views : a set of views to predict as well (:func:`parse_views`)
+    output : ``plan.json`` to write (atomic; refuses to overwrite without ``force``)
+    """
+    from tofmetry.pipelines.calibration_files import load_calibration
+
+    if sum(x is not None for x in (size, mesh, first_view)) != 1:
+        raise InputError("plan: give exactly one of --size, --mesh, --first-view")
+    if not 0 < target <= 1:
+        raise InputError(f"plan: --target must be in (0, 1], found {target}")
+    cal = load_calibration(calibration) if calibration is not None and not hasattr(calibration, "intrinsics") \
+        else calibration
+    intr = cal.intrinsics if cal is not None else KINECT_V2.depth
+    if size is not None:
+        obj = proxy_from_size(*size)
+    elif mesh is not None:
+        from tofmetry.io.mesh import read_geometry
+
+        g = read_geometry(mesh, "plan mesh")
+        if not g.is_mesh:
+            raise InputError(f"plan: {mesh} holds no triangles (a mesh is needed)")
+        obj = proxy_from_mesh(g.points, g.faces, mesh_up, mesh_scale)
+    else:
+        obj, d0, intr = object_from_first_view(first_view, cal)
+        distance_m = distance_m or d0
+    if distance_m is None:
+        distance_m = float(np.clip(0.5 + 1.5 * obj.extent_m.max(), 0.7, 1.5))
+    cal_mm = 0.5
+    if cal is not None:
+        cal_mm = float(((cal.prediction or {}).get("interpolation") or {}).get("central_abs_mm", {}).get("predicted", 0.5))
+    kw = {"n_frames": n_frames, "calibration_mm": cal_mm}
+    best, ranked = propose(obj, intr, target, distance_m, **kw)
+    asked = None
+    if views is not None:
+        from tofmetry.plan import Proposal
+
+        poses = parse_views(views, obj, distance_m)
+        asked = Proposal(views, poses, predict(obj, poses, intr, **kw), {"spec": views})
+    run = PlanRun(obj, intr, best, ranked, asked, {"target": target, "distance_m": distance_m, "n_frames": n_frames,
+                                                   "calibration_mm": cal_mm})
+    if output is not None:
+        out = Path(output)
+        if out.exists() and not force:
+            raise InputError(f"output {out} already exists; pass --force to replace it")
+        atomic_write_json(out, run.to_dict())
+    return run
+
+
+def read_plan(path: str | os.PathLike) -> dict:
+    """A ``plan.json`` written by :func:`plan_acquisition` (checked for its proposal or asked views)."""
+    d = read_json(path, "plan")
+    if not isinstance(d, dict) or ("proposal" not in d and "asked" not in d):
+        raise InputError(f"{path}: not a plan.json (no 'proposal' / 'asked')")
+    return d
