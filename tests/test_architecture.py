@@ -29,6 +29,7 @@ LAYERS = [
     "tofmetry.cli | tofmetry.api",
     "tofmetry.study",
     "tofmetry.report | tofmetry.pipelines",
+    "tofmetry.plan",
     "tofmetry.evaluate",
     "tofmetry.reconstruct",
     "tofmetry.calibrate | tofmetry.assess | tofmetry.simulate",

@@ -193,7 +193,7 @@ def reconstruct(scan: PathLike, calibration: DepthCalibration | PathLike | None 
 
 def evaluate(model: PathLike, reference: PathLike, output: PathLike | None = None, *,
              config: EvaluationConfig | None = None, poses: PathLike | None = None,
-             init_transform: PathLike | None = None) -> EvaluationResult:
+             init_transform: PathLike | None = None, force: bool = False) -> EvaluationResult:
     """Accuracy of a model (PLY/OBJ/STL, metres) against a reference: alignment, signed deviations,
     statistics, completeness.
 
@@ -204,10 +204,12 @@ def evaluate(model: PathLike, reference: PathLike, output: PathLike | None = Non
     config : EvaluationConfig (default settings when None; ``align=True`` for a coarse alignment)
     poses : optional ``poses.json`` of the reconstruction (completeness of the observed surface)
     init_transform : optional JSON 4x4 model -> reference transform
+    force : replace an existing, non-empty ``output`` folder (refused otherwise)
 
     Returns
     -------
     EvaluationResult
         ``stats_all`` / ``stats_trimmed`` (mean |d|, std, RMS, max [mm]), completeness, alignment.
     """
-    return evaluate_files(model, reference, output, config=config, poses=poses, init_transform=init_transform).result
+    return evaluate_files(model, reference, output, config=config, poses=poses, init_transform=init_transform,
+                          force=force).result

@@ -49,3 +49,16 @@ def test_cli_evaluate_empty_reference(files):
     r = CliRunner().invoke(app, ["evaluate", str(files / "model.ply"), "--reference", str(files / "empty.ply"),
                                  "-o", str(files / "ev3")])
     assert isinstance(r.exception, InputError) and "empty" in str(r.exception)
+
+
+def test_cli_evaluate_never_replaces_without_force(files):
+    out = files / "ev_keep"
+    out.mkdir()
+    (out / "metrics.json").write_text("{}")
+    args = ["evaluate", str(files / "model.ply"), "--reference", str(files / "ref.ply"), "-o", str(out)]
+    r = CliRunner().invoke(app, args)
+    assert isinstance(r.exception, InputError) and "--force" in str(r.exception)
+    assert (out / "metrics.json").read_text() == "{}"
+    r = CliRunner().invoke(app, args + ["--force"])
+    assert r.exit_code == 0, r.output
+    assert "stats" in json.loads((out / "metrics.json").read_text())

@@ -32,7 +32,7 @@ from threadpoolctl import threadpool_limits
 from tofmetry.calibrate._joint import Cells, JointSpec, Layout, block_cells, unusable_cells
 from tofmetry.calibrate._joint_fit import JointFit, blocked_folds, fit_joint, select_spec
 from tofmetry.calibrate._model import DepthCalibration
-from tofmetry.calibrate._prediction import before_after, prediction_record
+from tofmetry.calibrate._prediction import before_after, prediction_record, range_coverage
 from tofmetry.calibrate._sample import DepthSample
 from tofmetry.calibrate._support import CalibrationSupport
 from tofmetry.errors import EstimationError, InputError
@@ -240,7 +240,9 @@ def fit_depth_model(samples: list[DepthSample], intrinsics: CameraIntrinsics, co
         trend = _trend(base, lo, hi)
         note = ("blocked leave-one-out over distances: each interior station predicted by a calibration fitted on "
                 "all the others (interpolation); the nearest and the farthest apart (extrapolation)")
-        pred = prediction_record(interp_rows, extrap_rows, note) if interp_rows or extrap_rows else {}
+        coverage = range_coverage([s.reference_mm for s in samples], rays, spec.variable)
+        pred = prediction_record(interp_rows, extrap_rows, note, coverage=coverage) \
+            if interp_rows or extrap_rows else {}
         if pred:
             pred["fallback_chosen"] = fallback
             pred["tilt_calibrated"] = not any(s.free_tilt for s in samples)

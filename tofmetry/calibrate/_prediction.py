@@ -124,17 +124,72 @@ def _qmean(v) -> float:
 WARN_CENTRAL_MM = 1.5
 
 
+#: a gap in the samples' coverage of the range variable wider than this warns [mm]
+WARN_GAP_MM = 100.0
+
+
+def range_coverage(references: list[np.ndarray], rays: np.ndarray, variable: str) -> dict:
+    """Which values of the range variable the samples see, and the widest gap between them.
+
+    Parameters
+    ----------
+    references : list of (H, W) float [mm], the samples' reference depth Z (NaN / 0 unknown)
+    rays : (H, W, 2) undistorted normalised rays (x, y), Z along the optical axis
+    variable : "z" (the range error is a function of Z) or anything else (of the ray length
+        ``rho = Z * sqrt(1 + x^2 + y^2)``)
+
+    Returns
+    -------
+    dict: ``variable``, ``intervals`` [[lo, hi], ...] [mm] (1st-99th percentile of each sample,
+    merged), ``gap_mm`` (widest uncovered stretch between them) and ``gap_at_mm`` ([lo, hi] of it).
+    A range error is seen only where the samples cover its variable: a wiggle whose half-period
+    fits in a gap is invisible there, whatever the fit.
+    """
+    scale = np.ones(rays.shape[:2]) if variable == "z" else np.sqrt(1.0 + rays[..., 0] ** 2 + rays[..., 1] ** 2)
+    spans = []
+    for r in references:
+        r = np.asarray(r, float)
+        with np.errstate(invalid="ignore"):
+            ok = np.isfinite(r) & (r > 0)
+        if ok.sum() < 10:
+            continue
+        q = r[ok] * scale[ok]
+        spans.append([float(np.percentile(q, 1)), float(np.percentile(q, 99))])
+    spans.sort()
+    merged = []
+    for lo, hi in spans:
+        if merged and lo <= merged[-1][1]:
+            merged[-1][1] = max(merged[-1][1], hi)
+        else:
+            merged.append([lo, hi])
+    gaps = [(merged[k + 1][0] - merged[k][1], [merged[k][1], merged[k + 1][0]]) for k in range(len(merged) - 1)]
+    gap, at = max(gaps) if gaps else (0.0, [])
+    return {"variable": "Z" if variable == "z" else "ray length", "intervals": merged, "gap_mm": float(gap),
+            "gap_at_mm": at}
+
+
 def prediction_record(interp_rows: list[dict], extrap_rows: list[dict], note: str,
-                      warn_central_mm: float = WARN_CENTRAL_MM) -> dict:
+                      warn_central_mm: float = WARN_CENTRAL_MM, coverage: dict | None = None,
+                      warn_gap_mm: float = WARN_GAP_MM) -> dict:
     """The ``prediction`` stored in a calibration (JSON-able), with its ``warnings``.
 
     A predicted central deviation whose 90 % interval reaches above ``warn_central_mm`` means the
     stations do not sample the range error finely enough (e.g. a wiggle of Z shorter than twice
     the station spacing, which no station between two others can see): the record says so and
-    what to do.
+    what to do. ``coverage`` (:func:`range_coverage`) with a gap wider than ``warn_gap_mm`` warns
+    too: leave-one-out cannot see a wiggle that every station samples at the same phase (an
+    alias), so a range error of a variable the samples see only at isolated values is not vouched
+    for between them.
     """
     interp = summarize_folds(interp_rows) if interp_rows else {}
     warnings = []
+    if coverage and coverage.get("gap_mm", 0.0) > warn_gap_mm:
+        lo, hi = coverage["gap_at_mm"]
+        warnings.append(
+            f"the range error was fitted as a function of {coverage['variable']}, and the samples leave "
+            f"{coverage['gap_mm']:.0f} mm of it unseen ({lo:.0f}-{hi:.0f} mm): a wiggle shorter than "
+            f"{2 * coverage['gap_mm']:.0f} mm would go unnoticed between the stations, so the predicted error is not "
+            f"vouched for there; add stations in between or calibrate on a wall seen at an angle")
     c = interp.get("central_abs_mm", {})
     if c.get("n") and c["p95"] > warn_central_mm:
         centers = np.sort([r["center_mm"] for r in interp_rows])
@@ -151,6 +206,7 @@ def prediction_record(interp_rows: list[dict], extrap_rows: list[dict], note: st
         "folds": interp_rows,
         "interval": "5th-95th percentile over the blocked folds (90 %)",
         "warnings": warnings,
+        "coverage": coverage or {},
     }
 
 

@@ -142,6 +142,7 @@ def evaluate(
     poses: Path | None = typer.Option(None, "--poses", help="The reconstruction's poses.json: also report completeness "
                                          "over the reference surface the registered cameras could see (frustum, working "
                                          "range, incidence, occlusion)."),
+    force: bool = typer.Option(False, "--force", help="Replace an existing, non-empty output folder."),
 ) -> None:
     """Accuracy of a model against a reference: align, signed distances, statistics, completeness, figures."""
     from tofmetry.evaluate import EvaluationConfig
@@ -152,7 +153,8 @@ def evaluate(
         edge_trim_mm=edge_trim_mm, color_scale_mm=color_scale_mm,
         exclude_normal=None if exclude_normal is None else _parse_floats(exclude_normal, "--exclude-normal", 3))
     with progress("evaluating", None):
-        res = evaluate_files(model, reference, output, config=cfg, init_transform=init_transform, poses=poses).result
+        res = evaluate_files(model, reference, output, config=cfg, init_transform=init_transform, poses=poses,
+                           force=force).result
     s, st = res.stats_all, res.stats_trimmed
     t = Table(title=f"{model.name} vs {reference.name} ({res.comparison})")
     for col in ("", "mean |d|", "std", "RMS", "p95 |d|", "max |d|", "<= 5 mm"):

@@ -25,6 +25,7 @@ from tofmetry.evaluate._evaluate import (
 )
 from tofmetry.evaluate._figures import deviation_colors, histogram_figure, render_figure
 from tofmetry.evaluate._output import write_evaluation
+from tofmetry.evaluate._poses import PoseErrors, pose_errors, scale_from_reference
 from tofmetry.evaluate._stats import (
     DeviationStats,
     check_units,
@@ -38,6 +39,7 @@ __all__ = [
     "CameraViews",
     "ClosestPoints",
     "DeviationStats",
+    "PoseErrors",
     "EvaluationConfig",
     "EvaluationResult",
     "align_to_reference",
@@ -52,8 +54,10 @@ __all__ = [
     "face_normals",
     "histogram_figure",
     "observed_mask",
+    "pose_errors",
     "render_figure",
     "sample_mesh",
+    "scale_from_reference",
     "sharp_edge_samples",
     "write_evaluation",
 ]

@@ -18,6 +18,7 @@ from tofmetry.errors import InputError
 from tofmetry.evaluate import CameraViews, EvaluationConfig, EvaluationResult, evaluate_model, write_evaluation
 from tofmetry.io import read_json
 from tofmetry.io.mesh import read_geometry
+from tofmetry.pipelines.paths import refuse_existing
 
 
 def read_transform(path: str | os.PathLike) -> np.ndarray:
@@ -48,7 +49,8 @@ class EvaluationRun:
 
 def evaluate_files(model: str | os.PathLike, reference: str | os.PathLike, output: str | os.PathLike | None = None,
                    *, config: EvaluationConfig | None = None, init_transform: str | os.PathLike | None = None,
-                   poses: str | os.PathLike | None = None, title: str | None = None) -> EvaluationRun:
+                   poses: str | os.PathLike | None = None, title: str | None = None,
+                   force: bool = False) -> EvaluationRun:
     """Accuracy of a model against a reference, optionally written into a folder.
 
     Parameters
@@ -60,11 +62,14 @@ def evaluate_files(model: str | os.PathLike, reference: str | os.PathLike, outpu
     poses : the reconstruction's ``poses.json``: also report completeness over the reference
         surface the registered cameras could see
     title : figure title (default: the model's file name)
+    force : replace an existing, non-empty ``output`` (refused otherwise, before any work)
 
     Returns
     -------
     EvaluationRun
     """
+    if output is not None:
+        refuse_existing(output, force)
     m = read_geometry(model, "model")
     r = read_geometry(reference, "reference")
     init = read_transform(init_transform) if init_transform is not None else None

@@ -25,3 +25,19 @@ def refuse_inside_inputs(output: str | os.PathLike, *inputs: str | os.PathLike) 
             where = "is the input folder" if out == src else "lies inside the input folder"
             raise InputError(f"output {output} ({out}) {where} {src}; write it outside the input "
                              "(tofmetry never modifies its inputs)")
+
+
+def refuse_existing(output: str | os.PathLike, force: bool, option: str = "--force") -> None:
+    """Refuse to write into an output file or non-empty folder that exists, unless ``force``.
+
+    Raises
+    ------
+    InputError
+        Naming the output and the option (``option``) that replaces it.
+    """
+    out = Path(output)
+    if force or not out.exists():
+        return
+    if out.is_dir() and not any(out.iterdir()):
+        return
+    raise InputError(f"output {output} already exists; pass {option} to replace it")

@@ -221,24 +221,41 @@ def _load_mesh(mesh) -> tuple[np.ndarray, np.ndarray]:
 def scan(out: str | os.PathLike, n_views: int = 8, radius_m: float = 1.0, n_frames: int = 10, mesh=None,
          errors: ErrorModel | None = None, seed: int = 0, elevation_deg: float = 30.0,
          force: bool = False, progress: Progress = None,
-        sensor: SensorDraw | None = None) -> Path:
+         sensor: SensorDraw | None = None, poses: Sequence[np.ndarray] | None = None,
+         info: dict | None = None) -> Path:
     """Scan dataset of an object on the ground (paper §5): ``n_views`` views on a circle.
 
     Cameras ``radius_m`` (slant range) from the object centre, ``elevation_deg`` above the
     horizontal (looking down), object central in the image. ``mesh``: None (balustrade),
-    a PLY path or ``(vertices, triangles)``; it is placed on the ground (z-up world).
+    a PLY path, ``(vertices, triangles)`` or ``(vertices, triangles, albedo)`` with one IR albedo per
+    triangle (a painted object, :func:`tofmetry.simulate.objects.paint`); it is placed on the ground
+    (z-up world).
+    ``poses``: explicit camera-to-world poses (4, 4) [m] in that world (e.g. a path of
+    :mod:`tofmetry.simulate.paths` around :class:`~tofmetry.simulate.objects.ObjectDraw`
+    vertices, which are already placed); they replace the circle (``n_views``, ``radius_m``,
+    ``elevation_deg`` are then unused). ``info``: JSON-able description recorded in ``truth.json``
+    (e.g. the object and path draws).
     Writes ``out/views/00 ...`` captures (depth + IR), ``out/reference.ply`` (the placed mesh,
     world frame, metres) and ``out/truth.json`` (camera-to-world poses). Returns ``out``.
     """
     from tofmetry.io import write_ply
+    from tofmetry.simulate.objects import textured_scene
     from tofmetry.simulate.poses import orbit_poses
 
     sensor = _sensor(errors, sensor)
+    albedo = None
+    if isinstance(mesh, tuple) and len(mesh) == 3:  # (vertices, triangles, albedo per triangle)
+        mesh, albedo = mesh[:2], mesh[2]
     v, f = _load_mesh(mesh)
-    scene = scenes.mesh_on_ground(v, f)
+    scene = textured_scene(v, f, albedo)
     vw = scene.info["mesh_vertices_world"]
     target = np.array([0.0, 0.0, (vw[:, 2].max()) / 2])
-    poses = orbit_poses(n_views, radius_m, elevation_deg, target)
+    if poses is None:
+        poses = orbit_poses(n_views, radius_m, elevation_deg, target)
+    else:
+        poses = [np.asarray(T, np.float64) for T in poses]
+        if len(poses) < 1 or any(T.shape != (4, 4) or not np.isfinite(T).all() for T in poses):
+            raise InputError("scan: poses must be a non-empty list of finite (4, 4) camera-to-world matrices")
     vk = sensor.camera(seed)
     out = Path(out)
     with atomic_dir(out, force=force) as tmp:
@@ -254,6 +271,8 @@ def scan(out: str | os.PathLike, n_views: int = 8, radius_m: float = 1.0, n_fram
         truth = _truth_common(vk, seed, sensor) | {
             "dataset": "scan", "world": "z up, ground plane z = 0, object centred on the z axis",
             "radius_m": radius_m, "elevation_deg": elevation_deg, "target_m": target, "views": views}
+        if info:
+            truth["info"] = info
         atomic_write_json(tmp / "truth.json", truth)
     return out
 

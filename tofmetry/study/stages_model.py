@@ -112,7 +112,7 @@ def stage_model(ctx: StudyContext, out: StageOutcome) -> None:
                                 exclude_normal=(0.0, 0.0, -1.0) if ctx.simulated else None)
         edir = d / f"evaluation-{label}"
         run = evaluate_files(rdir / "mesh.ply", ref_path, edir, config=ecfg, poses=rdir / "poses.json",
-                             title=f"model ({label}) vs reference")
+                             title=f"model ({label}) vs reference", force=True)  # the study owns its folder
         ev, files = run.result, run.files
         ed = ev.to_dict()
         st = ed["stats_trimmed"]

@@ -1,0 +1,73 @@
+"""Acquisition planning: predicted completeness, overlaps and proposals; ``tofmetry plan`` (issue 16)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from tofmetry.errors import InputError
+from tofmetry.plan import predict, propose, proxy_from_points, proxy_from_size, ring, stripes
+from tofmetry.sensor import KINECT_V2
+
+
+@pytest.fixture(scope="module")
+def box():
+    return proxy_from_size(0.3, 0.2, 0.2)
+
+
+def test_more_views_see_more(box):
+    one = predict(box, ring(1, 1.0, 30.0, box.centre_m), KINECT_V2.depth)
+    four = predict(box, ring(4, 1.0, 30.0, box.centre_m), KINECT_V2.depth)
+    eight = predict(box, ring(8, 1.0, 30.0, box.centre_m), KINECT_V2.depth)
+    assert one.completeness < four.completeness <= eight.completeness
+    assert 0.15 < one.completeness < 0.5 and eight.completeness > 0.9
+    assert eight.min_overlap > four.min_overlap  # 45 deg steps share more than 90 deg steps
+    assert eight.mean_abs_mm > 0 and eight.p95_mm > eight.mean_abs_mm
+
+
+def test_out_of_range_views_see_nothing(box):
+    near = predict(box, ring(6, 0.3, 30.0, box.centre_m), KINECT_V2.depth, min_mm=500.0)
+    assert near.completeness < 0.05
+
+
+def test_proposal_reaches_the_target_with_the_fewest_views(box):
+    best, ranked = propose(box, KINECT_V2.depth, target=0.9, distance_m=1.0)
+    assert best is not None and best.prediction.completeness >= 0.9 and best.prediction.min_overlap >= 0.5
+    assert all(p.prediction.n_views >= best.prediction.n_views for p in ranked
+               if p.prediction.completeness >= 0.9 and p.prediction.min_overlap >= 0.5)
+    none, _ = propose(box, KINECT_V2.depth, target=0.999, distance_m=1.0)
+    assert none is None  # the base band and undersides are never seen
+
+
+def test_stripes_for_an_elongated_object():
+    bar = proxy_from_size(0.6, 0.12, 0.1)
+    p = stripes(bar, 4, 1.0, 45.0)
+    assert len(p) == 10
+    assert predict(bar, p, KINECT_V2.depth).completeness > 0.85
+
+
+def test_proxy_from_points_of_a_first_view():
+    rng = np.random.default_rng(0)
+    pts = np.c_[rng.uniform(-0.1, 0.1, (2000, 2)), rng.uniform(0, 0.15, 2000)]
+    obj = proxy_from_points(pts)
+    assert np.allclose(obj.extent_m, [0.2, 0.2, 0.15], atol=0.01)
+    with pytest.raises(InputError):
+        proxy_from_points(pts[:3])
+
+
+def test_cli_plan(tmp_path):
+    from typer.testing import CliRunner
+
+    from tofmetry.cli import app
+
+    r = CliRunner().invoke(app, ["plan", "--size", "0.3,0.2,0.25", "--views", "ring:8:30:2:65", "-o",
+                                 str(tmp_path / "plan.json")])
+    assert r.exit_code == 0, r.output
+    d = json.loads((tmp_path / "plan.json").read_text())
+    assert d["proposal"]["prediction"]["completeness"] >= 0.9 and len(d["asked"]["camera_to_world"]) == 10
+    r = CliRunner().invoke(app, ["plan", "--size", "0.3,0.2", "-o", str(tmp_path / "p2.json")])
+    assert isinstance(r.exception, InputError)
+    r = CliRunner().invoke(app, ["plan", "-o", str(tmp_path / "p3.json")])
+    assert isinstance(r.exception, InputError) and "exactly one" in str(r.exception)

@@ -1,0 +1,24 @@
+"""Acquisition planning (study §6.3): predicted completeness and accuracy of a set of views around an
+object, and the proposal of views (rings, zenithal views, stripes) that reach a target.
+
+:func:`predict` judges a set of views; :func:`propose` picks one among :func:`candidates`; the object
+is a mesh, a proxy of a rough size (:func:`proxy_from_size`) or of a first view
+(:func:`proxy_from_points`). ``tofmetry plan`` is :mod:`tofmetry.pipelines.plan`.
+"""
+
+from tofmetry.plan._plan import (
+    PlanObject,
+    Prediction,
+    Proposal,
+    candidates,
+    predict,
+    propose,
+    proxy_from_mesh,
+    proxy_from_points,
+    proxy_from_size,
+    ring,
+    stripes,
+)
+
+__all__ = ["PlanObject", "Prediction", "Proposal", "candidates", "predict", "propose", "proxy_from_mesh",
+           "proxy_from_points", "proxy_from_size", "ring", "stripes"]

@@ -1,0 +1,253 @@
+"""Acquisition planning: predicted completeness and accuracy of a set of views, and proposals.
+
+The object is a triangle mesh standing on the ground (z-up world, ground z = 0, centred on the z
+axis): a real mesh, a proxy built from a rough size (:func:`proxy_from_size`) or from a first view
+(:func:`proxy_from_points`). A set of views is camera-to-world poses around it.
+
+**Completeness** is predicted as the reconstruction achieves it: the share of the object's surface
+(the face resting on the ground, facing down within 30 deg, left out as the evaluation does) that
+at least one camera sees inside its image and working range, facing it at an incidence below
+``max_incidence_deg`` and not hidden behind another part of the object
+(:func:`tofmetry.evaluate.observed_mask`). The incidence limit is what the chain keeps: 70 deg
+is the registration's reliable-point limit and the fused surface is seen at most up to 80 deg;
+the default 75 deg was chosen against the achieved completeness of the family of
+``bench/robustness`` (see its README).
+
+**Accuracy** is a rough prediction from the sensor: the depth noise of one frame at the
+working distance (``noise_1m_mm`` times (z / 1 m)^1.5, the Kinect v2's growth, measured in §3.2),
+averaged over the frames and the views that see a point, combined with the calibration's own
+predicted error: ``sigma = sqrt(noise^2 / (frames * views) + calibration^2)``, mean |d| ~ 0.8 sigma.
+
+**Registrability**: successive views must share enough of the surface (their common visible share
+over the smaller one's visible share, ``overlap``); a proposal whose smallest overlap is below
+``min_overlap`` is marked as hard to register.
+
+**Proposals** (study §6.3: one more zenithal view, stripes rather than circles for elongated
+objects): rings of 6-16 views at 20-45 deg elevation, rings plus 2-4 zenithal views at 65 deg,
+and, for an object at least twice as long as wide, stripes (views along both long sides and at
+both ends); the proposal is the one with the fewest views that reaches the target completeness
+with every successive overlap above ``min_overlap`` (ties: the higher completeness).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from tofmetry.errors import InputError
+from tofmetry.evaluate import CameraViews, observed_mask, sample_mesh
+from tofmetry.sensor import CameraIntrinsics
+from tofmetry.simulate.objects import place_object
+from tofmetry.simulate.paths import turntable
+from tofmetry.simulate.poses import look_at
+
+
+@dataclass
+class PlanObject:
+    """The object to plan for: a mesh on the ground (z-up, z = 0 ground, centred on the z axis).
+
+    Attributes
+    ----------
+    vertices : (V, 3) [m]; triangles : (F, 3) int64
+    source : how it was obtained ("size", "mesh", "first view")
+    """
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+    source: str
+
+    @property
+    def extent_m(self) -> np.ndarray:
+        return self.vertices.max(0) - self.vertices.min(0)
+
+    @property
+    def centre_m(self) -> np.ndarray:
+        return np.array([0.0, 0.0, float(self.vertices[:, 2].max()) / 2])
+
+
+@dataclass
+class Prediction:
+    """Predicted outcome of a set of views.
+
+    Attributes
+    ----------
+    completeness : share of the object's surface (less its base) the chain will reconstruct
+    min_overlap : smallest overlap of successive views (the loop last -> first included)
+    overlaps : (V,) overlap of view k with view k + 1
+    mean_abs_mm, p95_mm : predicted accuracy of the model [mm] (rough, see the module docstring)
+    per_view_seen : (V,) share of the surface each view sees
+    """
+
+    completeness: float
+    min_overlap: float
+    overlaps: np.ndarray
+    mean_abs_mm: float
+    p95_mm: float
+    per_view_seen: np.ndarray
+    n_views: int
+
+    def to_dict(self) -> dict:
+        return {"completeness": round(self.completeness, 4), "min_overlap": round(self.min_overlap, 4),
+                "overlaps": [round(float(x), 3) for x in self.overlaps], "mean_abs_mm": round(self.mean_abs_mm, 3),
+                "p95_mm": round(self.p95_mm, 3), "per_view_seen": [round(float(x), 3) for x in self.per_view_seen],
+                "n_views": self.n_views}
+
+
+@dataclass
+class Proposal:
+    """A named set of views with its prediction."""
+
+    name: str
+    poses: list
+    prediction: Prediction
+    params: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "params": self.params, "prediction": self.prediction.to_dict(),
+                "camera_to_world": [np.asarray(T).round(6).tolist() for T in self.poses]}
+
+
+def proxy_from_size(width_m: float, depth_m: float, height_m: float) -> PlanObject:
+    """A rounded box (superellipsoid-like hull) of the given size: the object when only its size is known."""
+    if min(width_m, depth_m, height_m) <= 0:
+        raise InputError(f"plan: object size must be positive, found {width_m} x {depth_m} x {height_m} m")
+    th = np.linspace(0.0, np.pi, 25)[1:-1]
+    ph = np.linspace(0, 2 * np.pi, 48, endpoint=False)
+    e = 0.4  # exponent < 1: box-like with rounded edges
+    st, ct = np.sin(th)[:, None], np.cos(th)[:, None]
+    x = np.sign(st * np.cos(ph)) * np.abs(st * np.cos(ph)) ** e
+    y = np.sign(st * np.sin(ph)) * np.abs(st * np.sin(ph)) ** e
+    z = np.sign(ct) * np.abs(ct) ** e * np.ones_like(ph)
+    P = np.stack([x * width_m / 2, y * depth_m / 2, z * height_m / 2], -1)
+    from tofmetry.simulate.objects import _grid_mesh
+
+    v, f = _grid_mesh(P[::-1])
+    v[:, 2] -= v[:, 2].min()
+    return PlanObject(v, f, "size")
+
+
+def proxy_from_mesh(vertices: np.ndarray, triangles: np.ndarray, up=(0.0, 0.0, 1.0), scale: float = 1.0) -> PlanObject:
+    """A mesh [m] (times ``scale``) stood on the ground with ``up`` as z."""
+    v = np.asarray(vertices, np.float64) * scale
+    size = float((v.max(0) - v.min(0)).max())
+    return PlanObject(place_object(v, up, size, 0.0), np.asarray(triangles, np.int64), "mesh")
+
+
+def proxy_from_points(points_up: np.ndarray) -> PlanObject:
+    """A prism over the convex hull of the object's footprint, up to its height: the object as a
+    first view shows it. ``points_up``: (N, 3) object points [m] in a frame whose z is the support
+    plane's normal and z = 0 the plane."""
+    from scipy.spatial import ConvexHull
+
+    p = np.asarray(points_up, np.float64)
+    if len(p) < 10:
+        raise InputError(f"plan: the first view shows only {len(p)} object points")
+    h = float(np.percentile(p[:, 2], 99.5))
+    hull = ConvexHull(p[:, :2])
+    ring = p[hull.vertices, :2]
+    ring = ring - ring.mean(0)
+    n = len(ring)
+    P = np.stack([np.c_[ring, np.zeros(n)], np.c_[ring, np.full(n, h)]])
+    from tofmetry.simulate.objects import _grid_mesh
+
+    v, f = _grid_mesh(P)
+    return PlanObject(v, f, "first view")
+
+
+def predict(obj: PlanObject, poses, intr: CameraIntrinsics, *, n_frames: int = 10, max_mm: float = 2500.0,
+            min_mm: float = 500.0, max_incidence_deg: float = 75.0, spacing_mm: float = 3.0,
+            noise_1m_mm: float = 1.3, calibration_mm: float = 0.5, seed: int = 0) -> Prediction:
+    """Predicted completeness, successive overlaps and accuracy of ``poses`` (module docstring)."""
+    poses = [np.asarray(T, np.float64) for T in poses]
+    if len(poses) < 1:
+        raise InputError("plan: no views to predict")
+    pts, nrm, _ = sample_mesh(obj.vertices, obj.triangles, spacing_mm * 1e-3, seed=seed, max_points=60_000)
+    base = nrm @ np.array([0.0, 0.0, -1.0]) > np.cos(np.radians(30.0))
+    pts, nrm = pts[~base], nrm[~base]
+    mesh = (obj.vertices, obj.triangles)
+    seen_by = []
+    for T in poses:
+        s, _ = observed_mask(pts, nrm, CameraViews(np.stack([T]), intr, min_mm, max_mm), None, mesh, max_incidence_deg)
+        seen_by.append(s)
+    S = np.stack(seen_by)  # (V, N)
+    count = S.sum(0)
+    comp = float((count > 0).mean())
+    V = len(poses)
+    ov = np.zeros(V)
+    for k in range(V):
+        a, b = S[k], S[(k + 1) % V]
+        ov[k] = float((a & b).sum() / max(min(a.sum(), b.sum()), 1))
+    if V == 1:
+        ov[:] = 1.0
+    z = np.array([np.linalg.norm(T[:3, 3] - obj.centre_m) for T in poses])
+    noise = noise_1m_mm * float(np.median(z)) ** 1.5
+    views_per_point = float(np.mean(count[count > 0])) if (count > 0).any() else 1.0
+    sigma = float(np.hypot(noise / np.sqrt(n_frames * views_per_point), calibration_mm))
+    return Prediction(comp, float(ov.min()) if V > 1 else 1.0, ov, 0.8 * sigma, 2.0 * sigma, S.mean(1), V)
+
+
+def ring(n: int, distance_m: float, elevation_deg: float, target, start_deg: float = 0.0) -> list:
+    """``n`` views evenly spaced on a circle (:func:`tofmetry.simulate.paths.turntable`)."""
+    return turntable(n, distance_m, elevation_deg, target, start_deg).poses
+
+
+def stripes(obj: PlanObject, per_side: int, distance_m: float, elevation_deg: float) -> list:
+    """Views in two stripes along the object's long horizontal axis (one per side) and one at each
+    end, in loop order: along one side, round the end, back along the other side, round the other end."""
+    xy = obj.vertices[:, :2] - obj.vertices[:, :2].mean(0)
+    w, U = np.linalg.eigh(xy.T @ xy)
+    ax = U[:, 1]  # long axis
+    half = float(np.abs(xy @ ax).max())
+    side = np.array([-ax[1], ax[0]])
+    t = obj.centre_m
+    el = np.radians(elevation_deg)
+    r = distance_m * np.cos(el)
+    hgt = distance_m * np.sin(el)
+    out = []
+    along = np.linspace(-0.8 * half, 0.8 * half, per_side)
+    for s, seq, end in ((1.0, along, 1.0), (-1.0, along[::-1], -1.0)):
+        for a in seq:
+            out.append(look_at(np.r_[a * ax + s * r * side, t[2] + hgt], np.r_[a * ax, t[2]]))
+        out.append(look_at(np.r_[end * (half + r) * ax, t[2] + hgt], t))  # round the end
+    return out
+
+
+def candidates(obj: PlanObject, distance_m: float) -> list[tuple[str, list, dict]]:
+    """The proposal family (module docstring): (name, poses, params)."""
+    t = obj.centre_m
+    out = []
+    for el in (20.0, 30.0, 45.0):
+        for n in (6, 8, 10, 12, 16):
+            out.append((f"ring {n} @ {el:.0f} deg", ring(n, distance_m, el, t), {"kind": "ring", "n": n, "elevation_deg": el}))
+            for m in (2, 3, 4):
+                out.append((f"ring {n} @ {el:.0f} deg + {m} zenithal @ 65 deg",
+                            ring(n, distance_m, el, t) + ring(m, distance_m, 65.0, t, 180.0 / n),
+                            {"kind": "ring+zenithal", "n": n, "elevation_deg": el, "n_zenithal": m,
+                             "zenithal_elevation_deg": 65.0}))
+    ext = np.sort(obj.extent_m[:2])
+    if ext[1] >= 2.0 * ext[0]:
+        for k in (3, 4, 5):
+            for el in (30.0, 45.0):
+                out.append((f"stripes {k} per side @ {el:.0f} deg", stripes(obj, k, distance_m, el),
+                            {"kind": "stripes", "per_side": k, "elevation_deg": el}))
+    return out
+
+
+def propose(obj: PlanObject, intr: CameraIntrinsics, target: float = 0.9, distance_m: float = 1.0,
+            min_overlap: float = 0.5, **kw) -> tuple[Proposal | None, list[Proposal]]:
+    """Predict every candidate (:func:`candidates`) and pick the proposal (module docstring).
+
+    Returns
+    -------
+    (the proposal or None when no candidate reaches ``target``, all candidates best first)
+    """
+    out = []
+    for name, poses, params in candidates(obj, distance_m):
+        out.append(Proposal(name, poses, predict(obj, poses, intr, **kw), params))
+    ok = [p for p in out if p.prediction.completeness >= target and p.prediction.min_overlap >= min_overlap]
+    rank = sorted(out, key=lambda p: (-(p.prediction.completeness >= target and p.prediction.min_overlap >= min_overlap),
+                                      p.prediction.n_views if p.prediction.completeness >= target else 0,
+                                      -p.prediction.completeness))
+    best = min(ok, key=lambda p: (p.prediction.n_views, -p.prediction.completeness)) if ok else None
+    return best, rank
