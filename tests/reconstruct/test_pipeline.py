@@ -49,7 +49,10 @@ def test_registration_ideal_sensor(ideal_scan, tmp_path):
     write_reconstruction(tmp_path / "rec", res)
     d = json.loads((tmp_path / "rec" / "poses.json").read_text())
     assert [v["name"] for v in d["views"]] == ds.names
-    np.testing.assert_allclose(d["views"][0]["camera_to_world"], np.eye(4), atol=1e-9)
+    # world frame: the support plane is z = 0 (normal up), the object above it
+    np.testing.assert_allclose(d["support_plane_world"], [0, 0, 1, 0], atol=1e-9)
+    assert np.median(read_ply(tmp_path / "rec" / "points.ply")["points"][:, 2]) > 0.02
+    assert all(v["verdict"]["verdict"] == "verified" for v in d["views"])
     p = read_ply(tmp_path / "rec" / "points.ply")
     assert "normals" in p and len(p["points"]) > 1000
     m = read_ply(tmp_path / "rec" / "mesh.ply")

@@ -21,11 +21,13 @@ from scipy.spatial import cKDTree
 
 from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.reconstruct._config import RegistrationConfig
+from tofmetry.reconstruct._photometric import ir_yaw_sweep, log_albedo
 from tofmetry.reconstruct._o3d import (
     global_register,
     icp,
     information_matrix,
     voxel_down,
+    voxel_down_values,
 )
 from tofmetry.reconstruct._preprocess import ViewData
 from tofmetry.reconstruct._segment import Segmentation
@@ -45,6 +47,9 @@ class RegView:
     near_depth_m : (H, W) float32 nearest observed depth in each pixel's 3x3 neighbourhood [m]
         (inf where nothing valid was observed): the free space seen by this camera
     intr : CameraIntrinsics of the depth image (projection for the free-space test)
+    obj_normals : (K, 3) unit normals of ``obj_points`` (toward the camera)
+    obj_ir, icp_ir : relative log IR albedo of ``obj_points`` / ``icp_points``
+        (:func:`~tofmetry.reconstruct._photometric.log_albedo`), or None without IR
     """
 
     name: str
@@ -60,6 +65,9 @@ class RegView:
     mid_normals: np.ndarray | None = None
     near_depth_m: np.ndarray | None = None
     intr: object = None
+    obj_normals: np.ndarray | None = None
+    obj_ir: np.ndarray | None = None
+    icp_ir: np.ndarray | None = None
     _tree: cKDTree | None = field(default=None, repr=False)
 
     @property
@@ -69,9 +77,11 @@ class RegView:
         return self._tree
 
 
-def make_reg_view(view: ViewData, seg: Segmentation, cfg: RegistrationConfig, intr=None) -> RegView:
+def make_reg_view(view: ViewData, seg: Segmentation, cfg: RegistrationConfig, intr=None,
+                  white_map: np.ndarray | None = None) -> RegView:
     """Select reliable object (+ ring) points and downsample them for registration (``intr``: the
-    depth intrinsics, enables the free-space test of hypotheses)."""
+    depth intrinsics, enables the free-space test of hypotheses and, with the view's IR, the
+    photometric yaw search; ``white_map``: the amplitude reference, refines the albedo estimate)."""
     reliable = view.cos_incidence >= np.cos(np.radians(cfg.max_incidence_deg))
     # coarse hypotheses and their scoring use the main cluster only (parts merged across a gap are
     # the least reliable and make a nearly symmetric object more ambiguous); the fine ICP uses the
@@ -80,8 +90,12 @@ def make_reg_view(view: ViewData, seg: Segmentation, cfg: RegistrationConfig, in
     ring = seg.ring_mask & reliable if cfg.use_ground else np.zeros_like(reliable)
     fine = view.cos_incidence >= np.cos(np.radians(cfg.fine_max_incidence_deg))
     sel = (seg.object_mask & reliable & fine) | (ring & fine)
-    p, n = voxel_down(view.points[sel], view.normals[sel], cfg.icp_voxel_mm * 1e-3)
-    po, _ = voxel_down(view.points[seg.object_mask & reliable], None, cfg.icp_voxel_mm * 1e-3)
+    alb = log_albedo(view, intr, white_map) if cfg.ir_yaw and view.ir is not None and intr is not None else None
+    p, n, p_ir = voxel_down_values(view.points[sel], view.normals[sel], None if alb is None else alb[sel],
+                                   cfg.icp_voxel_mm * 1e-3)
+    om = seg.object_mask & reliable
+    po, pon, po_ir = voxel_down_values(view.points[om], view.normals[om], None if alb is None else alb[om],
+                                       cfg.icp_voxel_mm * 1e-3)
     pf, nf = voxel_down(view.points[core], view.normals[core], cfg.feature_voxel_mm * 1e-3)
     csel = (core & reliable) | ring
     pc, nc = voxel_down(view.points[csel], view.normals[csel], cfg.coarse_voxel_mm * 1e-3)
@@ -90,7 +104,7 @@ def make_reg_view(view: ViewData, seg: Segmentation, cfg: RegistrationConfig, in
     if intr is not None:
         d = np.where(view.depth_mm > 0, view.depth_mm * 1e-3, np.inf).astype(np.float32)
         near = minimum_filter(d, size=3, mode="nearest")
-    return RegView(view.name, p, n, po, pf, nf, pc, nc, seg.plane, pm, nm, near, intr)
+    return RegView(view.name, p, n, po, pf, nf, pc, nc, seg.plane, pm, nm, near, intr, pon, po_ir, p_ir)
 
 
 def free_space_violation(src: RegView, tgt: RegView, T: np.ndarray, tol_m: float) -> float:
@@ -196,6 +210,8 @@ class PairResult:
     alternatives : other distinct hypotheses that pass the gates (PairResult each), best first
     conditioning : :func:`registration_conditioning` of the transform
     see_through : :func:`visibility_violation` of the transform (share of points seen through)
+    ir_yaw : the photometric yaw search of a yaw-free edge (:func:`~tofmetry.reconstruct._photometric.ir_yaw_sweep`:
+        correlation of the best yaw, its margin over the next, whether it decided) or None
     """
 
     source: int
@@ -209,6 +225,7 @@ class PairResult:
     alternatives: list = field(default_factory=list)
     conditioning: dict | None = None
     see_through: float = 0.0
+    ir_yaw: dict | None = None
 
     def to_dict(self, names: list[str]) -> dict:
         d = {"source": names[self.source], "target": names[self.target], "fitness": round(self.fitness, 4),
@@ -218,15 +235,18 @@ class PairResult:
                                "method": a.method} for a in self.alternatives]}
         if self.conditioning is not None:
             d["conditioning"] = self.conditioning
+        if self.ir_yaw is not None:
+            d["ir_yaw"] = self.ir_yaw
         return d
 
     def with_hypothesis(self, alt: PairResult) -> PairResult:
         """This edge with ``alt`` (one of :attr:`alternatives`) as its transform; the old one becomes an alternative."""
         rest = [a for a in self.alternatives if a is not alt]
         old = PairResult(self.source, self.target, self.transform, self.fitness, self.inlier_rmse_mm, self.information,
-                         self.method, self.accepted, conditioning=self.conditioning, see_through=self.see_through)
+                         self.method, self.accepted, conditioning=self.conditioning, see_through=self.see_through,
+                         ir_yaw=self.ir_yaw)
         return PairResult(self.source, self.target, alt.transform, alt.fitness, alt.inlier_rmse_mm, alt.information,
-                          alt.method, alt.accepted, [old] + rest, alt.conditioning, alt.see_through)
+                          alt.method, alt.accepted, [old] + rest, alt.conditioning, alt.see_through, alt.ir_yaw)
 
 
 def _refine_mid(src: RegView, tgt: RegView, init: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:
@@ -249,17 +269,39 @@ def _refine(src: RegView, tgt: RegView, init: np.ndarray, cfg: RegistrationConfi
     return _refine_fine(src, tgt, _refine_mid(src, tgt, init, cfg), cfg)
 
 
+def expected_visible(src: RegView, tgt: RegView, T: np.ndarray, max_incidence_deg: float = 65.0) -> np.ndarray:
+    """Mask of the source object points the target camera could see under ``T``: in front of it,
+    inside its image and facing it at an incidence below ``max_incidence_deg`` (self-occlusion is
+    not tested). Without normals or intrinsics: the points inside the target's bounding box."""
+    p = src.obj_points @ T[:3, :3].T + T[:3, 3]
+    if src.obj_normals is None or tgt.intr is None:
+        lo, hi = tgt.icp_points.min(0), tgt.icp_points.max(0)
+        return np.all((p >= lo) & (p <= hi), axis=1)
+    n = src.obj_normals @ T[:3, :3].T
+    z = p[:, 2]
+    ok = z > 1e-3
+    cos_inc = -np.einsum("ij,ij->i", n, p) / np.maximum(np.linalg.norm(p, axis=1), 1e-12)
+    ok &= cos_inc > np.cos(np.radians(max_incidence_deg))
+    uv = tgt.intr.project(np.where(ok[:, None], p, [0.0, 0.0, 1.0]))
+    H, W = tgt.intr.shape
+    ok &= (uv[:, 0] >= 0) & (uv[:, 0] <= W - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= H - 1)
+    return ok
+
+
 def object_fitness(src: RegView, tgt: RegView, T: np.ndarray, radius_m: float) -> tuple[float, float]:
-    """Share of the source object points within ``radius_m`` of the target cloud, and their RMS [m]."""
+    """Share of the source object points the target camera could see (:func:`expected_visible`)
+    that lie within ``radius_m`` of the target cloud, and the RMS distance of all matches [m].
+
+    Normalising by what the target could see (not by all source points) keeps the fitness of a
+    correct pose high where the views overlap only in part: a thin slab seen from its front by one
+    view and from its edge by the next shares only the points both cameras face."""
     p = src.obj_points @ T[:3, :3].T + T[:3, 3]
     d, _ = tgt.tree.query(p, distance_upper_bound=radius_m, workers=-1)
     ok = np.isfinite(d)
     if not ok.any():
         return 0.0, np.inf
-    # target overlap is partial: normalise by the source points that fall inside the target's bounding box
-    lo, hi = tgt.icp_points.min(0) - radius_m, tgt.icp_points.max(0) + radius_m
-    inside = np.all((p >= lo) & (p <= hi), axis=1)
-    return float(ok.sum() / max(inside.sum(), 1)), float(np.sqrt(np.mean(d[ok] ** 2)))
+    vis = expected_visible(src, tgt, T)
+    return float((ok & vis).sum() / max(vis.sum(), 1)), float(np.sqrt(np.mean(d[ok] ** 2)))
 
 
 def _coarse_fitness(src: RegView, tgt: RegView, T: np.ndarray, radius_m: float) -> tuple[float, float]:
@@ -326,7 +368,23 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
         info = information_matrix(src.icp_points, tgt.icp_points, r_final, T)
         out.append(PairResult(i, j, T, fit, rmse * 1e3, info, method, ok,
                               conditioning=registration_conditioning(src, tgt, T, r_final), see_through=v))
-    return replace(out[0], alternatives=out[1:])
+    best = out[0]
+    yr = (best.conditioning or {}).get("yaw_ratio")
+    if cfg.ir_yaw and yr is not None and yr < cfg.yaw_free_ratio and src.obj_ir is not None and tgt.icp_ir is not None:
+        # the geometry leaves the yaw free: let the painted pattern (IR amplitude) choose it
+        sw = ir_yaw_sweep(src, tgt, best.transform, r_final)
+        if sw["decided"]:
+            T = _refine_fine(src, tgt, sw.pop("transform"), cfg)
+            fit, rmse = object_fitness(src, tgt, T, r_final)
+            v = vis(T)
+            ok = _passes(fit, rmse, cfg) and v <= cfg.max_see_through
+            best = PairResult(i, j, T, fit, rmse * 1e3, information_matrix(src.icp_points, tgt.icp_points, r_final, T),
+                              best.method + "+ir-yaw", ok, conditioning=registration_conditioning(src, tgt, T, r_final),
+                              see_through=v, ir_yaw=sw)
+            return replace(best, alternatives=[a for a in out if not _same_pose(a.transform, T)])
+        sw.pop("transform", None)
+        best = replace(best, ir_yaw=sw)
+    return replace(best, alternatives=out[1:])
 
 
 def _search(src: RegView, tgt: RegView, cfg: RegistrationConfig, coarse: list, cands: list, key, vis) -> None:
@@ -366,42 +424,88 @@ def _search(src: RegView, tgt: RegView, cfg: RegistrationConfig, coarse: list, c
             cands.append((*object_fitness(src, tgt, T, r_final), T, how, vis(T)))
 
 
-def registration_conditioning(src: RegView, tgt: RegView, T: np.ndarray, radius_m: float) -> dict:
-    """How well the overlap constrains the 6 pose parameters (point-to-plane, Gelfand et al. 2003).
+def registration_conditioning(src: RegView, tgt: RegView, T: np.ndarray, radius_m: float,
+                              normal_radius_m: float = 0.01) -> dict:
+    """How well the overlap constrains the pose (point-to-plane, Gelfand et al. 2003).
 
-    ``H = sum J^T J`` with rows ``J = [((p - c) x n) / L, n]`` over the source object points matched
-    within ``radius_m`` (``c`` their centroid, ``L`` their RMS distance from it: rotations scaled
-    to a displacement at the object's size). A surface of revolution (with its support plane)
-    leaves the rotation about its axis unconstrained: the smallest eigenvalue drops to the
-    normal-noise level.
+    ``H = sum J^T J / N`` with rows ``J = [((p - c) x n) / L, n]`` over the target points matched by
+    the source object points within ``radius_m`` (``c`` their centroid, ``L`` their RMS distance
+    from it: rotations scaled to a displacement at the object's size). The normals ``n`` are
+    re-estimated by PCA over ``normal_radius_m`` (10 mm): the per-pixel image normals are noisy
+    enough to fill a null direction (measured: yaw ratio 0.17 with them against 0.01 with PCA
+    normals on a surface of revolution).
+
+    ``yaw_ratio``: the stiffness of the rotation about the support-plane normal through ``c``,
+    the other five parameters left free (``1 / (u' H^-1 u)``), over the smaller stiffness of the
+    two horizontal rotations. A surface of revolution standing on the plane leaves that yaw free:
+    measured 0.01-0.06 on a vase where the overlap misses its handle, 0.28 where it holds it,
+    0.9-2.7 on a bunny and a head. None without a support plane.
 
     Returns
     -------
     dict: ratio (smallest / largest eigenvalue), weak_rotation (share of the weakest direction in
-    the rotation part), weak_axis (3,) rotation axis of the weakest direction (target frame)
-
-    Diagnostic only: measured ~0.02 for the vase (yaw free) as for the box (0.01-0.05), because the
-    estimated normals' noise fills the null direction; it is not used for decisions.
+    the rotation part), weak_axis (3,) rotation axis of the weakest direction (target frame),
+    yaw_ratio (float or None), n_matched
     """
+    from tofmetry.reconstruct._o3d import estimate_normals
+
     p = src.obj_points @ T[:3, :3].T + T[:3, 3]
     d, idx = tgt.tree.query(p, distance_upper_bound=radius_m, workers=-1)
     ok = np.isfinite(d)
-    if ok.sum() < 10:
-        return {"ratio": 0.0, "weak_rotation": 1.0, "weak_axis": [0.0, 0.0, 0.0]}
-    q, n = tgt.icp_points[idx[ok]], tgt.icp_normals[idx[ok]]
+    if ok.sum() < 30:
+        return {"ratio": 0.0, "weak_rotation": 1.0, "weak_axis": [0.0, 0.0, 0.0], "yaw_ratio": None,
+                "n_matched": int(ok.sum())}
+    q = tgt.icp_points[np.unique(idx[ok])]
+    n = estimate_normals(q, normal_radius_m, 60, toward=np.zeros(3))
     c = q.mean(0)
     L = float(np.sqrt(np.mean(np.sum((q - c) ** 2, 1))))
     J = np.c_[np.cross(q - c, n) / L, n]
-    w, V = np.linalg.eigh(J.T @ J)
+    H = J.T @ J / len(J)
+    w, V = np.linalg.eigh(H)
     v = V[:, 0]
     rot = float(np.sum(v[:3] ** 2))
+    yaw = None
+    if tgt.plane is not None:
+        try:
+            Hi = np.linalg.inv(H)
+            up = tgt.plane[:3] / np.linalg.norm(tgt.plane[:3])
+            a1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+            a1 /= np.linalg.norm(a1)
+            a2 = np.cross(up, a1)
+
+            def k(axis):
+                e = np.r_[axis, 0.0, 0.0, 0.0]
+                return 1.0 / float(e @ Hi @ e)
+
+            yaw = round(k(up) / max(min(k(a1), k(a2)), 1e-300), 4)
+        except np.linalg.LinAlgError:
+            yaw = 0.0
     return {"ratio": float(w[0] / max(w[-1], 1e-300)), "weak_rotation": round(rot, 3),
-            "weak_axis": [round(float(x), 3) for x in v[:3] / max(np.linalg.norm(v[:3]), 1e-12)]}
+            "weak_axis": [round(float(x), 3) for x in v[:3] / max(np.linalg.norm(v[:3]), 1e-12)],
+            "yaw_ratio": yaw, "n_matched": int(ok.sum())}
 
 
 def _same_pose(A: np.ndarray, B: np.ndarray, deg: float = 3.0, mm: float = 10.0) -> bool:
     E = np.linalg.inv(A) @ B
     return bool(rotation_angle_deg(E) <= deg and np.linalg.norm(E[:3, 3]) * 1e3 <= mm)
+
+
+def rejection_reason(p: PairResult, cfg: RegistrationConfig) -> str:
+    """Why a pair was not accepted (or "accepted"), in words, with the figures and the gates."""
+    if p.accepted:
+        return "accepted"
+    if p.method == "none":
+        return "no hypothesis converged (no overlap)"
+    why = []
+    if p.fitness < cfg.min_fitness:
+        why.append(f"overlap {p.fitness:.2f} < {cfg.min_fitness:g}")
+    if p.inlier_rmse_mm > cfg.max_rmse_mm:
+        why.append(f"RMSE {p.inlier_rmse_mm:.1f} mm > {cfg.max_rmse_mm:g} mm")
+    if p.see_through > cfg.max_see_through:
+        why.append(f"the other camera sees through {p.see_through:.0%} of the matched object (> {cfg.max_see_through:.0%})")
+    if "dropped" in p.method:
+        why.append("dropped: contradicts the loops of the other views")
+    return "rejected: " + ("; ".join(why) or "support planes disagree")
 
 
 def _passes(fit: float, rmse_m: float, cfg: RegistrationConfig) -> bool:
