@@ -52,7 +52,7 @@ MESH_DIR = Path(os.environ.get("TOFMETRY_SHARED_DATA", REPO.parent / "shared" / 
 #: the done-when bounds (issue 16): pose error on the object, model vs reference, scale
 GATE_DEG, GATE_MM = 0.5, 3.0
 TARGETS = {"rot_deg": 0.5, "object_mm": 3.0, "mean_mm": 1.0, "std_mm": 1.2, "p95_mm": 3.0, "max_mm": 8.0,
-           "completeness": 0.90, "scale_error_pct": 0.2}
+           "completeness": 0.90, "scale_error_pct": 0.2, "plan_error_pts": 5.0}
 
 
 @dataclass
@@ -177,11 +177,24 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
                    offset_mm=round(sc["offset_mm"], 3), mean_signed_mm=round(st.mean_signed_mm, 3))
     except Exception as exc:  # noqa: BLE001
         row["eval_error"] = f"{type(exc).__name__}: {exc}"[:400]
+    row.update(plan_check(d, row.get("completeness")))
     row["total_s"] = round(time.perf_counter() - t0, 1)
     row["truly_wrong"] = bool(row["rot_deg"] > GATE_DEG or row["object_mm"] > GATE_MM)
     if not keep:
         shutil.rmtree(scan_dir, ignore_errors=True)
     return row
+
+
+def plan_check(d: Draw, achieved: float | None) -> dict:
+    """``tofmetry plan``'s prediction (:func:`tofmetry.plan.predict`) for the draw's object and views,
+    beside the completeness the scan achieved (share of the reference within 5 mm, base excluded)."""
+    from tofmetry.plan import PlanObject, predict
+
+    pr = predict(PlanObject(d.object.vertices, d.object.triangles, "mesh"), d.path.poses, d.sensor.intrinsics)
+    out = {"plan_completeness": round(pr.completeness, 4), "plan_min_overlap": round(pr.min_overlap, 4)}
+    if achieved is not None:
+        out["plan_error_pts"] = round(100 * (pr.completeness - achieved), 2)
+    return out
 
 
 def _dist(rows, key, low_is_worse=False):
@@ -216,7 +229,8 @@ def summarize(rows: list[dict]) -> dict:
     for tag, group in (("reliable", rel), ("all", ok)):
         out[tag] = {k: _dist(group, k, k == "completeness" or k == "completeness_observed")
                     for k in ("rot_deg", "object_mm", "camera_mm", "mean_mm", "std_mm", "p95_mm", "max_mm",
-                              "completeness", "completeness_observed", "scale_error_pct", "reconstruct_s")}
+                              "completeness", "completeness_observed", "scale_error_pct", "plan_error_pts",
+                              "reconstruct_s")}
     return out
 
 
@@ -262,7 +276,7 @@ def main(argv=None) -> int:
                      f"{'reliable' if r['reliable'] else 'UNRELIABLE'} rot {r['rot_deg']:.3f} deg obj {r['object_mm']:.2f} "
                      f"mm cam {r['camera_mm']:.2f} mm; mean {r.get('mean_mm', float('nan')):.2f} p95 "
                      f"{r.get('p95_mm', float('nan')):.2f} max {r.get('max_mm', float('nan')):.2f} compl "
-                     f"{r.get('completeness', float('nan')):.3f} scale {r.get('scale_error_pct', float('nan')):+.3f} %; "
+                     f"{r.get('completeness', float('nan')):.3f} (plan {r.get('plan_completeness', float('nan')):.3f}) scale {r.get('scale_error_pct', float('nan')):+.3f} %; "
                      f"gain {(r.get('adjustment') or {}).get('depth_gain', float('nan')) * 100:+.3f} %; {r['reconstruct_s']:.0f} s" + ("" if r["reliable"] else f"; {'; '.join(r['reasons'])[:300]}")),
                   flush=True)
     finally:
