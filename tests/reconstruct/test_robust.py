@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from tofmetry.reconstruct import PairResult, PoseGraphBuilder, RegView, consistency_gate
-from tofmetry.reconstruct._posegraph import loop_closures
-from tofmetry.reconstruct._register import free_space_violation, visibility_violation
+from tofmetry.reconstruct._loops import loop_closures
+from tofmetry.reconstruct._regview import free_space_violation, visibility_violation
 from tofmetry.sensor import KINECT_V2
 
 

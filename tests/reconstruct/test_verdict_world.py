@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tofmetry.reconstruct._verdict import assess, scale_report
+from tofmetry.reconstruct._verdict import assess, calibration_gain_sigma, scale_report
 from tofmetry.reconstruct._world import support_plane_frame, transform_plane, transform_points
 
 
@@ -81,3 +81,15 @@ def test_support_plane_frame():
     c = W @ cam0
     assert c[2, 3] > 0 and c[:3, 2] @ [1, 0, 0] > 0  # camera above the plane, looking along +x
     np.testing.assert_allclose(W[:3, :3] @ W[:3, :3].T, np.eye(3), atol=1e-12)
+
+
+def test_implausible_gain_makes_the_run_unreliable():
+    e = [_edge("00", "01"), _edge("01", "02"), _edge("00", "02")]
+    adj = {"gain_note": "implausible: the views ask for -5.12 % (+-0.04 %), beyond the +-1.06 % the depth calibration "
+                        "can leave; kept at 0"}
+    v = assess(_names(3), e, {"reasons": [], "loops": []}, adjustment=adj, calibration_prediction={})
+    assert not v["reliable"] and "-5.12 %" in v["reasons"][0]
+    pred = {"interpolation": {"central_abs_mm": {"predicted": 0.5}},
+            "folds": [{"center_mm": 1000.0 + 250 * k} for k in range(5)]}
+    assert np.isclose(calibration_gain_sigma(pred), 0.5 / 125)
+    assert calibration_gain_sigma(None) is None and calibration_gain_sigma({"folds": []}) is None

@@ -230,7 +230,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                   iters_per_radius: tuple[int, ...] = (2, 6), inner_iters: int = 1, huber_m: float | None = None,
                   estimate_gain: bool = True, gain_prior_sigma: float = 0.02, max_normal_deg: float = 45.0,
                   tol_deg: float = 1e-3, tol_m: float = 1e-5, gain_max_sigma: float | None = None,
-                  sigma_inflation: float = 1.0) -> AdjustResult:
+                  sigma_inflation: float = 1.0, gain_max_abs: float | None = None) -> AdjustResult:
     """Jointly refine all poses (view 0 fixed) and, optionally, the depth gain.
 
     Each outer iteration matches every view's ``source`` points (gain-corrected, to world) to
@@ -254,6 +254,12 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         :attr:`AdjustResult.gain_note` says why. None: always estimated (with the prior)
     sigma_inflation : factor on the standard errors from the normal equations (correspondences
         are not independent: neighbouring points of one view share their depth error)
+    gain_max_abs : largest plausible gain (e.g. a few times what the depth calibration can leave
+        between its stations). An estimated gain beyond it is refused: the adjustment is run again
+        from ``poses`` with the gain fixed at 0 and :attr:`AdjustResult.gain_note` starts with
+        "implausible" (the views then disagree by more than the calibration allows: a smooth
+        object lets a wrong pose and a gain trade against each other, measured -5 % on a pebble
+        whose poses were 1.2 deg off). None: no bound
 
     Returns
     -------
@@ -336,6 +342,13 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         E = np.linalg.inv(poses[v]) @ P[v]
         moved_deg[v] = rotation_angle_deg(E)
         moved_mm[v] = np.linalg.norm(E[:3, 3]) * 1e3
+    if estimate_gain and gain_max_abs is not None and abs(g) > gain_max_abs:
+        fixed = global_adjust(views, poses, z_ref_m, radii_m, iters_per_radius, inner_iters, huber_m, False,
+                              gain_prior_sigma, max_normal_deg, tol_deg, tol_m, None, sigma_inflation)
+        fixed.gain_sigma_data = sigma_data
+        fixed.gain_note = (f"implausible: the views ask for {100 * g:+.2f} % (+-{100 * sigma_data:.2f} %), beyond the "
+                           f"+-{100 * gain_max_abs:.2f} % the depth calibration can leave; kept at 0")
+        return fixed
     sig_deg, sig_mm = _pose_sigmas(H_data, s2, V, estimate_gain, sigma_inflation)
     if estimate_gain and note == "estimated":
         note = f"estimated: the views determine it to +-{100 * sigma_data:.3f} %"

@@ -112,6 +112,10 @@ class RegistrationConfig(BaseModel):
     gain_max_sigma: float = Field(0.002, gt=0, description="the depth gain is estimated only when the views determine "
                                   "it to within this standard error (poses marginalised, no prior, times "
                                   "sigma_inflation); otherwise it stays 0 and the report says why")
+    gain_max_calibration_sigmas: float = Field(3.0, gt=0, description="an estimated depth gain larger than this many "
+                                               "times the gain the depth calibration can leave between its stations "
+                                               "(its predicted central error over half the station spacing) is refused "
+                                               "and makes the run unreliable (the views disagree with the calibration)")
     sigma_inflation: float = Field(5.0, ge=1, description="factor on the standard errors of the global adjustment "
                                    "(neighbouring points of a view share their depth error: ~25 px patches per "
                                    "independent sample)")

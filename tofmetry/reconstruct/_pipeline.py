@@ -25,9 +25,10 @@ from tofmetry.reconstruct._config import ReconstructionConfig
 from tofmetry.reconstruct._fusion import TSDFFusion, crop_mesh, poisson_mesh
 from tofmetry.reconstruct._posegraph import PoseGraphBuilder
 from tofmetry.reconstruct._preprocess import ViewData, prepare_view
-from tofmetry.reconstruct._register import RegView, make_reg_view, register_pair, rejection_reason
+from tofmetry.reconstruct._register import register_pair, rejection_reason
+from tofmetry.reconstruct._regview import RegView, make_reg_view
 from tofmetry.reconstruct._segment import Segmentation, segment_object
-from tofmetry.reconstruct._verdict import assess, scale_report
+from tofmetry.reconstruct._verdict import assess, calibration_gain_sigma, scale_report
 from tofmetry.reconstruct._world import support_plane_frame, transform_plane, transform_points
 
 
@@ -208,13 +209,15 @@ class ReconstructionPipeline:
         if not rc.global_adjust:
             return None
         z_ref = _median_object_depth_m(views, segs)
+        sg_cal = None if self.cal is None else calibration_gain_sigma(self.cal.prediction or {})
         av = [AdjustView(*(r.mid_points, r.mid_normals) if r.mid_points is not None else (r.icp_points, r.icp_normals),
                          r.icp_points, r.icp_normals) for r in regs]
         with self.progress("global adjustment", None):
             try:
                 res = global_adjust(av, poses, z_ref, tuple(x * 1e-3 for x in rc.adjust_radii_mm), rc.adjust_iters,
                                     estimate_gain=rc.estimate_depth_gain, gain_prior_sigma=rc.depth_gain_prior,
-                                    gain_max_sigma=rc.gain_max_sigma, sigma_inflation=rc.sigma_inflation)
+                                    gain_max_sigma=rc.gain_max_sigma, sigma_inflation=rc.sigma_inflation,
+                                    gain_max_abs=None if sg_cal is None else rc.gain_max_calibration_sigmas * sg_cal)
             except EstimationError as exc:  # keep the pose-graph poses; the reason goes to the diagnostics
                 self.adjust_failure = str(exc)
                 return None

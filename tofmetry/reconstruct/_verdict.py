@@ -31,7 +31,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from tofmetry.reconstruct._posegraph import connected_components
+from tofmetry.reconstruct._loops import connected_components
+
 
 def _bridges(n: int, edges: list[tuple[int, int]]) -> set[int]:
     """Indices of the edges whose removal disconnects their end views (on no cycle)."""
@@ -136,7 +137,10 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
                        f"{pose_gate_deg:g} deg / {pose_gate_mm:g} mm): the views disagree (depth-calibration residual?)")
     if adjustment is not None and "failed" in adjustment:
         reasons.append(f"the global adjustment failed ({adjustment['failed']}); the pose-graph poses are not refined")
-    if adjustment is not None and adjustment.get("gain_note", "").startswith("not observable"):
+    if adjustment is not None and (adjustment.get("gain_note") or "").startswith("implausible"):
+        reasons.append(f"depth gain {adjustment['gain_note']}: the views disagree with the depth calibration by more "
+                       "than it allows (wrong poses on a smooth or symmetric object, or a wrong calibration)")
+    if adjustment is not None and (adjustment.get("gain_note") or "").startswith("not observable"):
         warnings.append(f"depth gain {adjustment['gain_note']}")
     warns = (calibration_prediction or {}).get("warnings") or []
     pc = ((calibration_prediction or {}).get("interpolation") or {}).get("central_abs_mm", {}).get("predicted")
@@ -150,6 +154,22 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
         warnings.append("raw depth (no depth calibration): the model's scale and shape carry the sensor's range error")
     return {"reliable": not reasons, "reasons": reasons, "warnings": warnings, "views": views,
             "loop_pose_bound": {"deg": round(b_deg, 4), "mm": round(b_mm, 3)}, "yaw_free_edges": yaw_free}
+
+
+def calibration_gain_sigma(calibration_prediction: dict | None) -> float | None:
+    """The depth gain a calibration can leave between its stations: its predicted central error
+    ``e`` [mm] over half the station spacing [mm] (dimensionless); None without a prediction."""
+    if not calibration_prediction:
+        return None
+    e = ((calibration_prediction.get("interpolation") or {}).get("central_abs_mm") or {}).get("predicted")
+    if e is None:
+        return None
+    return float(e) / (_station_spacing_mm(calibration_prediction) / 2)
+
+
+def _station_spacing_mm(calibration_prediction: dict) -> float:
+    centres = sorted(f["center_mm"] for f in calibration_prediction.get("folds", []) if "center_mm" in f)
+    return float(np.median(np.diff(centres))) if len(centres) > 1 else 250.0
 
 
 def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z_ref_mm: float) -> dict:
@@ -178,8 +198,7 @@ def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z
         return out | {"predicted_scale_sigma_pct": None, "predicted_offset_sigma_mm": None,
                       "source": "raw depth: no calibration, no prediction"}
     e = ((calibration_prediction.get("interpolation") or {}).get("central_abs_mm") or {}).get("predicted")
-    centres = sorted(f["center_mm"] for f in calibration_prediction.get("folds", []) if "center_mm" in f)
-    spacing = float(np.median(np.diff(centres))) if len(centres) > 1 else 250.0
+    spacing = _station_spacing_mm(calibration_prediction)
     if e is None:
         return out | {"predicted_scale_sigma_pct": None, "predicted_offset_sigma_mm": None,
                       "source": "the calibration carries no predicted error"}
