@@ -93,3 +93,11 @@ def test_implausible_gain_makes_the_run_unreliable():
             "folds": [{"center_mm": 1000.0 + 250 * k} for k in range(5)]}
     assert np.isclose(calibration_gain_sigma(pred), 0.5 / 125)
     assert calibration_gain_sigma(None) is None and calibration_gain_sigma({"folds": []}) is None
+
+
+def test_a_calibration_warning_within_the_error_limit_is_named_as_a_warning():
+    e = [_edge("00", "01"), _edge("01", "02"), _edge("00", "02")]
+    pred = {"interpolation": {"central_abs_mm": {"predicted": 0.5}}, "warnings": ["242 mm of the range unseen"]}
+    v = assess(_names(3), e, {"reasons": [], "loops": []}, calibration_prediction=pred)
+    assert not v["reliable"] and "warns" in v["reasons"][0] and "242 mm" in v["reasons"][0]
+    assert "limit" not in v["reasons"][0]

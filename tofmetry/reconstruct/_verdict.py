@@ -144,12 +144,14 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
         warnings.append(f"depth gain {adjustment['gain_note']}")
     warns = (calibration_prediction or {}).get("warnings") or []
     pc = ((calibration_prediction or {}).get("interpolation") or {}).get("central_abs_mm", {}).get("predicted")
-    if warns or (pc is not None and pc > max_calibration_mm):
-        reasons.append("the depth calibration predicts its own error between stations at "
-                       + (f"{pc:.1f} mm" if pc is not None else "more than its target")
-                       + f" (limit {max_calibration_mm:g} mm): the views' depths disagree by that much and the poses "
-                       "absorb it; recalibrate with stations closer together (its warning: "
-                       + ("; ".join(warns) or "none") + ")")
+    if pc is not None and pc > max_calibration_mm:
+        reasons.append(f"the depth calibration predicts its own error between stations at {pc:.1f} mm (limit "
+                       f"{max_calibration_mm:g} mm): the views' depths disagree by that much and the poses absorb it; "
+                       "recalibrate with stations closer together (its warning: " + ("; ".join(warns) or "none") + ")")
+    elif warns:
+        reasons.append("the depth calibration warns that its prediction cannot be trusted"
+                       + (f" (its predicted central error, {pc:.1f} mm, may be too low)" if pc is not None else "")
+                       + ": " + "; ".join(warns))
     if calibration_prediction is None:
         warnings.append("raw depth (no depth calibration): the model's scale and shape carry the sensor's range error")
     return {"reliable": not reasons, "reasons": reasons, "warnings": warnings, "views": views,
