@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from tofmetry.io import atomic_write_json
-from tofmetry.pipelines.depth_family import evaluate_sensor, summarize_family
+from tofmetry.pipelines.depth_family import SHAPE_FLOOR_MM, evaluate_sensor, summarize_family
 
 
 def main(argv=None) -> int:
@@ -77,6 +77,8 @@ def table(s: dict, title: str = "") -> str:
              f"| of which noise of the station's mean | {d('noise_mm')} |",
              f"| extrapolation to 0.65 m: central deviation | {d('extrapolation_central_abs_mm')} |",
              f"| extrapolation to 0.65 m: per-pixel RMS | {d('extrapolation_rms_after_mm')} |",
+             f"stations whose systematic shape error fell >= 4x or to {SHAPE_FLOOR_MM} mm: "
+             f"{s['shape_target_met']['share']:.0%} of {s['shape_target_met']['n']}; "
              f"stations worse after than before (plane removed): {s['worse_than_before']}; sensors that warned "
              f"although all their stations met 1.5 mm (false alarms): {s['false_alarms']}; sensors that did not warn "
              f"but missed it (missed alarms): {s['missed_alarms']}",

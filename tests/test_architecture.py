@@ -43,10 +43,6 @@ LAYERS = [
 # Imports that break a contract today and are being removed by other work (importer -> imported).
 KNOWN = {
     "layers": [
-        # io must not import algorithm or pipeline packages (the board dataset reader builds
-        # calibration objects); being moved to the pipeline layer
-        "tofmetry.io.board_dataset -> tofmetry.calibrate.board",
-        "tofmetry.io.board_dataset -> tofmetry.pipelines.calibration_files",
     ],
     "private": [
         # the depth pipelines reach into calibrate's private modules; being promoted to public names

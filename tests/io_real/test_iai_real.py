@@ -182,7 +182,8 @@ def test_four_poses_with_given_intrinsics_leave_one_out(recording):
 
 
 def test_import_recording_subset(recording, tmp_path):
-    from tofmetry.io.board_dataset import BoardDataset, BoardSpec, import_iai_kinect2
+    from tofmetry.io.board_dataset import BoardDataset, BoardSpec
+    from tofmetry.pipelines.iai_import import import_iai_kinect2
 
     root, ids, corners = recording
     src = tmp_path / "src"           # a 3-pose copy in the test's temp folder

@@ -8,7 +8,8 @@
       color_intrinsics.json colour intrinsics (optional)
       extrinsics.json       IR -> colour extrinsics [m] (optional)
       depth_shift.json      {"depth_shift_mm": s, "convention": "corrected = measured + shift"} (optional)
-      depth_shift.npz       the same shift as a tofmetry DepthCalibration (zero surfaces, constant range curve)
+      depth_shift.npz       the same shift as a tofmetry DepthCalibration (zero surfaces, constant range curve;
+                            written by the pipeline's importer, :mod:`tofmetry.pipelines.iai_import`)
       poses/NNNN/           one capture per board pose (capture.json, depth/, ir/, color/)
       poses/NNNN/corners.json  {"board": [cols, rows], "corners_px": [[u, v], ...] (or a list of such grids: several
                             boards in one view), "source": ...}; without it the boards are found in the IR image
@@ -144,7 +145,7 @@ _POSE_RE = re.compile(r"^(\d+)_depth\.(png|tif|tiff)$")
 
 
 def import_iai_kinect2(src: str | os.PathLike, out: str | os.PathLike, board: BoardSpec | None = None,
-                       force: bool = False, progress=None) -> dict:
+                       force: bool = False, progress=None, extra=None) -> dict:
     """Convert an iai_kinect2 folder (``kinect_cal_data`` recording and/or ``calib_*.yaml``) to a board dataset.
 
     Parameters
@@ -154,6 +155,8 @@ def import_iai_kinect2(src: str | os.PathLike, out: str | os.PathLike, board: Bo
     out : new dataset folder (refused if it exists unless ``force``).
     board : chessboard (required when the folder holds poses; not stored in iai_kinect2 files).
     progress : optional ``advance()`` callable, called once per pose.
+    extra : optional ``extra(folder, calibration)`` writing more files into the dataset's
+        temporary folder (committed with the rest), given the ``IaiCalibration`` read from ``src``.
 
     Returns
     -------
@@ -188,8 +191,9 @@ def import_iai_kinect2(src: str | os.PathLike, out: str | os.PathLike, board: Bo
                 atomic_write_json(tmp / "depth_shift.json", {"depth_shift_mm": cal.depth_shift_mm,
                                                              "convention": "corrected = measured + depth_shift_mm",
                                                              "sensor": "kinect_v2", "source": str(src / "calib_depth.yaml")})
-                _write_shift_calibration(tmp / "depth_shift.npz", cal.depth_shift_mm, cal.ir, src)
                 summary["calibration"]["depth_shift_mm"] = cal.depth_shift_mm
+        if extra is not None and cal is not None:
+            extra(tmp, cal)
         meta = CaptureMeta(sensor="kinect_v2", intrinsics=cal.ir if cal else None)
         for name, dpath in poses:
             ir_f = src / f"{name}_ir.png"
@@ -212,24 +216,6 @@ def import_iai_kinect2(src: str | os.PathLike, out: str | os.PathLike, board: Bo
             if progress is not None:
                 progress()
     return summary
-
-
-def _write_shift_calibration(path: Path, shift_mm: float, intr: CameraIntrinsics, src: Path) -> None:
-    """The iai_kinect2 depthShift as a tofmetry DepthCalibration (zero surfaces, constant range curve)."""
-    # the one place io builds a calibration model (the iai_kinect2 importer's convenience output);
-    # imported here because tofmetry.pipelines and tofmetry.calibrate sit above io
-    from tofmetry.calibrate.board import constant_shift_calibration
-    from tofmetry.pipelines.calibration_files import save_calibration
-
-    save_calibration(path, constant_shift_calibration(shift_mm, intr, "kinect_v2",
-                                                      {"source": str(src / "calib_depth.yaml"), "tool": "iai_kinect2"}))
-
-
-def import_iai_kinect2_cli(src, out, *, force: bool = False, progress=None, board: str | None = None,
-                           square_mm: float | None = None, **_ignored) -> dict:
-    """Registry entry: ``board`` as ``"COLSxROWS"`` plus ``square_mm``."""
-    spec = BoardSpec.parse(board, square_mm) if board else None
-    return import_iai_kinect2(src, out, spec, force=force, progress=progress)
 
 
 def export_iai_kinect2(src: str | os.PathLike, out: str | os.PathLike, force: bool = False,

@@ -78,7 +78,7 @@ def get_exporter(name: str) -> Callable:
 
 
 for _f in (
-    Format("iai-kinect2", "tofmetry.io.board_dataset:import_iai_kinect2_cli",
+    Format("iai-kinect2", "tofmetry.pipelines.iai_import:import_iai_kinect2_cli",
            "iai_kinect2 kinect_cal_data folder and/or calib_*.yaml -> board dataset"),
     Format("azure-kinect", "tofmetry.io.azure_kinect:import_azure_kinect_cli",
            "Azure Kinect .mkv recording (depth, IR, colour, factory calibration) -> capture", ("av",)),
