@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -129,6 +131,22 @@ def test_without_gain_the_stretch_biases_the_poses(ring):
     res = global_adjust(views, init, 1.0, iters_per_radius=(2, 5), estimate_gain=False)
     assert res.depth_gain == 0.0
     assert _errors(res.poses, ring)[:, 1].max() > 3.0
+
+
+def test_a_gain_beyond_the_calibrations_bound_is_refused(ring):
+    """The 0.6 % stretch of the first test with a bound of 0.3 % (what a calibration could leave):
+    the gain is refused and kept at 0, the note says why with the figure the views asked for, and
+    the poses are those of the adjustment without gain (the stretch then shows in them, as above)."""
+    rng = np.random.default_rng(0)
+    views = _views(ring, 0.006, 1.0, rng)
+    init = np.stack([ring[0]] + [_perturb(T, rng, 0.5, 3.0) for T in ring[1:]])
+    res = global_adjust(views, init, 1.0, iters_per_radius=(2, 5), gain_max_abs=0.003)
+    assert res.depth_gain == 0.0 and not res.gain_estimated
+    assert res.gain_note.startswith("implausible"), res.gain_note
+    asked = float(re.search(r"ask for ([-+0-9.]+) %", res.gain_note).group(1))
+    assert 0.5 < asked < 0.7, res.gain_note
+    ok = global_adjust(views, init, 1.0, iters_per_radius=(2, 5), gain_max_abs=0.01)
+    assert ok.gain_estimated and abs(ok.depth_gain - 0.006) < 5e-4
 
 
 def test_no_gain_when_data_is_exact(ring):

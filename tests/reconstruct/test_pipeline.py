@@ -49,7 +49,10 @@ def test_registration_ideal_sensor(ideal_scan, tmp_path):
     write_reconstruction(tmp_path / "rec", res)
     d = json.loads((tmp_path / "rec" / "poses.json").read_text())
     assert [v["name"] for v in d["views"]] == ds.names
-    np.testing.assert_allclose(d["views"][0]["camera_to_world"], np.eye(4), atol=1e-9)
+    # world frame: the support plane is z = 0 (normal up), the object above it
+    np.testing.assert_allclose(d["support_plane_world"], [0, 0, 1, 0], atol=1e-9)
+    assert np.median(read_ply(tmp_path / "rec" / "points.ply")["points"][:, 2]) > 0.02
+    assert all(v["verdict"]["verdict"] == "verified" for v in d["views"])
     p = read_ply(tmp_path / "rec" / "points.ply")
     assert "normals" in p and len(p["points"]) > 1000
     m = read_ply(tmp_path / "rec" / "mesh.ply")
@@ -108,8 +111,10 @@ def test_end_to_end_full_errors(tmp_path):
     err = relative_pose_errors(poses, _true_poses(scan))
     assert err[:, 0].max() < 0.5, err
     assert err[:, 1].max() < 3.0, err
+    # the model is in the support-plane world frame: model -> reference = T0 @ inv(world_from_first_camera)
     T0 = np.array(read_json(scan / "truth.json")["views"][0]["camera_to_world"])
-    (tmp_path / "init.json").write_text(json.dumps({"transform": T0.tolist()}))
+    W = np.array(read_json(tmp_path / "rec" / "poses.json")["world_from_first_camera"])
+    (tmp_path / "init.json").write_text(json.dumps({"transform": (T0 @ np.linalg.inv(W)).tolist()}))
     r = run.invoke(app, ["evaluate", str(tmp_path / "rec" / "mesh.ply"), "--reference", str(scan / "reference.ply"),
                          "-o", str(tmp_path / "ev"), "--init-transform", str(tmp_path / "init.json"),
                          "--exclude-normal", "0,0,-1", "--poses", str(tmp_path / "rec" / "poses.json")])

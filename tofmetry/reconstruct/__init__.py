@@ -35,25 +35,20 @@ from tofmetry.reconstruct._fusion import (
 )
 from tofmetry.reconstruct._output import poses_document, write_reconstruction
 from tofmetry.reconstruct._pipeline import ReconstructionPipeline, ReconstructionResult
+from tofmetry.reconstruct._loops import connected_components, loop_closures, select_hypotheses, spanning_tree
 from tofmetry.reconstruct._posegraph import (
     PoseGraphBuilder,
     PoseGraphResult,
-    connected_components,
     consistency_gate,
-    loop_closures,
     relative_pose_errors,
     rotation_angle_deg,
-    select_hypotheses,
-    spanning_tree,
 )
 from tofmetry.reconstruct._preprocess import ViewData, corrected_mean_depth, image_normals, prepare_view
-from tofmetry.reconstruct._register import (
-    PairResult,
+from tofmetry.reconstruct._register import PairResult, plane_consistent, register_pair
+from tofmetry.reconstruct._regview import (
     RegView,
     free_space_violation,
     make_reg_view,
-    plane_consistent,
-    register_pair,
     registration_conditioning,
     visibility_violation,
 )

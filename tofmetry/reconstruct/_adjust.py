@@ -65,6 +65,13 @@ class AdjustResult:
     pair_rms_mm : (V, V) their RMS point-to-plane residual [mm] (NaN without correspondences)
     moved_deg, moved_mm : (V,) how far each pose moved from the initial one [deg], [mm]
     converged : the last update was below the tolerance
+    gain_estimated : whether the gain was estimated (asked for and observable)
+    gain_sigma_data : standard error of the gain from the data alone (the poses marginalised, no
+        prior; NaN when not asked for): what the views say about it
+    gain_note : why the gain was or was not estimated
+    pose_sigma_deg, pose_sigma_mm : (V,) standard errors of each pose (rotation [deg], camera
+        translation [mm]) from the normal equations, correspondences taken as independent (a lower
+        bound: the residuals of one view are correlated)
     """
 
     poses: np.ndarray
@@ -78,15 +85,25 @@ class AdjustResult:
     moved_deg: np.ndarray
     moved_mm: np.ndarray
     converged: bool
+    gain_estimated: bool = False
+    gain_sigma_data: float = float("nan")
+    gain_note: str = ""
+    pose_sigma_deg: np.ndarray | None = None
+    pose_sigma_mm: np.ndarray | None = None
 
     def to_dict(self, names: list[str] | None = None) -> dict:
         names = names or [str(k) for k in range(len(self.poses))]
         return {"depth_gain": float(self.depth_gain), "depth_gain_sigma": float(self.depth_gain_sigma),
                 "z_ref_mm": float(self.z_ref_m * 1e3), "iterations": int(self.iterations),
-                "converged": bool(self.converged),
+                "converged": bool(self.converged), "gain_estimated": bool(self.gain_estimated),
+                "gain_sigma_data": float(self.gain_sigma_data), "gain_note": self.gain_note,
                 "rms_mm": [round(float(x), 4) for x in self.rms_mm],
                 "moved_deg": {n: round(float(x), 4) for n, x in zip(names, self.moved_deg)},
                 "moved_mm": {n: round(float(x), 3) for n, x in zip(names, self.moved_mm)},
+                "pose_sigma_deg": None if self.pose_sigma_deg is None else
+                {n: round(float(x), 5) for n, x in zip(names, self.pose_sigma_deg)},
+                "pose_sigma_mm": None if self.pose_sigma_mm is None else
+                {n: round(float(x), 4) for n, x in zip(names, self.pose_sigma_mm)},
                 "pairs": [{"source": names[i], "target": names[j], "n": int(self.pair_counts[i, j]),
                            "rms_mm": round(float(self.pair_rms_mm[i, j]), 3)}
                           for i in range(len(names)) for j in range(len(names)) if self.pair_counts[i, j] > 0]}
@@ -200,10 +217,20 @@ def _normal_equations(views, P, g, z_ref_m, corr, huber_m, estimate_gain):
     return H, b, swr2 / max(sw, 1e-12), counts, pair_rms
 
 
+def _gain_information(H: np.ndarray) -> float:
+    """Information on the gain (last unknown) with the poses marginalised (Schur complement)."""
+    Hpp, Hpg, Hgg = H[:-1, :-1], H[:-1, -1], H[-1, -1]
+    try:
+        return float(Hgg - Hpg @ np.linalg.solve(Hpp, Hpg))
+    except np.linalg.LinAlgError:
+        return 0.0
+
+
 def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, radii_m: tuple[float, ...] = (0.006, 0.003),
                   iters_per_radius: tuple[int, ...] = (2, 6), inner_iters: int = 1, huber_m: float | None = None,
                   estimate_gain: bool = True, gain_prior_sigma: float = 0.02, max_normal_deg: float = 45.0,
-                  tol_deg: float = 1e-3, tol_m: float = 1e-5) -> AdjustResult:
+                  tol_deg: float = 1e-3, tol_m: float = 1e-5, gain_max_sigma: float | None = None,
+                  sigma_inflation: float = 1.0, gain_max_abs: float | None = None) -> AdjustResult:
     """Jointly refine all poses (view 0 fixed) and, optionally, the depth gain.
 
     Each outer iteration matches every view's ``source`` points (gain-corrected, to world) to
@@ -221,6 +248,18 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
     radii_m, iters_per_radius : correspondence radius schedule [m] and outer iterations at each
     gain_prior_sigma : prior standard deviation of the gain (keeps it at 0 when not observed)
     tol_deg, tol_m : stop (at the last radius) when no pose moves more than this in an outer iteration
+    gain_max_sigma : the gain is estimated only when the views observe it: its standard error from the
+        data alone (poses marginalised, no prior, times ``sigma_inflation``), taken at the first
+        iteration of the last radius, must be below this. Otherwise it is fixed at 0 from then on and
+        :attr:`AdjustResult.gain_note` says why. None: always estimated (with the prior)
+    sigma_inflation : factor on the standard errors from the normal equations (correspondences
+        are not independent: neighbouring points of one view share their depth error)
+    gain_max_abs : largest plausible gain (e.g. a few times what the depth calibration can leave
+        between its stations). An estimated gain beyond it is refused: the adjustment is run again
+        from ``poses`` with the gain fixed at 0 and :attr:`AdjustResult.gain_note` starts with
+        "implausible" (the views then disagree by more than the calibration allows: a smooth
+        object lets a wrong pose and a gain trade against each other, measured -5 % on a pebble
+        whose poses were 1.2 deg off). None: no bound
 
     Returns
     -------
@@ -251,6 +290,9 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
     counts = np.zeros((V, V), np.int64)
     pair_rms = np.full((V, V), np.nan)
     pairs, prev_r, it = None, None, 0
+    sigma_data = float("nan")
+    note = "not asked for" if not estimate_gain else "estimated"
+    H_data = None
     for it, r in enumerate(schedule, start=1):
         if r != prev_r:
             pairs, prev_r = None, r
@@ -263,6 +305,17 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         P_start = P.copy()
         for _ in range(inner_iters):
             H, b, s2, counts, pair_rms = _normal_equations(views, P, g, z_ref_m, corr, k, estimate_gain)
+            H_data = H.copy()
+            if estimate_gain:
+                info = _gain_information(H)
+                sigma_data = float(np.sqrt(s2 / info)) * sigma_inflation if info > 0 else float("inf")
+                if gain_max_sigma is not None and r == radii_m[-1] and it == len(schedule) - n_last + 1 \
+                        and not sigma_data <= gain_max_sigma:
+                    note = (f"not observable: the views determine it only to +-{100 * sigma_data:.2f} % "
+                            f"(> {100 * gain_max_sigma:.2f} %); kept at 0")
+                    estimate_gain, g = False, 0.0
+                    H, b, s2, counts, pair_rms = _normal_equations(views, P, g, z_ref_m, corr, k, False)
+                    H_data = H.copy()
             if estimate_gain:
                 H[-1, -1] += s2 / gain_prior_sigma ** 2  # prior g ~ N(0, sigma) in residual units
                 b[-1] += s2 / gain_prior_sigma ** 2 * g
@@ -289,4 +342,32 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         E = np.linalg.inv(poses[v]) @ P[v]
         moved_deg[v] = rotation_angle_deg(E)
         moved_mm[v] = np.linalg.norm(E[:3, 3]) * 1e3
-    return AdjustResult(P, g, sigma_g, z_ref_m, it, np.array(rms_hist), counts, pair_rms, moved_deg, moved_mm, converged)
+    if estimate_gain and gain_max_abs is not None and abs(g) > gain_max_abs:
+        fixed = global_adjust(views, poses, z_ref_m, radii_m, iters_per_radius, inner_iters, huber_m, False,
+                              gain_prior_sigma, max_normal_deg, tol_deg, tol_m, None, sigma_inflation)
+        fixed.gain_sigma_data = sigma_data
+        fixed.gain_note = (f"implausible: the views ask for {100 * g:+.2f} % (+-{100 * sigma_data:.2f} %), beyond the "
+                           f"+-{100 * gain_max_abs:.2f} % the depth calibration can leave; kept at 0")
+        return fixed
+    sig_deg, sig_mm = _pose_sigmas(H_data, s2, V, estimate_gain, sigma_inflation)
+    if estimate_gain and note == "estimated":
+        note = f"estimated: the views determine it to +-{100 * sigma_data:.3f} %"
+    return AdjustResult(P, g, sigma_g, z_ref_m, it, np.array(rms_hist), counts, pair_rms, moved_deg, moved_mm, converged,
+                        estimate_gain, sigma_data, note, sig_deg, sig_mm)
+
+
+def _pose_sigmas(H: np.ndarray | None, s2: float, V: int, with_gain: bool, inflation: float):
+    """Standard errors of the poses (rotation [deg], translation [mm]) from the data-only normal matrix."""
+    if H is None:
+        return None, None
+    Hp = H if with_gain else H[:-1, :-1]
+    try:
+        C = np.linalg.inv(Hp + np.eye(len(Hp)) * 1e-12 * np.trace(Hp) / len(Hp)) * s2
+    except np.linalg.LinAlgError:
+        return None, None
+    d = np.sqrt(np.clip(np.diag(C), 0, None)) * inflation
+    deg, mm = np.zeros(V), np.zeros(V)
+    for v in range(1, V):
+        deg[v] = np.degrees(np.linalg.norm(d[6 * (v - 1):6 * (v - 1) + 3]))
+        mm[v] = np.linalg.norm(d[6 * (v - 1) + 3:6 * v]) * 1e3
+    return deg, mm

@@ -80,10 +80,21 @@ class RegistrationConfig(BaseModel):
     max_loop_jump_deg: float = Field(5.0, gt=0, description="a loop-closure ICP may move at most this far from the "
                                       "chained initial pose [deg]")
     max_loop_jump_mm: float = Field(30.0, gt=0, description="... and this far [mm]")
+    ir_yaw: bool = Field(True, description="where the overlap of two views leaves the rotation about the vertical free "
+                         "(a surface of revolution), choose it by the IR amplitude: the relative albedo of the matched "
+                         "points must agree (a painted pattern); see tofmetry.reconstruct._photometric")
+    yaw_free_ratio: float = Field(0.15, gt=0, description="an edge whose yaw stiffness is below this share of its tilt "
+                                  "stiffness is yaw free (registration_conditioning: 0.01-0.06 measured on a vase, "
+                                  "0.9-2.7 on a bunny and a head)")
     ransac_seeds: int = Field(2, ge=1, description="RANSAC restarts per successive pair (best after ICP kept)")
     gate_max_deg: float = Field(2.0, gt=0, description="consistency gate: a kept pose-graph edge residual or the "
                                 "per-edge closure of the view circle above this flags the run unreliable [deg]")
     gate_max_mm: float = Field(10.0, gt=0, description="... or above this [mm]")
+    spread_max_deg: float = Field(6.0, gt=0, description="when the loops close within the gate only by dropping an "
+                                  "edge, the hypotheses are chosen again with loops closing within this per edge [deg] "
+                                  "and the loop error is spread over the edges (a turned-over match is off by tens of "
+                                  "degrees; a loop of views with millimetres of depth-calibration residual by a few)")
+    spread_max_mm: float = Field(40.0, gt=0, description="... and this [mm] per edge")
     ambiguity_margin: float = Field(0.05, ge=0, description="two choices of the pairwise hypotheses that both close every "
                                     "loop are indistinguishable when their summed fitness (share of object points "
                                     "matched) differs by less than this: the run is flagged 'registration ambiguous'")
@@ -98,6 +109,20 @@ class RegistrationConfig(BaseModel):
                                       "at the median object depth z_ref; corrected in the fused model too)")
     depth_gain_prior: float = Field(0.02, gt=0, description="prior standard deviation of the depth gain (keeps it at 0 "
                                     "when the views do not observe it)")
+    gain_max_sigma: float = Field(0.002, gt=0, description="the depth gain is estimated only when the views determine "
+                                  "it to within this standard error (poses marginalised, no prior, times "
+                                  "sigma_inflation); otherwise it stays 0 and the report says why")
+    gain_max_calibration_sigmas: float = Field(3.0, gt=0, description="an estimated depth gain larger than this many "
+                                               "times the gain the depth calibration can leave between its stations "
+                                               "(its predicted central error over half the station spacing) is refused "
+                                               "and makes the run unreliable (the views disagree with the calibration)")
+    sigma_inflation: float = Field(5.0, ge=1, description="factor on the standard errors of the global adjustment "
+                                   "(neighbouring points of a view share their depth error: ~25 px patches per "
+                                   "independent sample)")
+    max_calibration_mm: float = Field(1.5, gt=0, description="a depth calibration that predicts a larger central error "
+                                      "between its stations (or warns) makes the run unreliable [mm]")
+    pose_gate_deg: float = Field(0.5, gt=0, description="pose accuracy the verdict vouches for: rotation [deg]")
+    pose_gate_mm: float = Field(3.0, gt=0, description="... and displacement of the object [mm]")
     seed: int = 0
 
 
@@ -132,6 +157,9 @@ class FusionConfig(BaseModel):
 
 class ReconstructionConfig(BaseModel):
     """All stages of ``tofmetry reconstruct``."""
+
+    world_frame: str = Field("support", description="frame of the outputs: 'support' = support plane z = 0, origin "
+                             "under the object, x along the first view's direction; 'camera' = the first camera's frame")
 
     preprocess: PreprocessConfig = PreprocessConfig()
     segment: SegmentConfig = SegmentConfig()

@@ -52,6 +52,20 @@ def voxel_down(points: np.ndarray, normals: np.ndarray | None, voxel_m: float):
     return p, n
 
 
+def voxel_down_values(points: np.ndarray, normals: np.ndarray, values: np.ndarray | None, voxel_m: float):
+    """:func:`voxel_down` that also averages a per-point scalar ``values`` (N,) (None: returns None)."""
+    pcd = to_pcd(points, normals)
+    if values is not None:
+        v = np.asarray(values, np.float64).reshape(-1, 1)
+        pcd.colors = __import__("open3d").utility.Vector3dVector(np.repeat(v, 3, axis=1))
+    pcd = pcd.voxel_down_sample(voxel_m)
+    p = np.asarray(pcd.points).copy()
+    n = np.asarray(pcd.normals).copy()
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    vals = np.asarray(pcd.colors)[:, 0].copy() if values is not None else None
+    return p, n, vals
+
+
 @dataclass
 class Match:
     """Outcome of a registration step: 4x4 transform source->target and quality."""

@@ -10,13 +10,27 @@ from tofmetry.reconstruct._pipeline import ReconstructionResult
 
 
 def poses_document(res: ReconstructionResult) -> dict:
-    """The poses.json content: camera-to-world per view + registration diagnostics."""
+    """The poses.json content: camera-to-world per view + registration diagnostics.
+
+    ``world_from_first_camera`` (4x4, metres) carries points from the first camera's frame into the
+    output's world frame (the support plane z = 0 by default): a transform known in the first
+    camera's frame, ``T``, becomes ``T @ inv(world_from_first_camera)`` for the outputs."""
+    world = res.diagnostics.get("world") or {}
+    rel = res.diagnostics.get("reliability") or {}
+    verdicts = rel.get("views") or {}
     return {
-        "world": "camera frame of the first view in name order (x right, y down, z forward), metres",
+        "world": (world.get("frame") or "camera frame of the first view in name order (x right, y down, z forward)")
+        + ", metres",
+        "world_from_first_camera": world.get("from_first_camera"),
         "convention": "camera_to_world 4x4",
         "reliable": res.diagnostics.get("reliable", True),
+        "reasons": rel.get("reasons", []),
+        "warnings": rel.get("warnings", []),
+        "scale": res.diagnostics.get("scale"),
         "consistency": res.diagnostics.get("consistency"),
-        "views": [{"name": n, "camera_to_world": T.tolist()} for n, T in zip(res.names, res.poses)],
+        "views": [{"name": n, "camera_to_world": T.tolist(), **({"verdict": verdicts[n]} if n in verdicts else {})}
+                  for n, T in zip(res.names, res.poses)],
+        "views_left_out": res.diagnostics.get("left_out") or {},
         "edges": res.edges,
         "intrinsics": res.diagnostics.get("intrinsics"),
         "working_range_mm": res.diagnostics.get("working_range_mm"),

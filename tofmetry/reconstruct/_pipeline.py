@@ -25,8 +25,11 @@ from tofmetry.reconstruct._config import ReconstructionConfig
 from tofmetry.reconstruct._fusion import TSDFFusion, crop_mesh, poisson_mesh
 from tofmetry.reconstruct._posegraph import PoseGraphBuilder
 from tofmetry.reconstruct._preprocess import ViewData, prepare_view
-from tofmetry.reconstruct._register import RegView, make_reg_view, register_pair
+from tofmetry.reconstruct._register import register_pair, rejection_reason
+from tofmetry.reconstruct._regview import RegView, make_reg_view
 from tofmetry.reconstruct._segment import Segmentation, segment_object
+from tofmetry.reconstruct._verdict import assess, calibration_gain_sigma, scale_report
+from tofmetry.reconstruct._world import support_plane_frame, transform_plane, transform_points
 
 
 @contextmanager
@@ -42,7 +45,8 @@ def _median_object_depth_m(views, segs) -> float:
 
 @dataclass
 class ReconstructionResult:
-    """Outputs of a reconstruction (world frame = camera frame of the first view, metres).
+    """Outputs of a reconstruction (metres; world frame: the support plane z = 0 by default, see
+    ``diagnostics["world"]``; the first camera's frame without a support plane).
 
     Attributes
     ----------
@@ -53,8 +57,10 @@ class ReconstructionResult:
     points, normals : cropped fused cloud
     poisson : (vertices, triangles) or None
     support_plane : (4,) world-frame plane (unit normal up, offset) or None
-    diagnostics : per-view stats, fusion parameters, timings [s], "reliable" (bool) and
-        "consistency" (the pose-graph consistency gate: reasons when unreliable)
+    diagnostics : per-view stats, fusion parameters, timings [s], "reliable" (bool), "reliability"
+        (:func:`~tofmetry.reconstruct.assess`: reasons, warnings, per-view verdicts; edges carry theirs),
+        "consistency" (the pose-graph consistency gate), "scale" (predicted scale uncertainty),
+        "world" (the output frame and its transform from the first camera's frame), "left_out"
     """
 
     names: list
@@ -93,6 +99,9 @@ class ReconstructionPipeline:
         self.white_map = white_map
         self.timings: dict[str, float] = {}
         self.adjust_failure: str | None = None
+        self.kept: list[int] = list(range(len(dataset)))
+        self.left_out: dict[str, str] = {}
+        self.other_edges: list[dict] = []
 
     # -- stages -----------------------------------------------------------------------------
     def _intrinsics(self, cap):
@@ -130,7 +139,7 @@ class ReconstructionPipeline:
                 v.stats["object_points"] = int(s.object_mask.sum())
                 views.append(v)
                 segs.append(s)
-                regs.append(make_reg_view(v, s, self.cfg.registration, intr))
+                regs.append(make_reg_view(v, s, self.cfg.registration, intr, self.white_map))
                 adv()
         return views, segs, regs, intr0
 
@@ -140,11 +149,17 @@ class ReconstructionPipeline:
         loop-closure candidate seeded by the chained poses (ICP only, bounded jump; off by default:
         :meth:`adjust` matches all overlapping views jointly afterwards). Global search between
         distant views is never used: a nearly symmetric object seen from opposite sides matches
-        itself rotated by 180 degrees."""
+        itself rotated by 180 degrees.
+
+        Views that no accepted registration links to the largest group of views are left out of
+        the model (:attr:`left_out`, with the reason); the run stops only when no two views register.
+        Sets :attr:`kept` (indices of the views kept) and :attr:`other_edges` (the pairs of views
+        left out, as dicts)."""
         rc = self.cfg.registration
         n = len(regs)
         names = list(self.ds.names)
         pg = PoseGraphBuilder(n, names)
+        pg.centres = np.array([r.obj_points.mean(0) if len(r.obj_points) else np.zeros(3) for r in regs])
         succ = [(i, i + 1) for i in range(n - 1)] + ([(0, n - 1)] if n > 2 else [])
         done = set()
         with self.progress("registering successive views", len(succ)) as adv:
@@ -167,7 +182,23 @@ class ReconstructionPipeline:
                         init = np.linalg.inv(chain[j]) @ chain[i]
                         pg.add(register_pair(regs[i], regs[j], i, j, rc, init=init, global_search=False))
                     adv()
-        pg.select_hypotheses(rc.gate_max_deg, rc.gate_max_mm, rc.ambiguity_margin)
+        pg.select_hypotheses(rc.gate_max_deg, rc.gate_max_mm, rc.ambiguity_margin, spread_deg=rc.spread_max_deg,
+                             spread_mm=rc.spread_max_mm)
+        keep = pg.components()[0]
+        if len(keep) < 2:
+            pg.check_connected()  # raises, naming the groups of views and the rejected pairs
+        self.kept, self.left_out, self.other_edges = keep, {}, []
+        if len(keep) < n:
+            for k in range(n):
+                if k not in keep:
+                    tried = [p for p in pg.pairs if k in (p.source, p.target)]
+                    why = "; ".join(f"{names[p.source]}->{names[p.target]} {rejection_reason(p, rc)}" for p in tried)
+                    self.left_out[names[k]] = ("no accepted registration links it to the other views: "
+                                               + (why or "no pair tried"))
+            self.other_edges = [p.to_dict(names) | {"kept": False, "verdict": "left out with its view",
+                                                    "reason": rejection_reason(p, rc)}
+                                for p in pg.pairs if not (p.source in keep and p.target in keep)]
+            pg = pg.subgraph(keep)
         return pg.optimize(rc.icp_radii_mm[-1] * 1e-3, rc.edge_prune, rc.gate_max_deg, rc.gate_max_mm)
 
     def adjust(self, views: list[ViewData], segs: list[Segmentation], regs: list[RegView],
@@ -178,12 +209,15 @@ class ReconstructionPipeline:
         if not rc.global_adjust:
             return None
         z_ref = _median_object_depth_m(views, segs)
+        sg_cal = None if self.cal is None else calibration_gain_sigma(self.cal.prediction or {})
         av = [AdjustView(*(r.mid_points, r.mid_normals) if r.mid_points is not None else (r.icp_points, r.icp_normals),
                          r.icp_points, r.icp_normals) for r in regs]
         with self.progress("global adjustment", None):
             try:
                 res = global_adjust(av, poses, z_ref, tuple(x * 1e-3 for x in rc.adjust_radii_mm), rc.adjust_iters,
-                                    estimate_gain=rc.estimate_depth_gain, gain_prior_sigma=rc.depth_gain_prior)
+                                    estimate_gain=rc.estimate_depth_gain, gain_prior_sigma=rc.depth_gain_prior,
+                                    gain_max_sigma=rc.gain_max_sigma, sigma_inflation=rc.sigma_inflation,
+                                    gain_max_abs=None if sg_cal is None else rc.gain_max_calibration_sigmas * sg_cal)
             except EstimationError as exc:  # keep the pose-graph poses; the reason goes to the diagnostics
                 self.adjust_failure = str(exc)
                 return None
@@ -241,6 +275,9 @@ class ReconstructionPipeline:
         views, segs, regs, intr = self.load_views()
         t1 = time.perf_counter()
         graph = self.register(regs)
+        if len(self.kept) < len(views):  # views no registration links to the others are left out
+            views, segs, regs = ([x[k] for k in self.kept] for x in (views, segs, regs))
+        names = [self.ds.names[k] for k in self.kept]
         t2a = time.perf_counter()
         adj = self.adjust(views, segs, regs, graph.poses)
         t2 = time.perf_counter()
@@ -267,13 +304,32 @@ class ReconstructionPipeline:
             pv_keep = self.crop(pv, world_obj, plane_w)
             pv, pf, _ = crop_mesh(pv, pf, pv_keep)
             poisson = (pv, pf)
+        W = np.eye(4)
+        if self.cfg.world_frame == "support" and plane_w is not None:
+            W = support_plane_frame(plane_w, world_obj, poses[0])
+            poses = np.einsum("ij,vjk->vik", W, poses)
+            V, P = transform_points(V, W), transform_points(P, W)
+            N, PN = N @ W[:3, :3].T, PN @ W[:3, :3].T
+            if poisson is not None:
+                poisson = (transform_points(poisson[0], W), poisson[1])
+            plane_w = transform_plane(plane_w, W)
         t4 = time.perf_counter()
         self.timings = {"views_s": t1 - t0, "registration_s": t2a - t1, "adjustment_s": t2 - t2a, "fusion_s": t3 - t2,
                         "meshing_s": t4 - t3, "total_s": t4 - t0}
-        diag = {"consistency": graph.consistency, "reliable": bool(graph.consistency["reliable"]),
+        adj_d = ({"failed": self.adjust_failure} if self.adjust_failure else None) if adj is None else adj.to_dict(names)
+        rc = self.cfg.registration
+        edges = graph.edges + self.other_edges
+        pred = None if self.cal is None else (self.cal.prediction or {})
+        verdict = assess(names, edges, graph.consistency, self.left_out, adj_d, pred, rc.max_calibration_mm,
+                         rc.pose_gate_deg, rc.pose_gate_mm, rc.yaw_free_ratio)
+        world = ({"frame": "support plane z = 0 (normal up), origin under the object's footprint centre, x along the "
+                           "first view's viewing direction projected on the plane", "from_first_camera": W.tolist()}
+                 if not np.allclose(W, np.eye(4)) else {"frame": "camera frame of the first view (x right, y down, z "
+                                                                 "forward)", "from_first_camera": W.tolist()})
+        diag = {"consistency": graph.consistency, "reliable": bool(verdict["reliable"]), "reliability": verdict,
+                "scale": scale_report(adj_d, pred, _median_object_depth_m(views, segs) * 1e3), "world": world,
                 "views": {v.name: v.stats for v in views}, "fusion": fusion_info, "timings_s": self.timings,
-                "adjustment": ({"failed": self.adjust_failure} if self.adjust_failure else None) if adj is None
-                else adj.to_dict(list(self.ds.names)),
+                "adjustment": adj_d, "left_out": self.left_out,
                 "calibrated": self.cal is not None, "amplitude_corrected": self.white_map is not None, "intrinsics": intr.to_dict(),
                 "working_range_mm": self.working_range_mm(), "config": self.cfg.model_dump()}
-        return ReconstructionResult(list(self.ds.names), poses, graph.edges, V, F, N, P, PN, poisson, plane_w, diag)
+        return ReconstructionResult(names, poses, edges, V, F, N, P, PN, poisson, plane_w, diag)

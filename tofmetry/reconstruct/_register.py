@@ -16,109 +16,17 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.ndimage import minimum_filter
 from scipy.spatial import cKDTree
 
 from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.reconstruct._config import RegistrationConfig
+from tofmetry.reconstruct._photometric import ir_yaw_sweep
 from tofmetry.reconstruct._o3d import (
     global_register,
     icp,
     information_matrix,
-    voxel_down,
 )
-from tofmetry.reconstruct._preprocess import ViewData
-from tofmetry.reconstruct._segment import Segmentation
-
-
-@dataclass
-class RegView:
-    """Registration clouds of one view (camera frame, metres).
-
-    Attributes
-    ----------
-    icp_points, icp_normals : (M, 3) object (+ ground ring) at the ICP voxel
-    obj_points : (K, 3) object only at the ICP voxel (fitness is measured on these)
-    coarse_points, coarse_normals : main cluster (+ ring) at the coarse voxel (quick ICP of hypotheses)
-    mid_points, mid_normals : the ICP selection at the mid voxel (all ICP stages but the last run on these)
-    feat_points, feat_normals : (F, 3) object at the feature voxel (FPFH)
-    near_depth_m : (H, W) float32 nearest observed depth in each pixel's 3x3 neighbourhood [m]
-        (inf where nothing valid was observed): the free space seen by this camera
-    intr : CameraIntrinsics of the depth image (projection for the free-space test)
-    """
-
-    name: str
-    icp_points: np.ndarray
-    icp_normals: np.ndarray
-    obj_points: np.ndarray
-    feat_points: np.ndarray
-    feat_normals: np.ndarray
-    coarse_points: np.ndarray | None = None
-    coarse_normals: np.ndarray | None = None
-    plane: np.ndarray | None = None
-    mid_points: np.ndarray | None = None
-    mid_normals: np.ndarray | None = None
-    near_depth_m: np.ndarray | None = None
-    intr: object = None
-    _tree: cKDTree | None = field(default=None, repr=False)
-
-    @property
-    def tree(self) -> cKDTree:
-        if self._tree is None:
-            self._tree = cKDTree(self.icp_points)
-        return self._tree
-
-
-def make_reg_view(view: ViewData, seg: Segmentation, cfg: RegistrationConfig, intr=None) -> RegView:
-    """Select reliable object (+ ring) points and downsample them for registration (``intr``: the
-    depth intrinsics, enables the free-space test of hypotheses)."""
-    reliable = view.cos_incidence >= np.cos(np.radians(cfg.max_incidence_deg))
-    # coarse hypotheses and their scoring use the main cluster only (parts merged across a gap are
-    # the least reliable and make a nearly symmetric object more ambiguous); the fine ICP uses the
-    # whole object, whose ends constrain the slide along a prism-like middle part
-    core = seg.core_mask if seg.core_mask is not None else seg.object_mask
-    ring = seg.ring_mask & reliable if cfg.use_ground else np.zeros_like(reliable)
-    fine = view.cos_incidence >= np.cos(np.radians(cfg.fine_max_incidence_deg))
-    sel = (seg.object_mask & reliable & fine) | (ring & fine)
-    p, n = voxel_down(view.points[sel], view.normals[sel], cfg.icp_voxel_mm * 1e-3)
-    po, _ = voxel_down(view.points[seg.object_mask & reliable], None, cfg.icp_voxel_mm * 1e-3)
-    pf, nf = voxel_down(view.points[core], view.normals[core], cfg.feature_voxel_mm * 1e-3)
-    csel = (core & reliable) | ring
-    pc, nc = voxel_down(view.points[csel], view.normals[csel], cfg.coarse_voxel_mm * 1e-3)
-    pm, nm = voxel_down(view.points[sel], view.normals[sel], cfg.mid_voxel_mm * 1e-3)
-    near = None
-    if intr is not None:
-        d = np.where(view.depth_mm > 0, view.depth_mm * 1e-3, np.inf).astype(np.float32)
-        near = minimum_filter(d, size=3, mode="nearest")
-    return RegView(view.name, p, n, po, pf, nf, pc, nc, seg.plane, pm, nm, near, intr)
-
-
-def free_space_violation(src: RegView, tgt: RegView, T: np.ndarray, tol_m: float) -> float:
-    """Share of the source object points that, mapped by ``T`` into the target camera, lie more than
-    ``tol_m`` in front of everything the target camera observed around that pixel (3x3): space the
-    target saw through. A correct pose leaves only noise there; a near-symmetric false match puts
-    surface where the other camera saw the background (visibility consistency). 0 when the target
-    has no depth image; points outside its image or over invalid pixels are not counted."""
-    if tgt.near_depth_m is None or tgt.intr is None:
-        return 0.0
-    p = src.obj_points @ T[:3, :3].T + T[:3, 3]
-    p = p[p[:, 2] > 1e-3]
-    if len(p) == 0:
-        return 0.0
-    uv = np.rint(tgt.intr.project(p)).astype(np.int64)
-    H, W = tgt.near_depth_m.shape
-    ok = (uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)
-    d = np.full(len(p), np.inf)
-    d[ok] = tgt.near_depth_m[uv[ok, 1], uv[ok, 0]]
-    known = np.isfinite(d)
-    if not known.any():
-        return 0.0
-    return float(np.sum(p[known, 2] < d[known] - tol_m) / known.sum())
-
-
-def visibility_violation(src: RegView, tgt: RegView, T: np.ndarray, tol_m: float) -> float:
-    """:func:`free_space_violation` both ways (source into target, target into source): the larger."""
-    return max(free_space_violation(src, tgt, T, tol_m), free_space_violation(tgt, src, np.linalg.inv(T), tol_m))
+from tofmetry.reconstruct._regview import RegView, object_fitness, registration_conditioning, visibility_violation
 
 
 def _plane_frame(plane: np.ndarray, obj: np.ndarray) -> np.ndarray:
@@ -196,6 +104,8 @@ class PairResult:
     alternatives : other distinct hypotheses that pass the gates (PairResult each), best first
     conditioning : :func:`registration_conditioning` of the transform
     see_through : :func:`visibility_violation` of the transform (share of points seen through)
+    ir_yaw : the photometric yaw search of a yaw-free edge (:func:`~tofmetry.reconstruct._photometric.ir_yaw_sweep`:
+        correlation of the best yaw, its margin over the next, whether it decided) or None
     """
 
     source: int
@@ -209,6 +119,7 @@ class PairResult:
     alternatives: list = field(default_factory=list)
     conditioning: dict | None = None
     see_through: float = 0.0
+    ir_yaw: dict | None = None
 
     def to_dict(self, names: list[str]) -> dict:
         d = {"source": names[self.source], "target": names[self.target], "fitness": round(self.fitness, 4),
@@ -218,15 +129,18 @@ class PairResult:
                                "method": a.method} for a in self.alternatives]}
         if self.conditioning is not None:
             d["conditioning"] = self.conditioning
+        if self.ir_yaw is not None:
+            d["ir_yaw"] = self.ir_yaw
         return d
 
     def with_hypothesis(self, alt: PairResult) -> PairResult:
         """This edge with ``alt`` (one of :attr:`alternatives`) as its transform; the old one becomes an alternative."""
         rest = [a for a in self.alternatives if a is not alt]
         old = PairResult(self.source, self.target, self.transform, self.fitness, self.inlier_rmse_mm, self.information,
-                         self.method, self.accepted, conditioning=self.conditioning, see_through=self.see_through)
+                         self.method, self.accepted, conditioning=self.conditioning, see_through=self.see_through,
+                         ir_yaw=self.ir_yaw)
         return PairResult(self.source, self.target, alt.transform, alt.fitness, alt.inlier_rmse_mm, alt.information,
-                          alt.method, alt.accepted, [old] + rest, alt.conditioning, alt.see_through)
+                          alt.method, alt.accepted, [old] + rest, alt.conditioning, alt.see_through, alt.ir_yaw)
 
 
 def _refine_mid(src: RegView, tgt: RegView, init: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:
@@ -247,19 +161,6 @@ def _refine_fine(src: RegView, tgt: RegView, init: np.ndarray, cfg: Registration
 
 def _refine(src: RegView, tgt: RegView, init: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:
     return _refine_fine(src, tgt, _refine_mid(src, tgt, init, cfg), cfg)
-
-
-def object_fitness(src: RegView, tgt: RegView, T: np.ndarray, radius_m: float) -> tuple[float, float]:
-    """Share of the source object points within ``radius_m`` of the target cloud, and their RMS [m]."""
-    p = src.obj_points @ T[:3, :3].T + T[:3, 3]
-    d, _ = tgt.tree.query(p, distance_upper_bound=radius_m, workers=-1)
-    ok = np.isfinite(d)
-    if not ok.any():
-        return 0.0, np.inf
-    # target overlap is partial: normalise by the source points that fall inside the target's bounding box
-    lo, hi = tgt.icp_points.min(0) - radius_m, tgt.icp_points.max(0) + radius_m
-    inside = np.all((p >= lo) & (p <= hi), axis=1)
-    return float(ok.sum() / max(inside.sum(), 1)), float(np.sqrt(np.mean(d[ok] ** 2)))
 
 
 def _coarse_fitness(src: RegView, tgt: RegView, T: np.ndarray, radius_m: float) -> tuple[float, float]:
@@ -326,7 +227,23 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
         info = information_matrix(src.icp_points, tgt.icp_points, r_final, T)
         out.append(PairResult(i, j, T, fit, rmse * 1e3, info, method, ok,
                               conditioning=registration_conditioning(src, tgt, T, r_final), see_through=v))
-    return replace(out[0], alternatives=out[1:])
+    best = out[0]
+    yr = (best.conditioning or {}).get("yaw_ratio")
+    if cfg.ir_yaw and yr is not None and yr < cfg.yaw_free_ratio and src.obj_ir is not None and tgt.icp_ir is not None:
+        # the geometry leaves the yaw free: let the painted pattern (IR amplitude) choose it
+        sw = ir_yaw_sweep(src, tgt, best.transform, r_final)
+        if sw["decided"]:
+            T = _refine_fine(src, tgt, sw.pop("transform"), cfg)
+            fit, rmse = object_fitness(src, tgt, T, r_final)
+            v = vis(T)
+            ok = _passes(fit, rmse, cfg) and v <= cfg.max_see_through
+            best = PairResult(i, j, T, fit, rmse * 1e3, information_matrix(src.icp_points, tgt.icp_points, r_final, T),
+                              best.method + "+ir-yaw", ok, conditioning=registration_conditioning(src, tgt, T, r_final),
+                              see_through=v, ir_yaw=sw)
+            return replace(best, alternatives=[a for a in out if not _same_pose(a.transform, T)])
+        sw.pop("transform", None)
+        best = replace(best, ir_yaw=sw)
+    return replace(best, alternatives=out[1:])
 
 
 def _search(src: RegView, tgt: RegView, cfg: RegistrationConfig, coarse: list, cands: list, key, vis) -> None:
@@ -366,42 +283,27 @@ def _search(src: RegView, tgt: RegView, cfg: RegistrationConfig, coarse: list, c
             cands.append((*object_fitness(src, tgt, T, r_final), T, how, vis(T)))
 
 
-def registration_conditioning(src: RegView, tgt: RegView, T: np.ndarray, radius_m: float) -> dict:
-    """How well the overlap constrains the 6 pose parameters (point-to-plane, Gelfand et al. 2003).
-
-    ``H = sum J^T J`` with rows ``J = [((p - c) x n) / L, n]`` over the source object points matched
-    within ``radius_m`` (``c`` their centroid, ``L`` their RMS distance from it: rotations scaled
-    to a displacement at the object's size). A surface of revolution (with its support plane)
-    leaves the rotation about its axis unconstrained: the smallest eigenvalue drops to the
-    normal-noise level.
-
-    Returns
-    -------
-    dict: ratio (smallest / largest eigenvalue), weak_rotation (share of the weakest direction in
-    the rotation part), weak_axis (3,) rotation axis of the weakest direction (target frame)
-
-    Diagnostic only: measured ~0.02 for the vase (yaw free) as for the box (0.01-0.05), because the
-    estimated normals' noise fills the null direction; it is not used for decisions.
-    """
-    p = src.obj_points @ T[:3, :3].T + T[:3, 3]
-    d, idx = tgt.tree.query(p, distance_upper_bound=radius_m, workers=-1)
-    ok = np.isfinite(d)
-    if ok.sum() < 10:
-        return {"ratio": 0.0, "weak_rotation": 1.0, "weak_axis": [0.0, 0.0, 0.0]}
-    q, n = tgt.icp_points[idx[ok]], tgt.icp_normals[idx[ok]]
-    c = q.mean(0)
-    L = float(np.sqrt(np.mean(np.sum((q - c) ** 2, 1))))
-    J = np.c_[np.cross(q - c, n) / L, n]
-    w, V = np.linalg.eigh(J.T @ J)
-    v = V[:, 0]
-    rot = float(np.sum(v[:3] ** 2))
-    return {"ratio": float(w[0] / max(w[-1], 1e-300)), "weak_rotation": round(rot, 3),
-            "weak_axis": [round(float(x), 3) for x in v[:3] / max(np.linalg.norm(v[:3]), 1e-12)]}
-
-
 def _same_pose(A: np.ndarray, B: np.ndarray, deg: float = 3.0, mm: float = 10.0) -> bool:
     E = np.linalg.inv(A) @ B
     return bool(rotation_angle_deg(E) <= deg and np.linalg.norm(E[:3, 3]) * 1e3 <= mm)
+
+
+def rejection_reason(p: PairResult, cfg: RegistrationConfig) -> str:
+    """Why a pair was not accepted (or "accepted"), in words, with the figures and the gates."""
+    if p.accepted:
+        return "accepted"
+    if p.method == "none":
+        return "no hypothesis converged (no overlap)"
+    why = []
+    if p.fitness < cfg.min_fitness:
+        why.append(f"overlap {p.fitness:.2f} < {cfg.min_fitness:g}")
+    if p.inlier_rmse_mm > cfg.max_rmse_mm:
+        why.append(f"RMSE {p.inlier_rmse_mm:.1f} mm > {cfg.max_rmse_mm:g} mm")
+    if p.see_through > cfg.max_see_through:
+        why.append(f"the other camera sees through {p.see_through:.0%} of the matched object (> {cfg.max_see_through:.0%})")
+    if "dropped" in p.method:
+        why.append("dropped: contradicts the loops of the other views")
+    return "rejected: " + ("; ".join(why) or "support planes disagree")
 
 
 def _passes(fit: float, rmse_m: float, cfg: RegistrationConfig) -> bool:

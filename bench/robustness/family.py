@@ -1,0 +1,292 @@
+"""Object models on a family of random object / path / sensor draws, judged against the truth.
+
+``.venv/bin/python -m bench.robustness.family [--n 20] [--seeds 1,2,3] [--frames 5] [-o DIR] [--reduced]``
+
+Each draw (one seed) is:
+
+* an **object** (:func:`tofmetry.simulate.objects.random_object`): one of the four real scanned
+  meshes of ``../shared/data/scan-meshes`` (read in place) or a procedural shape (symmetric,
+  smooth, elongated, thin, nearly featureless), scaled, turned and stood on the ground;
+* a **path** (:func:`tofmetry.simulate.paths.random_path`): 6-16 views at 0.6-1.5 m, a turntable
+  circle or a hand-held loop with tilt;
+* a **sensor** (:func:`tofmetry.simulate.family.random_sensor` of the same seed), calibrated by
+  tofmetry's own chain: 16 wall stations (0.8-4.5 m, tilts up to 1 deg) simulated in memory ->
+  :func:`tofmetry.calibrate.fit_depth_model` (as :mod:`tofmetry.pipelines.depth_family` does),
+  plus the white-wall amplitude reference of the near stations. The scan is taken with that very
+  sensor, so the residuals are what the real chain leaves.
+
+The scan is written by :func:`tofmetry.simulate.datasets.scan` (PNG captures, as a user's), then
+reconstructed by :func:`tofmetry.pipelines.reconstruct.reconstruct_scan` and evaluated by
+:func:`tofmetry.evaluate.evaluate_model` (coarse + ICP alignment to the reference, as ``tofmetry
+evaluate --align``). The truth (``truth.json``) is used only to measure: pose errors
+(:func:`tofmetry.evaluate.pose_errors`: in the object's frame and at the camera centre) and whether
+a run flagged unreliable really was wrong.
+
+Seeds are drawn at random and printed unless given; ``--reduced`` is the small family CI runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from tofmetry.calibrate import DepthFitConfig, fit_depth_model, wall_sample
+from tofmetry.simulate.family import random_sensor
+from tofmetry.simulate.objects import random_object
+from tofmetry.simulate.paths import random_path
+from tofmetry.simulate.walls import DEFAULT_DISTANCES_MM, iter_wall_stations, plan_wall_stations, resolve_tilts, \
+    wall_station_means
+
+REPO = Path(__file__).resolve().parents[2]
+MESH_DIR = Path(os.environ.get("TOFMETRY_SHARED_DATA", REPO.parent / "shared" / "data")) / "scan-meshes"
+
+#: the done-when bounds (issue 16): pose error on the object, model vs reference, scale
+GATE_DEG, GATE_MM = 0.5, 3.0
+TARGETS = {"rot_deg": 0.5, "object_mm": 3.0, "mean_mm": 1.0, "std_mm": 1.2, "p95_mm": 3.0, "max_mm": 8.0,
+           "completeness": 0.90, "scale_error_pct": 0.2, "plan_error_pts": 5.0}
+
+
+@dataclass
+class Draw:
+    """One member of the family: seed, object, path, sensor."""
+
+    seed: int
+    object: object
+    path: object
+    sensor: object
+
+    def describe(self) -> dict:
+        return {"seed": self.seed, "object": self.object.to_dict(), "path": self.path.to_dict(),
+                "sensor_seed": self.sensor.seed}
+
+
+def draw_case(seed: int, mesh_dir: Path | None = MESH_DIR, reduced: bool = False) -> Draw:
+    """The object, path and sensor of ``seed`` (``reduced``: 6-8 views, procedural objects up to 0.35 m)."""
+    md = mesh_dir if mesh_dir is not None and Path(mesh_dir).is_dir() else None
+    obj = random_object(seed, md)
+    path = random_path(seed, obj.centre_m, float(obj.extent_m.max()), n_views=(6, 8) if reduced else (6, 16))
+    return Draw(int(seed), obj, path, random_sensor(seed))
+
+
+def calibrate_sensor(draw, seed: int, n_frames: int = 20, amplitude_max_mm: float = 2500.0):
+    """Depth calibration of ``draw`` by tofmetry's chain on in-memory wall stations, and the white
+    amplitude reference of the stations up to ``amplitude_max_mm`` (as ``--amplitude-reference``).
+
+    Returns (DepthCalibration, white_map (H, W), seconds)."""
+    from tofmetry.reconstruct import corrected_mean_depth, white_amplitude_map
+
+    t0 = time.perf_counter()
+    intr = draw.intrinsics
+    means = wall_station_means(draw, DEFAULT_DISTANCES_MM, n_frames, seed=seed, tilt_jitter_deg=1.0)
+    samples = []
+    for st in means:
+        if np.isfinite(st.mean_mm).mean() < 0.01:
+            continue
+        samples.append(wall_sample(st.mean_mm, st.optical_centre_mm, intr, name=st.name,
+                                   sem_mm=st.std_mm / np.sqrt(n_frames), valid_fraction=st.count / n_frames)[0])
+    cal = fit_depth_model(samples, intr, DepthFitConfig(), sensor="kinect_v2").calibration
+    # amplitude reference: a few frames with IR of the near stations (another noise stream)
+    near = [d for d in DEFAULT_DISTANCES_MM if d <= amplitude_max_mm]
+    em = draw.errors
+    offset = em.mounting_offset_mm if em.on("mounting_offset") else 0.0
+    tilts = resolve_tilts(len(near), (0.0, 0.0), 1.0, seed + 1)
+    irs, depths = [], []
+    for st, _scene, _rd, frames in iter_wall_stations(draw.camera(seed + 1), plan_wall_stations(near, 5, offset, tilts)):
+        fr = list(frames)
+        irs.append(np.mean([f.ir for f in fr], axis=0))
+        depths.append(corrected_mean_depth(np.stack([f.depth for f in fr]), cal, 3.0, 1))
+    white = white_amplitude_map(irs, depths, cal.intrinsics)
+    return cal, white, time.perf_counter() - t0
+
+
+def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, mesh_dir: Path | None = MESH_DIR,
+             keep: bool = False, config=None) -> dict:
+    """Simulate, calibrate, reconstruct and evaluate one draw; returns one JSON-able row."""
+    from tofmetry.evaluate import EvaluationConfig, evaluate_model, pose_errors, scale_from_reference
+    from tofmetry.io import read_json
+    from tofmetry.io.mesh import Geometry
+    from tofmetry.pipelines.reconstruct import reconstruct_scan
+    from tofmetry.reconstruct import ReconstructionConfig, poses_document
+    from tofmetry.simulate import datasets
+
+    d = draw_case(seed, mesh_dir, reduced)
+    row = {"seed": int(seed), **d.describe()}
+    t0 = time.perf_counter()
+    cal, white, t_cal = calibrate_sensor(d.sensor, seed)
+    row["calibration"] = {"seconds": round(t_cal, 1), "model": cal.prediction.get("method"),
+                          "predicted_central_mm": (cal.prediction.get("interpolation") or {}).get("central_abs_mm", {})
+                          .get("predicted"), "warnings": len(cal.prediction.get("warnings", []))}
+    scan_dir = work / f"scan-{seed}"
+    t1 = time.perf_counter()
+    mesh = (d.object.vertices, d.object.triangles) + ((d.object.albedo,) if d.object.albedo is not None else ())
+    datasets.scan(scan_dir, n_frames=n_frames, mesh=mesh, poses=d.path.poses,
+                  sensor=d.sensor, seed=seed, force=True, info=d.describe())
+    t2 = time.perf_counter()
+    row["simulate_s"] = round(t2 - t1, 1)
+    cfg = config or ReconstructionConfig()
+    try:
+        res = reconstruct_scan(scan_dir, cal, None, config=cfg, white_map=white)
+    except Exception as exc:  # noqa: BLE001 - a refused run is a result of the family
+        row.update(refused=f"{type(exc).__name__}: {exc}"[:600], reliable=False)
+        if not keep:
+            shutil.rmtree(scan_dir, ignore_errors=True)
+        return row
+    t3 = time.perf_counter()
+    doc = poses_document(res)
+    truth = read_json(scan_dir / "truth.json")
+    by_name = {v["name"]: v["camera_to_world"] for v in truth["views"]}
+    true_poses = np.array([by_name[n] for n in res.names])
+    ref = Geometry(d.object.vertices, d.object.triangles, source="reference")
+    pe = pose_errors(res.poses, true_poses, d.object.vertices)
+    row.update(reliable=bool(res.diagnostics.get("reliable")), reasons=res.diagnostics["reliability"].get("reasons", []),
+               warnings=res.diagnostics["reliability"].get("warnings", []),
+               views_left_out=res.diagnostics.get("left_out") or {},
+               rot_deg=round(float(pe.rot_deg.max()), 4), object_mm=round(float(pe.object_mm.max()), 3),
+               camera_mm=round(float(pe.camera_mm.max()), 3), reconstruct_s=round(t3 - t2, 1),
+               timings=res.diagnostics.get("timings_s"),
+               verdicts={"views": res.diagnostics["reliability"].get("views"),
+                         "loop_pose_bound": res.diagnostics["reliability"].get("loop_pose_bound"),
+                         "edges": [{k: e.get(k) for k in ("source", "target", "verdict", "reason", "fitness")}
+                                   for e in res.edges]},
+               scale=res.diagnostics.get("scale"), adjustment=res.diagnostics.get("adjustment"),
+               consistency={k: v for k, v in res.diagnostics["consistency"].items() if k != "selection"},
+               selection={k: v for k, v in (res.diagnostics["consistency"].get("selection") or {}).items()
+                          if k in ("changed", "dropped", "spread", "ambiguous_with", "reasons")},
+               pose_errors=pe.to_dict(),
+               plan=res.diagnostics.get("plan"))
+    model = Geometry(res.mesh_vertices, res.mesh_triangles, source="model")
+    try:
+        ev = evaluate_model(model, ref, EvaluationConfig(align=True, exclude_normal=(0.0, 0.0, -1.0)), poses=doc)
+        st = ev.stats_trimmed
+        sc = scale_from_reference(ev.points, ref)
+        row.update(mean_mm=round(st.mean_abs_mm, 3), std_mm=round(st.std_signed_mm, 3),
+                   p95_mm=round(st.percentiles_abs_mm["p95"], 3), max_mm=round(st.max_abs_mm, 3),
+                   completeness=round(ev.completeness["5"]["completeness"], 4),
+                   completeness_observed=round((ev.completeness_observed or {}).get("5", {}).get("completeness",
+                                                                                            float("nan")), 4),
+                   scale_error_pct=round(100 * sc["scale_error"], 4), scale_sigma_pct=round(100 * sc["sigma"], 4),
+                   offset_mm=round(sc["offset_mm"], 3), mean_signed_mm=round(st.mean_signed_mm, 3))
+    except Exception as exc:  # noqa: BLE001
+        row["eval_error"] = f"{type(exc).__name__}: {exc}"[:400]
+    row.update(plan_check(d, row.get("completeness")))
+    row["total_s"] = round(time.perf_counter() - t0, 1)
+    row["truly_wrong"] = bool(row["rot_deg"] > GATE_DEG or row["object_mm"] > GATE_MM)
+    if not keep:
+        shutil.rmtree(scan_dir, ignore_errors=True)
+    return row
+
+
+def plan_check(d: Draw, achieved: float | None) -> dict:
+    """``tofmetry plan``'s prediction (:func:`tofmetry.plan.predict`) for the draw's object and views,
+    beside the completeness the scan achieved (share of the reference within 5 mm, base excluded)."""
+    from tofmetry.plan import PlanObject, predict
+
+    pr = predict(PlanObject(d.object.vertices, d.object.triangles, "mesh"), d.path.poses, d.sensor.intrinsics)
+    out = {"plan_completeness": round(pr.completeness, 4), "plan_min_overlap": round(pr.min_overlap, 4)}
+    if achieved is not None:
+        out["plan_error_pts"] = round(100 * (pr.completeness - achieved), 2)
+    return out
+
+
+def _dist(rows, key, low_is_worse=False):
+    v = [(r[key], r["seed"]) for r in rows if isinstance(r.get(key), (int, float)) and np.isfinite(r[key])]
+    if not v:
+        return {"median": None, "p90": None, "worst": None, "worst_seed": None, "n": 0}
+    x = np.array([a for a, _ in v])
+    k = int(np.argmin(x) if low_is_worse else np.argmax(np.abs(x)))
+    ax = x if low_is_worse else np.abs(x)
+    return {"median": float(np.median(x)), "p90": float(np.percentile(ax, 10 if low_is_worse else 90)),
+            "worst": float(x[k]), "worst_seed": int(v[k][1]), "n": len(v)}
+
+
+def summarize(rows: list[dict]) -> dict:
+    """Family table: median, p90 and worst (with its seed) of every done-when figure, and the
+    rates of the 'unreliable' flag (false alarms: flagged but within the gate; misses: not
+    flagged but beyond it)."""
+    ok = [r for r in rows if "refused" not in r]
+    rel = [r for r in ok if r.get("reliable")]
+    flagged = [r for r in rows if not r.get("reliable")]
+    wrong = [r for r in ok if r.get("truly_wrong")]
+    out = {"n": len(rows), "refused": len(rows) - len(ok), "n_reliable": len(rel),
+           "reliable_share": len(rel) / max(len(rows), 1),
+           "flagged": len(flagged),
+           "flagged_truly_wrong": sum(bool(r.get("truly_wrong", True)) for r in flagged),
+           "false_alarms": sum(not r.get("truly_wrong", True) for r in flagged),
+           "misses": sum(bool(r.get("truly_wrong")) for r in rel),
+           "truly_wrong": len(wrong)}
+    out["false_alarm_rate"] = out["false_alarms"] / max(len(flagged), 1)
+    out["miss_rate"] = out["misses"] / max(len(wrong), 1)
+    # accuracy figures over the runs the chain vouches for (reliable), and over all
+    for tag, group in (("reliable", rel), ("all", ok)):
+        out[tag] = {k: _dist(group, k, k == "completeness" or k == "completeness_observed")
+                    for k in ("rot_deg", "object_mm", "camera_mm", "mean_mm", "std_mm", "p95_mm", "max_mm",
+                              "completeness", "completeness_observed", "scale_error_pct", "plan_error_pts",
+                              "reconstruct_s")}
+    return out
+
+
+def table(s: dict) -> str:
+    lines = [f"draws {s['n']}, refused {s['refused']}, reliable {s['n_reliable']} ({100 * s['reliable_share']:.0f} %), "
+             f"flagged {s['flagged']} of which truly wrong {s['flagged_truly_wrong']} (false alarms {s['false_alarms']}), "
+             f"truly wrong {s['truly_wrong']}, missed {s['misses']}",
+             "| figure (reliable runs) | median | p90 | worst (seed) | target | n |", "|---|---|---|---|---|---|"]
+    for k, d in s["reliable"].items():
+        if d["n"] == 0:
+            continue
+        tgt = TARGETS.get(k)
+        lines.append(f"| {k} | {d['median']:.3f} | {d['p90']:.3f} | {d['worst']:.3f} ({d['worst_seed']}) | "
+                     f"{'' if tgt is None else tgt} | {d['n']} |")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n", type=int, default=20, help="number of draws (seeds drawn at random)")
+    ap.add_argument("--seeds", default=None, help="comma-separated seeds instead of random ones")
+    ap.add_argument("--frames", type=int, default=5, help="frames per view")
+    ap.add_argument("--reduced", action="store_true", help="the small family of CI (6-8 views)")
+    ap.add_argument("--keep", action="store_true", help="keep the simulated scans")
+    ap.add_argument("-o", "--output", type=Path, default=Path("bench/results"))
+    a = ap.parse_args(argv)
+    seeds = [int(s) for s in a.seeds.split(",")] if a.seeds else \
+        [int(s) for s in np.random.default_rng().integers(0, 2**31 - 1, a.n)]
+    print("seeds:", ",".join(map(str, seeds)), flush=True)
+    a.output.mkdir(parents=True, exist_ok=True)
+    rows = []
+    work = Path(tempfile.mkdtemp(prefix="tof-family-"))
+    jl = a.output / "family_rows.jsonl"
+    try:
+        for k, s in enumerate(seeds):
+            r = run_case(s, work, a.frames, a.reduced, keep=a.keep)
+            rows.append(r)
+            with open(jl, "a") as fh:
+                fh.write(json.dumps(r, default=float) + "\n")
+            print(f"[{k + 1}/{len(seeds)}] seed {s}: {r['object']['name']} {r['object']['size_m']:.2f} m, "
+                  f"{r['path']['kind']} {r['path']['n_views']} views @ {r['path']['distance_m']:.2f} m: "
+                  + (f"REFUSED {r['refused'][:200]}" if "refused" in r else
+                     f"{'reliable' if r['reliable'] else 'UNRELIABLE'} rot {r['rot_deg']:.3f} deg obj {r['object_mm']:.2f} "
+                     f"mm cam {r['camera_mm']:.2f} mm; mean {r.get('mean_mm', float('nan')):.2f} p95 "
+                     f"{r.get('p95_mm', float('nan')):.2f} max {r.get('max_mm', float('nan')):.2f} compl "
+                     f"{r.get('completeness', float('nan')):.3f} (plan {r.get('plan_completeness', float('nan')):.3f}) scale {r.get('scale_error_pct', float('nan')):+.3f} %; "
+                     f"gain {(r.get('adjustment') or {}).get('depth_gain', float('nan')) * 100:+.3f} %; {r['reconstruct_s']:.0f} s" + ("" if r["reliable"] else f"; {'; '.join(r['reasons'])[:300]}")),
+                  flush=True)
+    finally:
+        if not a.keep:
+            shutil.rmtree(work, ignore_errors=True)
+    s = summarize(rows)
+    (a.output / "family_summary.json").write_text(json.dumps({"seeds": seeds, "summary": s}, indent=1, default=float))
+    print(table(s))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,103 @@
+"""Reliability verdicts (edges, views, run), the scale report and the support-plane world frame (issue 16)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tofmetry.reconstruct._verdict import assess, calibration_gain_sigma, scale_report
+from tofmetry.reconstruct._world import support_plane_frame, transform_plane, transform_points
+
+
+def _edge(a, b, kept=True, accepted=True, yaw=1.0, method="plane-yaw+icp"):
+    return {"source": a, "target": b, "accepted": accepted, "kept": kept, "method": method,
+            "conditioning": {"yaw_ratio": yaw}}
+
+
+def _names(n):
+    return [f"{k:02d}" for k in range(n)]
+
+
+def test_loop_edges_verified_and_a_dangling_view_unverified():
+    # circle 00-01-02-03-00 plus 04 hanging on 03 only
+    e = [_edge("00", "01"), _edge("01", "02"), _edge("02", "03"), _edge("00", "03"), _edge("03", "04")]
+    v = assess(_names(5), e, {"reasons": [], "loops": []}, calibration_prediction={})
+    assert [x["verdict"] for x in e] == ["verified"] * 4 + ["unverified"]
+    assert v["views"]["04"]["verdict"] == "unverified" and v["views"]["00"]["verdict"] == "verified"
+    assert v["reliable"] and any("04" in w for w in v["warnings"])
+
+
+def test_yaw_free_edge_makes_the_run_unreliable():
+    e = [_edge("00", "01", yaw=0.03), _edge("01", "02"), _edge("00", "02")]
+    v = assess(_names(3), e, {"reasons": [], "loops": []}, calibration_prediction={})
+    assert not v["reliable"] and e[0]["verdict"] == "yaw free" and "rotation about the vertical" in v["reasons"][0]
+
+
+def test_rejected_dropped_left_out_and_calibration_warning():
+    e = [_edge("00", "01"), _edge("01", "02"), _edge("00", "02"),
+         _edge("02", "03", accepted=False, kept=False) | {"reason": "rejected: overlap 0.10 < 0.35"},
+         _edge("00", "02", accepted=False, kept=False, method="fpfh+icp (dropped: contradicts the other views)")]
+    pred = {"interpolation": {"central_abs_mm": {"predicted": 4.2}}, "warnings": ["stations too far apart"]}
+    v = assess(_names(3), e, {"reasons": [], "loops": []}, left_out={"03": "no accepted registration"},
+               calibration_prediction=pred)
+    assert e[3]["verdict"] == "rejected" and "overlap" in e[3]["reason"] and e[4]["verdict"] == "dropped"
+    assert v["views"]["03"]["verdict"] == "left out"
+    assert not v["reliable"] and "4.2 mm" in v["reasons"][0]
+
+
+def test_spread_loops_beyond_the_pose_gate_are_flagged():
+    e = [_edge("00", "01"), _edge("01", "02"), _edge("00", "02")]
+    cons = {"reasons": [], "selection": {"spread": True},
+            "loops": [{"closure_deg": 2.4, "closure_mm": 30.0, "closure_object_mm": 9.0}]}
+    v = assess(_names(3), e, cons, calibration_prediction={})
+    assert not v["reliable"] and v["loop_pose_bound"] == {"deg": 1.2, "mm": 4.5}
+
+
+def test_scale_report_from_the_calibration_and_the_gain():
+    pred = {"interpolation": {"central_abs_mm": {"predicted": 0.3}},
+            "folds": [{"center_mm": 1000.0 + 250 * k} for k in range(5)]}
+    r = scale_report({"depth_gain": 0.001, "gain_estimated": True, "gain_sigma_data": 0.0004}, pred, 1000.0)
+    assert np.isclose(r["predicted_scale_sigma_pct"], 100 * np.hypot(0.3 / 1000, 0.0002))
+    r = scale_report({"gain_estimated": False}, pred, 1000.0)
+    assert np.isclose(r["gain_sigma"], 0.3 / 125) and r["station_spacing_mm"] == 250
+    assert scale_report(None, None, 1000.0)["predicted_scale_sigma_pct"] is None
+
+
+def test_support_plane_frame():
+    rng = np.random.default_rng(0)
+    n = np.array([0.1, -0.9, -0.3])
+    n /= np.linalg.norm(n)
+    plane = np.r_[n, 0.8]  # camera at the origin above it: height(origin) = 0.8 m
+    ground = rng.normal(size=(200, 3))
+    ground -= np.outer(ground @ n + 0.8, n)
+    obj = ground[:50] + 0.1 * n
+    cam0 = np.eye(4)
+    W = support_plane_frame(plane, obj, cam0)
+    g = transform_points(ground, W)
+    assert np.abs(g[:, 2]).max() < 1e-12
+    o = transform_points(obj, W)
+    np.testing.assert_allclose(o[:, 2], 0.1, atol=1e-12)
+    np.testing.assert_allclose(o[:, :2].mean(0), 0.0, atol=1e-12)  # origin under the object
+    np.testing.assert_allclose(transform_plane(plane, W), [0, 0, 1, 0], atol=1e-12)
+    c = W @ cam0
+    assert c[2, 3] > 0 and c[:3, 2] @ [1, 0, 0] > 0  # camera above the plane, looking along +x
+    np.testing.assert_allclose(W[:3, :3] @ W[:3, :3].T, np.eye(3), atol=1e-12)
+
+
+def test_implausible_gain_makes_the_run_unreliable():
+    e = [_edge("00", "01"), _edge("01", "02"), _edge("00", "02")]
+    adj = {"gain_note": "implausible: the views ask for -5.12 % (+-0.04 %), beyond the +-1.06 % the depth calibration "
+                        "can leave; kept at 0"}
+    v = assess(_names(3), e, {"reasons": [], "loops": []}, adjustment=adj, calibration_prediction={})
+    assert not v["reliable"] and "-5.12 %" in v["reasons"][0]
+    pred = {"interpolation": {"central_abs_mm": {"predicted": 0.5}},
+            "folds": [{"center_mm": 1000.0 + 250 * k} for k in range(5)]}
+    assert np.isclose(calibration_gain_sigma(pred), 0.5 / 125)
+    assert calibration_gain_sigma(None) is None and calibration_gain_sigma({"folds": []}) is None
+
+
+def test_a_calibration_warning_within_the_error_limit_is_named_as_a_warning():
+    e = [_edge("00", "01"), _edge("01", "02"), _edge("00", "02")]
+    pred = {"interpolation": {"central_abs_mm": {"predicted": 0.5}}, "warnings": ["242 mm of the range unseen"]}
+    v = assess(_names(3), e, {"reasons": [], "loops": []}, calibration_prediction=pred)
+    assert not v["reliable"] and "warns" in v["reasons"][0] and "242 mm" in v["reasons"][0]
+    assert "limit" not in v["reasons"][0]

@@ -1,0 +1,220 @@
+"""The loops of the view graph: spanning tree, fundamental cycles and their closure, and the choice
+of one registration hypothesis per pair so that every loop closes (:func:`select_hypotheses`).
+
+Pure functions of the pairwise results (:class:`~tofmetry.reconstruct._register.PairResult`);
+:class:`~tofmetry.reconstruct._posegraph.PoseGraphBuilder` uses them.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import replace
+
+import numpy as np
+
+from tofmetry._shared.geometry import rotation_angle_deg
+from tofmetry.reconstruct._register import PairResult
+
+
+def connected_components(n: int, edges: list[tuple[int, int]]) -> list[list[int]]:
+    """Connected components of an undirected graph on nodes 0..n-1 (union-find)."""
+    parent = list(range(n))
+
+    def find(a: int) -> int:
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    for a, b in edges:
+        parent[find(a)] = find(b)
+    comps: dict[int, list[int]] = {}
+    for k in range(n):
+        comps.setdefault(find(k), []).append(k)
+    return sorted(comps.values(), key=lambda c: c[0])
+
+
+def spanning_tree(n: int, pairs: list[PairResult]) -> tuple[np.ndarray, list[int], np.ndarray, np.ndarray]:
+    """Breadth-first spanning tree of the edges ``pairs`` from view 0 (in edge order).
+
+    Returns
+    -------
+    poses : (n, 4, 4) chained camera-to-world (NaN for views not reached)
+    tree : indices into ``pairs`` of the tree edges
+    parent : (n,) parent view in the tree (-1 for the root / unreached)
+    depth : (n,) edges from view 0 (-1 unreached)
+    """
+    poses = np.full((n, 4, 4), np.nan)
+    poses[0] = np.eye(4)
+    parent, depth = np.full(n, -1), np.full(n, -1)
+    depth[0] = 0
+    tree = []
+    changed = True
+    while changed:
+        changed = False
+        for k, p in enumerate(pairs):
+            # T maps source -> target: pose_source = pose_target @ T
+            if depth[p.target] >= 0 and depth[p.source] < 0:
+                poses[p.source] = poses[p.target] @ p.transform
+                parent[p.source], depth[p.source] = p.target, depth[p.target] + 1
+            elif depth[p.source] >= 0 and depth[p.target] < 0:
+                poses[p.target] = poses[p.source] @ np.linalg.inv(p.transform)
+                parent[p.target], depth[p.target] = p.source, depth[p.source] + 1
+            else:
+                continue
+            tree.append(k)
+            changed = True
+    return poses, tree, parent, depth
+
+
+def loop_closures(n: int, pairs: list[PairResult], names: list[str] | None = None,
+                  centres: np.ndarray | None = None) -> list[dict]:
+    """Fundamental cycles of the edges ``pairs``: every edge outside the breadth-first spanning tree
+    compared with the tree's chained relative pose.
+
+    Parameters
+    ----------
+    centres : (n, 3) optional object centre seen by each view, in its camera frame [m]: the
+        closure is then also measured where it matters, as the displacement of the object centre
+
+    Returns
+    -------
+    list of dicts: edge (source, target names), n_edges in the cycle, closure_deg / closure_mm
+    (translation at the source camera centre), per_edge_deg / per_edge_mm (closure / sqrt(n_edges):
+    independent errors add as a random walk), closure_object_mm (with ``centres``)
+    """
+    names = names or [str(k) for k in range(n)]
+    poses, tree, parent, depth = spanning_tree(n, pairs)
+    in_tree = set(tree)
+    out = []
+    for k, p in enumerate(pairs):
+        if k in in_tree or depth[p.source] < 0 or depth[p.target] < 0:
+            continue
+        a, b, m = p.source, p.target, 1
+        while a != b:  # path length through the tree (lowest common ancestor)
+            if depth[a] >= depth[b]:
+                a = parent[a]
+            else:
+                b = parent[b]
+            m += 1
+        E = np.linalg.inv(p.transform) @ np.linalg.inv(poses[p.target]) @ poses[p.source]
+        c_deg, c_mm = rotation_angle_deg(E), float(np.linalg.norm(E[:3, 3])) * 1e3
+        d = {"edge": [names[p.source], names[p.target]], "n_edges": m, "closure_deg": round(c_deg, 4),
+             "closure_mm": round(c_mm, 3), "per_edge_deg": round(c_deg / np.sqrt(m), 4),
+             "per_edge_mm": round(c_mm / np.sqrt(m), 3)}
+        if centres is not None:
+            c = np.asarray(centres[p.source], np.float64)
+            d["closure_object_mm"] = round(float(np.linalg.norm(E[:3, :3] @ c + E[:3, 3] - c)) * 1e3, 3)
+        out.append(d)
+    return out
+
+
+def _poses_differ(A: np.ndarray, B: np.ndarray, max_deg: float, max_mm: float) -> bool:
+    for a, b in zip(A, B):
+        E = np.linalg.inv(a) @ b
+        if rotation_angle_deg(E) > max_deg or np.linalg.norm(E[:3, 3]) * 1e3 > max_mm:
+            return True
+    return False
+
+
+def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg: float = 2.0, max_mm: float = 10.0,
+                      margin: float = 0.05, max_combos: int = 1024) -> tuple[list[PairResult], dict]:
+    """Multi-view choice between the registration hypotheses of every edge.
+
+    A nearly symmetric object matches itself turned over: an edge may have several hypotheses that
+    pass the pairwise gates (its ``alternatives``). One hypothesis is chosen per edge (an edge
+    between non-successive views may also be dropped: successive views are the nearest in the
+    scan order, a direct first -> last or bridging match is the least certain) such that every
+    loop of the graph closes within (``max_deg``, ``max_mm``) per edge; among those selections
+    the one with the largest summed fitness wins.
+
+    Refusal/flags (in ``report["reasons"]``, which makes the run unreliable):
+
+    * no selection closes every loop (the gate reports the failing loops);
+    * another closing selection with different poses scores within ``margin`` (summed fitness):
+      the geometry cannot decide ("registration ambiguous");
+    * an edge had to be dropped and no loop is left to verify the rest;
+    * an edge between non-successive views is the only link between two parts of the graph
+      (no loop verifies it).
+
+    Returns
+    -------
+    pairs : the edges with the chosen hypotheses (dropped edges: ``accepted=False``)
+    report : dict (changed edges, dropped edges, candidates tested, consistent ones, reasons)
+    """
+    acc = [k for k, p in enumerate(pairs) if p.accepted]
+    opts = []
+    for k in acc:
+        p = pairs[k]
+        o = [p] + [a for a in p.alternatives if a.accepted]
+        if abs(p.source - p.target) != 1:
+            o.append(None)
+        opts.append(o)
+    free = [m for m, o in enumerate(opts) if len(o) > 1]
+    # bound the search: the edges whose best alternative is closest to the primary first
+    while np.prod([len(opts[m]) for m in free], dtype=float) > max_combos:
+        m = max(free, key=lambda m: opts[m][0].fitness - (opts[m][1].fitness if opts[m][1] is not None else 0.0))
+        alts = [x for x in opts[m][1:] if x is not None]
+        if alts:
+            opts[m] = [x for x in opts[m] if x is not alts[-1]]
+        else:
+            opts[m] = opts[m][:1]
+        if len(opts[m]) == 1:
+            free.remove(m)
+    consistent = []
+    n_tested = 0
+    for combo in itertools.product(*[range(len(o)) for o in opts]):
+        sel = [opts[m][c] for m, c in enumerate(combo)]
+        kept = [p for p in sel if p is not None]
+        poses, _, _, depth = spanning_tree(n, kept)
+        if (depth < 0).any():
+            continue
+        n_tested += 1
+        loops = loop_closures(n, kept)
+        if all(lp["per_edge_deg"] <= max_deg and lp["per_edge_mm"] <= max_mm for lp in loops):
+            consistent.append((sum(p.fitness for p in kept), combo, poses, len(loops)))
+    report = {"tested": n_tested, "consistent": len(consistent), "changed": [], "dropped": [], "reasons": [],
+              "ambiguous_with": []}
+    if not consistent:
+        report["resolved"] = False
+        return pairs, report
+    consistent.sort(key=lambda c: -c[0])
+    score, combo, poses, n_loops = consistent[0]
+    report["resolved"] = True
+    report["n_loops"] = n_loops
+    for s2, c2, p2, _ in consistent[1:]:
+        if s2 >= score - margin and _poses_differ(poses, p2, max_deg, max_mm):
+            diff = [f"{names[pairs[acc[m]].source]}->{names[pairs[acc[m]].target]}" for m in range(len(acc)) if c2[m] != combo[m]]
+            report["ambiguous_with"].append({"score_difference": round(score - s2, 4), "edges": diff})
+    out = list(pairs)
+    for m, c in enumerate(combo):
+        p = pairs[acc[m]]
+        ch = opts[m][c]
+        tag = f"{names[p.source]}->{names[p.target]}"
+        if ch is None:
+            out[acc[m]] = replace(p, accepted=False, method=p.method + " (dropped: contradicts the other views)")
+            report["dropped"].append(tag)
+        elif ch is not p:
+            out[acc[m]] = p.with_hypothesis(ch)
+            report["changed"].append(tag)
+    if report["ambiguous_with"]:
+        a = report["ambiguous_with"][0]
+        report["reasons"].append(
+            f"registration ambiguous: {len(report['ambiguous_with'])} other choice(s) of the pairwise hypotheses close "
+            f"every loop with a summed fitness within {margin:g} (e.g. changing {', '.join(a['edges'])}: "
+            f"{a['score_difference']:.3f} lower) but place the cameras differently; the object looks alike from "
+            "different sides (symmetry): the camera poses are not determined by the geometry")
+    kept = [out[acc[m]] for m, c in enumerate(combo) if opts[m][c] is not None]
+    for e in kept:  # a match between non-successive views that no loop verifies is not trusted
+        if abs(e.source - e.target) != 1 and len(connected_components(n, [(p.source, p.target) for p in kept
+                                                                         if p is not e])) > 1:
+            report["unverified"] = report.get("unverified", []) + [f"{names[e.source]}->{names[e.target]}"]
+    if report.get("unverified"):
+        report["reasons"].append(
+            f"edge(s) {', '.join(report['unverified'])} between non-successive views are the only link between parts "
+            "of the scan and no closed loop verifies them (a nearly symmetric object matches itself turned over "
+            "between distant views); take more views or views with more overlap")
+    if report["dropped"] and n_loops == 0:
+        report["reasons"].append(f"edge(s) {', '.join(report['dropped'])} contradict the chain of successive views and "
+                                 "were dropped; no closed loop is left to verify the registration")
+    return out, report

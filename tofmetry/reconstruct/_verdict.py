@@ -1,0 +1,212 @@
+"""Reliability verdicts of a reconstruction: every edge, every view and the run, each with its reason.
+
+A model must never be handed out silently wrong. The registration knows a good deal about its
+own state, and :func:`assess` turns it into verdicts:
+
+* **edges** (pairs of views): ``verified`` (accepted, kept, and on a loop of the view graph that
+  closes), ``unverified`` (accepted and kept, but no loop goes through it: nothing checks it),
+  ``yaw free`` (its overlap is nearly a surface of revolution: the rotation about the vertical is
+  not determined by the geometry, :func:`~tofmetry.reconstruct.registration_conditioning`) unless
+  the IR amplitude's albedo pattern decides it (``verified by IR``,
+  :func:`~tofmetry.reconstruct._photometric.ir_yaw_sweep`),
+  ``pruned``, ``dropped`` (contradicts the other views' loops), ``rejected`` (failed the pairwise
+  gates; the figures and the gates are in the reason);
+* **views**: ``verified`` (on a closed loop), ``unverified`` (linked by unverified edges only) or
+  ``left out`` (no accepted registration links it to the others; the model is built without it);
+* **the run**: reliable, or unreliable with the reasons. A run is unreliable when the pose-graph
+  consistency gate fails (:func:`~tofmetry.reconstruct.consistency_gate`), when a kept edge is yaw
+  free, when the loops close only once their error is spread and that error is larger than the
+  pose accuracy asked for, when the global adjustment failed, or when the depth calibration warns
+  that its own error between stations exceeds ``max_calibration_mm``. Views left out, an
+  unobservable depth gain and unverified views are warnings: the model is then incomplete or
+  less checked, not wrong.
+
+The pose accuracy a loop can vouch for: after the pose graph spreads a loop's closure error over
+its ``m`` edges, a view half-way round the loop can still be off by about half the closure; the
+run is flagged when half the closure of a loop, at the object, exceeds (``pose_gate_deg``,
+``pose_gate_mm``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tofmetry.reconstruct._loops import connected_components
+
+
+def _bridges(n: int, edges: list[tuple[int, int]]) -> set[int]:
+    """Indices of the edges whose removal disconnects their end views (on no cycle)."""
+    out = set()
+    for k, (a, b) in enumerate(edges):
+        rest = [e for m, e in enumerate(edges) if m != k]
+        comp = next(c for c in connected_components(n, rest) if a in c)
+        if b not in comp:
+            out.add(k)
+    return out
+
+
+def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dict | None = None,
+           adjustment: dict | None = None, calibration_prediction: dict | None = None,
+           max_calibration_mm: float = 1.5, pose_gate_deg: float = 0.5, pose_gate_mm: float = 3.0,
+           yaw_free_ratio: float = 0.15) -> dict:
+    """Verdicts of the edges (added to each edge dict as ``verdict`` and ``reason``), the views and the run.
+
+    Parameters
+    ----------
+    names : names of the registered views (the graph's nodes, in order)
+    edges : edge dicts of :meth:`PoseGraphBuilder.optimize` (and of the views left out)
+    consistency : :func:`consistency_gate` output (loops with ``closure_object_mm`` when known)
+    left_out : view name -> reason, for views left out of the model
+    adjustment : :meth:`AdjustResult.to_dict` or ``{"failed": reason}`` or None
+    calibration_prediction : the depth calibration's ``prediction`` (None: raw depth)
+    max_calibration_mm : a calibration predicting a larger central error between its stations makes
+        the run unreliable [mm]
+    pose_gate_deg, pose_gate_mm : the pose accuracy asked for (rotation [deg], displacement of the
+        object [mm]); see the module docstring
+    yaw_free_ratio : an edge whose yaw stiffness ratio (``conditioning["yaw_ratio"]``) is below this is yaw free
+
+    Returns
+    -------
+    dict: reliable, reasons (why unreliable), warnings, views {name: {verdict, reason}},
+    loop_pose_bound {deg, mm} (half the largest loop closure), yaw_free_edges
+    """
+    left_out = dict(left_out or {})
+    idx = {nm: k for k, nm in enumerate(names)}
+    kept = [e for e in edges if e.get("kept") and e["source"] in idx and e["target"] in idx]
+    pairs = [(idx[e["source"]], idx[e["target"]]) for e in kept]
+    br = _bridges(len(names), pairs)
+    reasons = list(consistency.get("reasons", []))
+    warnings = []
+    yaw_free = []
+    for e in edges:
+        if "verdict" in e and e["verdict"] == "left out with its view":
+            continue
+        if not e.get("accepted"):
+            e["verdict"], e["reason"] = ("dropped" if "dropped" in e.get("method", "") else "rejected",
+                                         e.get("reason") or e.get("method", ""))
+            continue
+        if not e.get("kept"):
+            e["verdict"], e["reason"] = "pruned", "pruned by the pose-graph optimisation (disagrees with the others)"
+            continue
+        k = kept.index(e)
+        yr = (e.get("conditioning") or {}).get("yaw_ratio")
+        iy = e.get("ir_yaw") or {}
+        if yr is not None and yr < yaw_free_ratio and iy.get("decided"):
+            e["verdict"] = "verified by IR" if k not in br else "unverified"
+            e["reason"] = (f"the geometry leaves the yaw free (stiffness ratio {yr:.2f}); the IR albedo pattern fixes it "
+                           f"(correlation {iy['correlation']:.2f}, {iy['margin']:.2f} above any other yaw)"
+                           + ("" if k not in br else "; no loop goes through this edge"))
+        elif yr is not None and yr < yaw_free_ratio:
+            e["verdict"] = "yaw free"
+            e["reason"] = (f"the overlap is nearly a surface of revolution: its stiffness about the vertical is {yr:.2f} "
+                           f"of the tilts' (< {yaw_free_ratio}); the rotation between these views is not determined "
+                           "by the geometry" + (" nor by the IR amplitude (no pattern decides it)" if iy else ""))
+            yaw_free.append(f"{e['source']}->{e['target']}")
+        elif k in br:
+            e["verdict"], e["reason"] = "unverified", "no loop of the view graph goes through this edge"
+        else:
+            e["verdict"], e["reason"] = "verified", "on a closed loop of the view graph"
+    if yaw_free:
+        reasons.append(f"edge(s) {', '.join(yaw_free)}: the views overlap on a nearly rotation-symmetric part only; their "
+                       "rotation about the vertical is not determined by the geometry (add views that see a distinctive "
+                       "feature, or texture/markers)")
+    # views
+    views = {}
+    on_loop = {v for k, (a, b) in enumerate(pairs) if k not in br for v in (a, b)}
+    for k, nm in enumerate(names):
+        if k in on_loop:
+            views[nm] = {"verdict": "verified", "reason": "on a closed loop of the view graph"}
+        else:
+            views[nm] = {"verdict": "unverified", "reason": "linked to the others by unverified edges only"}
+    for nm, why in left_out.items():
+        views[nm] = {"verdict": "left out", "reason": why}
+    unver = [nm for nm, v in views.items() if v["verdict"] == "unverified"]
+    if left_out:
+        warnings.append(f"view(s) {', '.join(left_out)} left out of the model (no registration links them to the "
+                        "others): the model is incomplete there")
+    if unver:
+        warnings.append(f"view(s) {', '.join(unver)} are on no closed loop: their poses are not checked")
+    # loops: what a spread closure leaves on the views
+    loops = consistency.get("loops") or []
+    b_deg = max((lp["closure_deg"] for lp in loops), default=0.0) / 2
+    b_mm = max((lp.get("closure_object_mm", lp["closure_mm"]) for lp in loops), default=0.0) / 2
+    sel = consistency.get("selection") or {}
+    if sel.get("spread") and (b_deg > pose_gate_deg or b_mm > pose_gate_mm):
+        reasons.append(f"the loops close only to {2 * b_deg:.2f} deg / {2 * b_mm:.1f} mm at the object; spread over "
+                       f"their edges this leaves up to ~{b_deg:.2f} deg / {b_mm:.1f} mm on a view (limit "
+                       f"{pose_gate_deg:g} deg / {pose_gate_mm:g} mm): the views disagree (depth-calibration residual?)")
+    if adjustment is not None and "failed" in adjustment:
+        reasons.append(f"the global adjustment failed ({adjustment['failed']}); the pose-graph poses are not refined")
+    if adjustment is not None and (adjustment.get("gain_note") or "").startswith("implausible"):
+        reasons.append(f"depth gain {adjustment['gain_note']}: the views disagree with the depth calibration by more "
+                       "than it allows (wrong poses on a smooth or symmetric object, or a wrong calibration)")
+    if adjustment is not None and (adjustment.get("gain_note") or "").startswith("not observable"):
+        warnings.append(f"depth gain {adjustment['gain_note']}")
+    warns = (calibration_prediction or {}).get("warnings") or []
+    pc = ((calibration_prediction or {}).get("interpolation") or {}).get("central_abs_mm", {}).get("predicted")
+    if pc is not None and pc > max_calibration_mm:
+        reasons.append(f"the depth calibration predicts its own error between stations at {pc:.1f} mm (limit "
+                       f"{max_calibration_mm:g} mm): the views' depths disagree by that much and the poses absorb it; "
+                       "recalibrate with stations closer together (its warning: " + ("; ".join(warns) or "none") + ")")
+    elif warns:
+        reasons.append("the depth calibration warns that its prediction cannot be trusted"
+                       + (f" (its predicted central error, {pc:.1f} mm, may be too low)" if pc is not None else "")
+                       + ": " + "; ".join(warns))
+    if calibration_prediction is None:
+        warnings.append("raw depth (no depth calibration): the model's scale and shape carry the sensor's range error")
+    return {"reliable": not reasons, "reasons": reasons, "warnings": warnings, "views": views,
+            "loop_pose_bound": {"deg": round(b_deg, 4), "mm": round(b_mm, 3)}, "yaw_free_edges": yaw_free}
+
+
+def calibration_gain_sigma(calibration_prediction: dict | None) -> float | None:
+    """The depth gain a calibration can leave between its stations: its predicted central error
+    ``e`` [mm] over half the station spacing [mm] (dimensionless); None without a prediction."""
+    if not calibration_prediction:
+        return None
+    e = ((calibration_prediction.get("interpolation") or {}).get("central_abs_mm") or {}).get("predicted")
+    if e is None:
+        return None
+    return float(e) / (_station_spacing_mm(calibration_prediction) / 2)
+
+
+def _station_spacing_mm(calibration_prediction: dict) -> float:
+    centres = sorted(f["center_mm"] for f in calibration_prediction.get("folds", []) if "center_mm" in f)
+    return float(np.median(np.diff(centres))) if len(centres) > 1 else 250.0
+
+
+def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z_ref_mm: float) -> dict:
+    """The model's predicted scale and surface-offset uncertainty from the depth chain.
+
+    A range offset ``e`` left by the calibration moves every point along its ray: the surfaces
+    move by ``e`` toward their cameras (a normal offset of the model, which makes an object seen
+    from all round ``2 e`` thinner or thicker) and the lateral size scales by ``e / z``. A gain ``g``
+    left over the object's depth stretches each view along its line of sight; fused from all round
+    it scales the model by about ``g / 2``. So ``sigma_scale = sqrt((e / z)^2 + (sigma_g / 2)^2)``
+    with ``e`` the calibration's predicted central error (quadratic mean over its blocked folds)
+    and ``sigma_g`` the self-calibrated gain's standard error when it was estimated, otherwise
+    the gain a calibration with that error can leave between stations, ``e / (spacing / 2)``.
+    Not included: the lens calibration's focal error (it scales the lateral size as well).
+
+    Returns
+    -------
+    dict: depth_gain, gain_estimated, gain_sigma, predicted_scale_sigma_pct,
+    predicted_offset_sigma_mm, station_spacing_mm, source
+    """
+    adj = adjustment or {}
+    g = float(adj.get("depth_gain", 0.0) or 0.0)
+    est = bool(adj.get("gain_estimated", False))
+    out = {"depth_gain": g, "gain_estimated": est, "gain_note": adj.get("gain_note"), "z_ref_mm": float(z_ref_mm)}
+    if calibration_prediction is None:
+        return out | {"predicted_scale_sigma_pct": None, "predicted_offset_sigma_mm": None,
+                      "source": "raw depth: no calibration, no prediction"}
+    e = ((calibration_prediction.get("interpolation") or {}).get("central_abs_mm") or {}).get("predicted")
+    spacing = _station_spacing_mm(calibration_prediction)
+    if e is None:
+        return out | {"predicted_scale_sigma_pct": None, "predicted_offset_sigma_mm": None,
+                      "source": "the calibration carries no predicted error"}
+    sg = float(adj.get("gain_sigma_data", np.nan)) if est else e / (spacing / 2)
+    s = float(np.hypot(e / z_ref_mm, sg / 2))
+    return out | {"gain_sigma": sg, "predicted_scale_sigma_pct": 100 * s, "predicted_offset_sigma_mm": float(e),
+                  "station_spacing_mm": spacing,
+                  "source": "calibration's predicted central error" + (" and the self-calibrated gain's standard error"
+                                                                       if est else " (gain not estimated)")}
