@@ -82,3 +82,38 @@ def test_wall_dataset_missing_station_folder(tmp_path):
 def test_wall_dataset_one_station_only(tmp_path):
     with pytest.raises(InputError, match="at least 2"):
         WallDataset(_wall(tmp_path, [("a", 800)]), min_stations=2)
+
+
+def _poly_ply(binary: bool) -> bytes:
+    """A square (quad) and a triangle, faces with an extra property after the index list."""
+    verts = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (2, 0, 0)]
+    faces = [[0, 1, 2, 3], [1, 4, 2]]
+    head = ["ply", f"format {'binary_little_endian' if binary else 'ascii'} 1.0", "element vertex 5",
+            "property float x", "property float y", "property float z", "element face 2",
+            "property list uchar int vertex_indices", "property uchar flags", "end_header"]
+    out = ("\n".join(head) + "\n").encode()
+    if binary:
+        out += np.array(verts, "<f4").tobytes()
+        for f in faces:
+            out += np.uint8(len(f)).tobytes() + np.array(f, "<i4").tobytes() + np.uint8(7).tobytes()
+    else:
+        out += "".join(f"{x} {y} {z}\n" for x, y, z in verts).encode()
+        out += "".join(f"{len(f)} {' '.join(map(str, f))} 7\n" for f in faces).encode()
+    return out
+
+
+@pytest.mark.parametrize("binary", [True, False], ids=["binary", "ascii"])
+def test_ply_polygons_of_mixed_sizes_are_fanned(tmp_path, binary):
+    from tofmetry.io.mesh import read_geometry
+    from tofmetry.io.ply import read_ply
+
+    f = tmp_path / "poly.ply"
+    f.write_bytes(_poly_ply(binary))
+    faces = read_ply(f)["faces"]
+    assert sorted(map(tuple, faces.tolist())) == [(0, 1, 2), (0, 2, 3), (1, 4, 2)]
+    g = read_geometry(f, "model")
+    assert g.is_mesh and len(g.faces) == 3
+    # a truncated polygon list is refused with the file named, not handed to another parser
+    f.write_bytes(_poly_ply(binary)[:-6])
+    with pytest.raises(InputError, match="poly.ply"):
+        read_geometry(f, "model")

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from tofmetry.errors import FormatError, InputError
-from tofmetry.io.ply import UnsupportedPlyError, read_ply
+from tofmetry.io.ply import read_ply
 
 SUPPORTED_SUFFIXES = (".ply", ".obj", ".stl")
 
@@ -63,13 +63,10 @@ def read_geometry(path: str | os.PathLike, what: str = "geometry") -> Geometry:
         raise InputError(f"{what} {path}: unsupported format {suffix!r}; expected one of {', '.join(SUPPORTED_SUFFIXES)}")
     pts = faces = normals = None
     if suffix == ".ply":
-        try:
+        try:  # never handed to Open3D: its PLY parser crashes the process on some malformed files (fuzzing)
             d = read_ply(path)
             pts, faces, normals = d["points"], d.get("faces"), d.get("normals")
-        except UnsupportedPlyError:
-            pts = None  # a valid PLY our reader does not handle (polygons of mixed sizes): Open3D reads it
         except FormatError as exc:
-            # not handed to Open3D: its PLY parser crashes the process on some malformed files (fuzzing)
             raise InputError(f"{what} {exc}") from None
     if pts is None:
         import open3d as o3d

@@ -16,10 +16,6 @@ import numpy as np
 from tofmetry.errors import FormatError
 from tofmetry.io._atomic import atomic_write_bytes
 
-class UnsupportedPlyError(FormatError):
-    """A well-formed PLY using a feature this reader does not implement (e.g. polygons of mixed sizes)."""
-
-
 _PLY_TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
     "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
@@ -153,24 +149,17 @@ def _read_ply(path: Path, raw: bytes) -> dict[str, np.ndarray]:
                 for j, (pn, _) in enumerate(props):
                     out[pn] = arr[:, j]
             elif name == "face":
-                out["faces"] = np.array([[int(x) for x in r[1:4]] for r in rows], dtype=np.int64).reshape(-1, 3)
+                li = [j for j, (_, t) in enumerate(props) if isinstance(t, tuple)]
+                if li:
+                    out["faces"] = _fan_triangles([_ascii_list(r, props, li[0]) for r in rows])
     else:
         bo = "<" if fmt == "binary_little_endian" else ">"
         off = 0
         for name, count, props in elements:
             if any(isinstance(t, tuple) for _, t in props):
-                # only triangle/uniform lists are supported (vertex_indices)
-                (pn, (_, ct, it)), = [p for p in props if isinstance(p[1], tuple)] or [(None, (None, None, None))]
-                if len(props) != 1:
-                    raise UnsupportedPlyError(f"{path}: face element with extra properties is not supported")
-                cnt = np.frombuffer(body, dtype=bo + ct, count=1, offset=off)[0] if count else 3
-                dt = np.dtype([("n", bo + ct), ("i", bo + it, (int(cnt),))])
-                arr = np.frombuffer(body, dtype=dt, count=count, offset=off)
-                if count and np.any(arr["n"] != cnt):
-                    raise UnsupportedPlyError(f"{path}: mixed polygon sizes in faces are not supported")
-                off += dt.itemsize * count
+                polys, off = _binary_lists(path, body, off, count, props, bo)
                 if name == "face":
-                    out["faces"] = arr["i"].astype(np.int64)
+                    out["faces"] = _fan_triangles(polys)
                 continue
             dt = np.dtype([(pn, bo + t) for pn, t in props])
             if off + dt.itemsize * count > len(body):
@@ -189,3 +178,68 @@ def _read_ply(path: Path, raw: bytes) -> dict[str, np.ndarray]:
         res["colors"] = np.column_stack([out.pop("red"), out.pop("green"), out.pop("blue")]).astype(np.uint8)
     res.update(out)
     return res
+
+
+def _ascii_list(row: list[str], props: list, j: int) -> list[int]:
+    """The ``j``-th property of an ASCII record as a list (scalars before it skipped)."""
+    pos = 0
+    for k, (_, t) in enumerate(props):
+        if k == j:
+            n = int(row[pos])
+            if n < 0 or pos + 1 + n > len(row):
+                raise ValueError(f"list of {n} items in a record of {len(row)} values")
+            return [int(x) for x in row[pos + 1:pos + 1 + n]]
+        pos += 1 + int(row[pos]) if isinstance(t, tuple) else 1
+    return []
+
+
+def _binary_lists(path: Path, body: bytes, off: int, count: int, props: list, bo: str) -> tuple:
+    """Records of an element with list properties (polygons of any sizes, extra properties):
+    the first list of each record ((count, n) array when all have n items, else a list), and the
+    offset after the element."""
+    if count:
+        types = [t for _, t in props]
+        uniform = len(props) == 1 and off + np.dtype(bo + types[0][1]).itemsize <= len(body)
+        if uniform:  # the common case, one list of equal sizes: one read
+            ct, it = types[0][1], types[0][2]
+            n = int(np.frombuffer(body, dtype=bo + ct, count=1, offset=off)[0])
+            if 0 <= n <= 64:
+                dt = np.dtype([("n", bo + ct), ("i", bo + it, (n,))])
+                if off + dt.itemsize * count <= len(body):
+                    arr = np.frombuffer(body, dtype=dt, count=count, offset=off)
+                    if np.all(arr["n"] == n):
+                        return arr["i"].astype(np.int64).reshape(count, n), off + dt.itemsize * count
+    polys = []
+    for _ in range(count):  # general case: record by record (each consumes >= 1 byte, so this ends)
+        first = None
+        for _, t in props:
+            if isinstance(t, tuple):
+                ct, it = np.dtype(bo + t[1]), np.dtype(bo + t[2])
+                if off + ct.itemsize > len(body):
+                    raise FormatError(f"{path}: truncated PLY body")
+                n = int(np.frombuffer(body, dtype=ct, count=1, offset=off)[0])
+                off += ct.itemsize
+                if n < 0 or off + n * it.itemsize > len(body):
+                    raise FormatError(f"{path}: truncated PLY body (a list of {n} items)")
+                items = np.frombuffer(body, dtype=it, count=n, offset=off)
+                off += n * it.itemsize
+                if first is None:
+                    first = items.astype(np.int64)
+            else:
+                off += np.dtype(bo + t).itemsize
+                if off > len(body):
+                    raise FormatError(f"{path}: truncated PLY body")
+        polys.append(first if first is not None else np.zeros(0, np.int64))
+    return polys, off
+
+
+def _fan_triangles(polys) -> np.ndarray:
+    """(M, 3) int64 triangles of polygons (lists of vertex indices, or a (K, n) array) as fans;
+    polygons of fewer than 3 vertices are dropped."""
+    if isinstance(polys, np.ndarray):
+        if polys.ndim != 2 or polys.shape[1] < 3:
+            return np.zeros((0, 3), np.int64)
+        return np.concatenate([polys[:, [0, k, k + 1]] for k in range(1, polys.shape[1] - 1)]).astype(np.int64)
+    tris = [np.stack([np.full(len(p) - 2, p[0]), p[1:-1], p[2:]], 1) for p in (np.asarray(q, np.int64) for q in polys)
+            if len(p) >= 3]
+    return np.concatenate(tris).astype(np.int64) if tris else np.zeros((0, 3), np.int64)
