@@ -17,8 +17,9 @@ Conventions (from iai_kinect2's ``kinect2_calibration.cpp``):
 * Their recordings (``kinect_cal_data``) also hold ``NNNN_ir_points.yaml`` (``points``: the
   detected corners, a flat list ``[u0, v0, u1, v1, ...]`` in pixels).
 
-PyYAML cannot read these files (``%YAML:1.0`` and the ``!!opencv-matrix`` tag), so reading
-goes through ``cv2.FileStorage``; writing uses a small emitter that reproduces OpenCV 2/3's
+PyYAML reads these files once the ``%YAML:1.0`` directive (not YAML 1.1 syntax) is dropped and
+``!!opencv-matrix`` is known to its safe loader (``cv2.FileStorage`` is not used: its parser
+aborts the process on some malformed files); writing uses a small emitter that reproduces OpenCV 2/3's
 byte layout (``%YAML:1.0`` header, ``%.16e`` numbers, integral values as ``1.``, wrapping at
 column 71), which iai_kinect2 (built against OpenCV 2/3) loads.
 """
@@ -31,6 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from tofmetry.errors import FormatError, InputError
 from tofmetry.io._atomic import atomic_write_bytes
@@ -45,8 +47,19 @@ _DT = {"d": np.float64, "f": np.float32, "i": np.int32, "u": np.uint8, "c": np.i
 
 
 # ----------------------------------------------------------------------------- reading
+class _OpenCvLoader(yaml.SafeLoader):
+    """PyYAML's safe loader plus OpenCV's ``!!opencv-matrix`` tag (a plain mapping)."""
+
+
+_OpenCvLoader.add_constructor("tag:yaml.org,2002:opencv-matrix", yaml.SafeLoader.construct_mapping)
+
+
 def read_opencv_yaml(path: str | os.PathLike) -> dict[str, np.ndarray | float | str]:
     """Read a top-level OpenCV FileStorage YAML map.
+
+    Parsed with PyYAML's safe loader (the ``%YAML:1.0`` directive dropped, ``!!opencv-matrix``
+    read as a mapping), not with ``cv2.FileStorage``, whose parser aborts the process on some
+    malformed files (found by fuzzing).
 
     Parameters
     ----------
@@ -55,7 +68,7 @@ def read_opencv_yaml(path: str | os.PathLike) -> dict[str, np.ndarray | float | 
     Returns
     -------
     dict
-        ``!!opencv-matrix`` entries -> (rows, cols) ndarray; numbers -> float;
+        ``!!opencv-matrix`` entries -> (rows, cols) float64 ndarray; numbers -> float;
         flat numeric sequences -> (N,) float64 ndarray; strings -> str.
 
     Raises
@@ -65,61 +78,69 @@ def read_opencv_yaml(path: str | os.PathLike) -> dict[str, np.ndarray | float | 
     FormatError
         The file is not OpenCV FileStorage YAML (naming the file).
     """
-    import cv2
-
     path = Path(path)
     if not path.is_file():
         raise InputError(f"OpenCV YAML file not found: {path}")
-    head = path.read_bytes()[:64]
-    if not head.lstrip().startswith(b"%YAML"):
+    raw = path.read_bytes()
+    if not raw.lstrip().startswith(b"%YAML"):
         raise FormatError(
-            f"{path}: not an OpenCV FileStorage YAML file (expected a '%YAML:1.0' first line, found {head[:20]!r})"
+            f"{path}: not an OpenCV FileStorage YAML file (expected a '%YAML:1.0' first line, found {raw[:20]!r})"
         )
     try:
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except (cv2.error, SystemError, UnicodeDecodeError) as exc:   # cv2.error, or a SystemError wrapping it
-        msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else "parse error"
-        raise FormatError(f"{path}: not readable as OpenCV FileStorage YAML ({msg})") from None
-    try:
-        if not fs.isOpened():
-            raise FormatError(f"{path}: not readable as OpenCV FileStorage YAML")
-        root = fs.root()
-        if not root.isMap():
-            raise FormatError(f"{path}: expected a map of named entries at the top level")
-        out: dict = {}
+        text = raw.decode("utf-8")
+        body = text.lstrip().split("\n", 1)[1] if "\n" in text.lstrip() else ""
+        loader = _OpenCvLoader(body)
         try:
-            keys = list(root.keys())
-        except (cv2.error, SystemError, UnicodeDecodeError) as exc:
-            raise FormatError(f"{path}: top-level entries not readable ({type(exc).__name__})") from None
-        for key in keys:
-            try:
-                out[key] = _node_value(root.getNode(key), path, key)
-            except (cv2.error, SystemError, ValueError, TypeError, UnicodeDecodeError) as exc:
-                msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
-                raise FormatError(f"{path}: entry {key!r} is not readable ({msg})") from None
-        return out
-    finally:
-        fs.release()
+            root = loader.get_single_data()
+        finally:
+            loader.dispose()
+    except (yaml.YAMLError, UnicodeDecodeError, RecursionError, ValueError, TypeError) as exc:
+        msg = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else type(exc).__name__
+        raise FormatError(f"{path}: not readable as OpenCV FileStorage YAML ({msg})") from None
+    if not isinstance(root, dict):
+        raise FormatError(f"{path}: expected a map of named entries at the top level")
+    out: dict = {}
+    for key, node in root.items():
+        try:
+            out[str(key)] = _node_value(node, path, str(key))
+        except (ValueError, TypeError, OverflowError, RecursionError) as exc:
+            msg = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else type(exc).__name__
+            raise FormatError(f"{path}: entry {key!r} is not readable ({msg})") from None
+    return out
+
+
+def _number(v, path: Path, key: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise FormatError(f"{path}: entry {key!r}: expected a number, found {type(v).__name__}")
+    return float(v)
 
 
 def _node_value(node, path: Path, key: str):
-    if node.isMap():
-        m = node.mat()
-        if m is None:
+    if isinstance(node, dict):
+        if not {"rows", "cols", "data"} <= set(node):
             raise FormatError(f"{path}: entry {key!r} is a map but not an !!opencv-matrix")
-        return np.asarray(m, dtype=np.float64)
-    if node.isSeq():
+        rows, cols = node["rows"], node["cols"]
+        if not (isinstance(rows, int) and isinstance(cols, int)) or isinstance(rows, bool) or isinstance(cols, bool) \
+                or rows < 0 or cols < 0:
+            raise FormatError(f"{path}: entry {key!r}: rows and cols must be non-negative integers")
+        data = node["data"] if isinstance(node["data"], list) else [node["data"]]
+        vals = [_number(v, path, key) for v in data]
+        if len(vals) != rows * cols:
+            raise FormatError(f"{path}: entry {key!r}: {len(vals)} values for a {rows}x{cols} matrix")
+        return np.asarray(vals, dtype=np.float64).reshape(rows, cols)
+    if isinstance(node, list):
         vals = []
-        for i in range(node.size()):
-            item = node.at(i)
-            if not (item.isReal() or item.isInt()):
+        for i, item in enumerate(node):
+            if isinstance(item, bool) or not isinstance(item, (int, float)):
                 raise FormatError(f"{path}: entry {key!r}: element {i} of the sequence is not a number")
-            vals.append(item.real())
+            vals.append(float(item))
         return np.asarray(vals, dtype=np.float64)
-    if node.isReal() or node.isInt():
-        return float(node.real())
-    if node.isString():
-        return node.string()
+    if isinstance(node, bool):
+        return str(node).lower()
+    if isinstance(node, (int, float)):
+        return float(node)
+    if isinstance(node, str):
+        return node
     return None
 
 
