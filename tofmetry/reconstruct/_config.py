@@ -112,6 +112,13 @@ class RegistrationConfig(BaseModel):
     gain_max_sigma: float = Field(0.002, gt=0, description="the depth gain is estimated only when the views determine "
                                   "it to within this standard error (poses marginalised, no prior, times "
                                   "sigma_inflation); otherwise it stays 0 and the report says why")
+    gain_systematic_mm: float | None = Field(0.0, ge=0, description="depth error common to whole views [mm] that "
+                                             "enters the gain's standard error besides the noise (a gain is then "
+                                             "estimated only when it moves the residuals by more than this error); "
+                                             "None: the depth calibration's predicted central error (0 without one). "
+                                             "Default 0 (noise only): with None, 2 refused-gain false alarms of the "
+                                             "family go, but a pebble whose wrong poses only the refused gain "
+                                             "revealed is then reported reliable (a miss)")
     gain_max_calibration_sigmas: float = Field(3.0, gt=0, description="an estimated depth gain larger than this many "
                                                "times the gain the depth calibration can leave between its stations "
                                                "(its predicted central error over half the station spacing) is refused "

@@ -28,7 +28,7 @@ from tofmetry.reconstruct._preprocess import ViewData, prepare_view
 from tofmetry.reconstruct._register import register_pair, rejection_reason
 from tofmetry.reconstruct._regview import RegView, make_reg_view
 from tofmetry.reconstruct._segment import Segmentation, segment_object
-from tofmetry.reconstruct._verdict import assess, calibration_gain_sigma, scale_report
+from tofmetry.reconstruct._verdict import assess, calibration_central_mm, calibration_gain_sigma, scale_report
 from tofmetry.reconstruct._world import support_plane_frame, transform_plane, transform_points
 
 
@@ -210,6 +210,9 @@ class ReconstructionPipeline:
             return None
         z_ref = _median_object_depth_m(views, segs)
         sg_cal = None if self.cal is None else calibration_gain_sigma(self.cal.prediction or {})
+        e_sys = rc.gain_systematic_mm
+        if e_sys is None:  # opt-in: the calibration's predicted central error
+            e_sys = (calibration_central_mm(self.cal.prediction or {}) if self.cal is not None else None) or 0.0
         av = [AdjustView(*(r.mid_points, r.mid_normals) if r.mid_points is not None else (r.icp_points, r.icp_normals),
                          r.icp_points, r.icp_normals) for r in regs]
         with self.progress("global adjustment", None):
@@ -217,7 +220,8 @@ class ReconstructionPipeline:
                 res = global_adjust(av, poses, z_ref, tuple(x * 1e-3 for x in rc.adjust_radii_mm), rc.adjust_iters,
                                     estimate_gain=rc.estimate_depth_gain, gain_prior_sigma=rc.depth_gain_prior,
                                     gain_max_sigma=rc.gain_max_sigma, sigma_inflation=rc.sigma_inflation,
-                                    gain_max_abs=None if sg_cal is None else rc.gain_max_calibration_sigmas * sg_cal)
+                                    gain_max_abs=None if sg_cal is None else rc.gain_max_calibration_sigmas * sg_cal,
+                                    systematic_m=e_sys * 1e-3)
             except EstimationError as exc:  # keep the pose-graph poses; the reason goes to the diagnostics
                 self.adjust_failure = str(exc)
                 return None

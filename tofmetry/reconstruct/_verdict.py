@@ -158,15 +158,21 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
             "loop_pose_bound": {"deg": round(b_deg, 4), "mm": round(b_mm, 3)}, "yaw_free_edges": yaw_free}
 
 
-def calibration_gain_sigma(calibration_prediction: dict | None) -> float | None:
-    """The depth gain a calibration can leave between its stations: its predicted central error
-    ``e`` [mm] over half the station spacing [mm] (dimensionless); None without a prediction."""
+def calibration_central_mm(calibration_prediction: dict | None) -> float | None:
+    """The calibration's predicted central error between its stations [mm]; None without one."""
     if not calibration_prediction:
         return None
     e = ((calibration_prediction.get("interpolation") or {}).get("central_abs_mm") or {}).get("predicted")
+    return None if e is None else float(e)
+
+
+def calibration_gain_sigma(calibration_prediction: dict | None) -> float | None:
+    """The depth gain a calibration can leave between its stations: its predicted central error
+    ``e`` [mm] over half the station spacing [mm] (dimensionless); None without a prediction."""
+    e = calibration_central_mm(calibration_prediction)
     if e is None:
         return None
-    return float(e) / (_station_spacing_mm(calibration_prediction) / 2)
+    return e / (_station_spacing_mm(calibration_prediction) / 2)
 
 
 def _station_spacing_mm(calibration_prediction: dict) -> float:

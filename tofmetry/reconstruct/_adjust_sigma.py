@@ -1,0 +1,63 @@
+"""Standard errors of the global adjustment (:mod:`tofmetry.reconstruct._adjust`): the depth gain's,
+with the poses marginalised and a systematic depth error counted, and the poses'.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def gain_sigmas(H: np.ndarray, s2: float, sw: float, inflation: float, systematic_m: float) -> tuple[float, float]:
+    """Standard error of the gain from the data, poses marginalised: (total, systematic part).
+
+    The random part is ``sqrt(s2 / I) * inflation`` (``I``: the gain's information, Schur
+    complement; ``s2``: robust residual variance [m^2]). The systematic part: ``sqrt(I / sw)`` is
+    how much the residuals move, RMS per (weighted) correspondence, per unit of gain once the poses
+    have absorbed what they can [m]. A depth error common to whole views (the calibration's
+    residual between its stations, ``systematic_m`` [m]) does not average out over the points,
+    so it moves the gain by ``systematic_m / sqrt(I / sw)``. Measured on a rocker arm seen by 11
+    views: 0.086 mm per 1 % of gain, against a calibration residual of 0.38 mm: the gain is free
+    to +-4 %, while the noise alone claims +-0.12 %.
+
+    Parameters
+    ----------
+    H : (P, P) data-only normal matrix, gain last [residual units: m]
+    s2 : robust residual variance [m^2]; sw : sum of the robust weights (correspondences)
+    inflation : factor on the random part; systematic_m : depth error common to whole views [m]
+
+    Returns
+    -------
+    (total, systematic) dimensionless; inf when the gain is not determined at all.
+    """
+    info = _gain_information(H)
+    if not info > 0 or not sw > 0:
+        return float("inf"), float("inf")
+    rnd = float(np.sqrt(s2 / info)) * inflation
+    sys_ = float(systematic_m / np.sqrt(info / sw))
+    return float(np.hypot(rnd, sys_)), sys_
+
+
+def _gain_information(H: np.ndarray) -> float:
+    """Information on the gain (last unknown) with the poses marginalised (Schur complement)."""
+    Hpp, Hpg, Hgg = H[:-1, :-1], H[:-1, -1], H[-1, -1]
+    try:
+        return float(Hgg - Hpg @ np.linalg.solve(Hpp, Hpg))
+    except np.linalg.LinAlgError:
+        return 0.0
+
+
+def pose_sigmas(H: np.ndarray | None, s2: float, V: int, with_gain: bool, inflation: float):
+    """Standard errors of the poses (rotation [deg], translation [mm]) from the data-only normal matrix."""
+    if H is None:
+        return None, None
+    Hp = H if with_gain else H[:-1, :-1]
+    try:
+        C = np.linalg.inv(Hp + np.eye(len(Hp)) * 1e-12 * np.trace(Hp) / len(Hp)) * s2
+    except np.linalg.LinAlgError:
+        return None, None
+    d = np.sqrt(np.clip(np.diag(C), 0, None)) * inflation
+    deg, mm = np.zeros(V), np.zeros(V)
+    for v in range(1, V):
+        deg[v] = np.degrees(np.linalg.norm(d[6 * (v - 1):6 * (v - 1) + 3]))
+        mm[v] = np.linalg.norm(d[6 * (v - 1) + 3:6 * v]) * 1e3
+    return deg, mm
