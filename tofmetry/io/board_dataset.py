@@ -80,7 +80,7 @@ def read_corners(path: str | os.PathLike, board: BoardSpec):
     d = read_json(path, "corners file")
     try:
         c = np.asarray(d["corners_px"], float)
-    except (KeyError, TypeError, ValueError):
+    except (KeyError, TypeError, ValueError, OverflowError):
         raise FormatError(f"{path}: expected {{'corners_px': [[u, v], ...]}} (or a list of such grids)") from None
     n = board.cols * board.rows
     if c.ndim == 3 and c.shape[1:] == (n, 2) and c.shape[0] >= 1:
@@ -101,7 +101,7 @@ class BoardDataset:
         meta = read_json(self.path / "board.json", "board.json")
         try:
             self.board = BoardSpec(int(meta["cols"]), int(meta["rows"]), float(meta["square_mm"]))
-        except (KeyError, TypeError, ValueError):
+        except (KeyError, TypeError, ValueError, OverflowError):
             raise FormatError(f"{self.path / 'board.json'}: expected cols, rows (inner corners) and square_mm") from None
         self.meta = meta
         self.sensor = str(meta.get("sensor", "unknown"))

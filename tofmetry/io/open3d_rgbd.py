@@ -33,7 +33,7 @@ def read_open3d_intrinsics(path: str | os.PathLike) -> CameraIntrinsics:
     try:
         m = [float(x) for x in d["intrinsic_matrix"]]
         w, h = int(d["width"]), int(d["height"])
-    except (KeyError, TypeError, ValueError):
+    except (KeyError, TypeError, ValueError, OverflowError):
         raise FormatError(f"{path}: expected width, height and intrinsic_matrix (9 numbers, column-major)") from None
     if len(m) != 9:
         raise FormatError(f"{path}: intrinsic_matrix has {len(m)} values, expected 9")
