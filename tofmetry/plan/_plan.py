@@ -34,11 +34,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial import ConvexHull
 
 from tofmetry.errors import InputError
 from tofmetry.evaluate import CameraViews, observed_mask, sample_mesh
 from tofmetry.sensor import CameraIntrinsics
-from tofmetry.simulate.objects import place_object
+from tofmetry.simulate.objects import grid_mesh, place_object
 from tofmetry.simulate.paths import turntable
 from tofmetry.simulate.poses import look_at
 
@@ -120,9 +121,7 @@ def proxy_from_size(width_m: float, depth_m: float, height_m: float) -> PlanObje
     y = np.sign(st * np.sin(ph)) * np.abs(st * np.sin(ph)) ** e
     z = np.sign(ct) * np.abs(ct) ** e * np.ones_like(ph)
     P = np.stack([x * width_m / 2, y * depth_m / 2, z * height_m / 2], -1)
-    from tofmetry.simulate.objects import _grid_mesh
-
-    v, f = _grid_mesh(P[::-1])
+    v, f = grid_mesh(P[::-1])
     v[:, 2] -= v[:, 2].min()
     return PlanObject(v, f, "size")
 
@@ -138,8 +137,6 @@ def proxy_from_points(points_up: np.ndarray) -> PlanObject:
     """A prism over the convex hull of the object's footprint, up to its height: the object as a
     first view shows it. ``points_up``: (N, 3) object points [m] in a frame whose z is the support
     plane's normal and z = 0 the plane."""
-    from scipy.spatial import ConvexHull
-
     p = np.asarray(points_up, np.float64)
     if len(p) < 10:
         raise InputError(f"plan: the first view shows only {len(p)} object points")
@@ -149,9 +146,7 @@ def proxy_from_points(points_up: np.ndarray) -> PlanObject:
     ring = ring - ring.mean(0)
     n = len(ring)
     P = np.stack([np.c_[ring, np.zeros(n)], np.c_[ring, np.full(n, h)]])
-    from tofmetry.simulate.objects import _grid_mesh
-
-    v, f = _grid_mesh(P)
+    v, f = grid_mesh(P)
     return PlanObject(v, f, "first view")
 
 

@@ -113,8 +113,19 @@ def _orient_outward(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     return f[:, ::-1].copy() if vol < 0 else f
 
 
-def _grid_mesh(P: np.ndarray, close_ends: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """Mesh of a closed-around grid ``P`` (n_rings, n_around, 3), each end capped by a fan."""
+def grid_mesh(P: np.ndarray, close_ends: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Mesh of a closed-around grid of points, each end capped by a fan.
+
+    Parameters
+    ----------
+    P : (n_rings, n_around, 3) float [m], rings of points around the object, in order
+    close_ends : cap the first and the last ring with a fan around its mean
+
+    Returns
+    -------
+    vertices : (n_rings * n_around [+ 2], 3) float [m]
+    triangles : (M, 3) int64, oriented outward
+    """
     n, m, _ = P.shape
     v = P.reshape(-1, 3)
     f = []
@@ -134,7 +145,7 @@ def _grid_mesh(P: np.ndarray, close_ends: bool = True) -> tuple[np.ndarray, np.n
 def _revolve(z: np.ndarray, r: np.ndarray, n_around: int = 96) -> tuple[np.ndarray, np.ndarray]:
     a = np.linspace(0, 2 * np.pi, n_around, endpoint=False)
     P = np.stack([r[:, None] * np.cos(a), r[:, None] * np.sin(a), np.repeat(z[:, None], n_around, 1)], -1)
-    return _grid_mesh(P)
+    return grid_mesh(P)
 
 
 def vase(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -150,7 +161,7 @@ def vase(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     d_ang = np.angle(np.exp(1j * (a - aa)))
     R += h * np.exp(-(d_ang[None] / 0.22) ** 2 - ((z[:, None] - za) / 0.12) ** 2)
     P = np.stack([R * np.cos(a), R * np.sin(a), np.repeat(z[:, None], len(a), 1)], -1)
-    return _grid_mesh(P)
+    return grid_mesh(P)
 
 
 def _hull(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -217,7 +228,7 @@ def _sphere(n: int = 48) -> tuple[np.ndarray, np.ndarray]:
     ph = np.linspace(0, 2 * np.pi, 2 * n, endpoint=False)
     P = np.stack([np.sin(th)[:, None] * np.cos(ph), np.sin(th)[:, None] * np.sin(ph),
                   np.repeat(np.cos(th)[:, None], len(ph), 1)], -1)[::-1]
-    return _grid_mesh(P)
+    return grid_mesh(P)
 
 
 def pebble(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -269,7 +280,7 @@ def bar(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     cy, cz = np.sign(ca) * np.abs(ca) ** (2 / e), np.sign(sa) * np.abs(sa) ** (2 / e)
     taper = 1.0 + 0.25 * (s + 0.5)  # one end thicker
     P = centre[:, None] + rad * taper[:, None, None] * (cy[None, :, None] * side[:, None] + cz[None, :, None] * up)
-    return _grid_mesh(P)
+    return grid_mesh(P)
 
 
 def plaque(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -283,7 +294,7 @@ def plaque(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     thick = rng.uniform(0.07, 0.12)
     outline = np.stack([x, z], 1)
     rings = [np.stack([outline[:, 0], np.full(n, y), outline[:, 1]], 1) for y in (-thick / 2, thick / 2)]
-    return _grid_mesh(np.stack(rings))
+    return grid_mesh(np.stack(rings))
 
 
 #: shapes whose geometry leaves a rotation free: painted more often (a decorated vase, a labelled box)
