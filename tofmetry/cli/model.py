@@ -40,13 +40,13 @@ def reconstruct(
         "unreliable (the outputs are written and flagged in poses.json either way; without this option the exit code is 3)."),
 ) -> None:
     """Automatic 3D model of an object from several views: segment, register (pose graph), fuse (TSDF), mesh."""
+    from tofmetry.pipelines.paths import refuse_existing
     from tofmetry.pipelines.reconstruct import reconstruct_scan
     from tofmetry.reconstruct import ReconstructionConfig
 
     if (calibration is None) == (not no_calibration):
         raise InputError("pass either --calibration FILE or --no-calibration (raw depth), not both / not neither")
-    if output.exists() and any(output.iterdir() if output.is_dir() else [output]) and not force:
-        raise InputError(f"output {output} already exists; pass --force to replace it")
+    refuse_existing(output, force)
     cfg = ReconstructionConfig()
     cfg.segment.keep_all = keep_all
     cfg.fusion.poisson = poisson

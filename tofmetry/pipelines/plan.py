@@ -17,6 +17,7 @@ import numpy as np
 
 from tofmetry.errors import InputError
 from tofmetry.io import atomic_write_json, read_json
+from tofmetry.pipelines.paths import refuse_existing
 from tofmetry.plan import PlanObject, predict, propose, proxy_from_mesh, proxy_from_points, proxy_from_size, ring
 from tofmetry.sensor import KINECT_V2, CameraIntrinsics
 
@@ -134,10 +135,8 @@ def plan_acquisition(*, size: tuple[float, float, float] | None = None, mesh: st
     run = PlanRun(obj, intr, best, ranked, asked, {"target": target, "distance_m": distance_m, "n_frames": n_frames,
                                                    "calibration_mm": cal_mm})
     if output is not None:
-        out = Path(output)
-        if out.exists() and not force:
-            raise InputError(f"output {out} already exists; pass --force to replace it")
-        atomic_write_json(out, run.to_dict())
+        refuse_existing(output, force)
+        atomic_write_json(Path(output), run.to_dict())
     return run
 
 
