@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from tofmetry._shared.geometry import transform_points
 from tofmetry.reconstruct._verdict import assess, calibration_gain_sigma, scale_report
-from tofmetry.reconstruct._world import support_plane_frame, transform_plane, transform_points
+from tofmetry.reconstruct._world import support_plane_frame, transform_plane
 
 
 def _edge(a, b, kept=True, accepted=True, yaw=1.0, method="plane-yaw+icp"):

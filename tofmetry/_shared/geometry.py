@@ -1,4 +1,5 @@
-"""Small geometric helpers used by several packages: rotation angle, SVD plane fit, principal axes.
+"""Small geometric helpers used by several packages: rotation angle, SVD plane fit, principal axes,
+rigid transform of points.
 
 Pure functions on arrays; points are (N, 3) in any length unit (the result keeps it).
 """
@@ -67,3 +68,8 @@ def fit_plane_svd(points: np.ndarray, orient: np.ndarray | None = None) -> np.nd
     if orient is not None and n @ np.asarray(orient, dtype=np.float64)[:3] < 0:
         n = -n
     return np.r_[n, -n @ c]
+
+
+def transform_points(points: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """(N, 3) points carried by the (4, 4) rigid transform ``T`` (``p' = R p + t``, same unit as ``t``)."""
+    return np.asarray(points) @ T[:3, :3].T + T[:3, 3]

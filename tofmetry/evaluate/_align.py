@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from tofmetry._shared.geometry import transform_points
 from tofmetry.errors import EstimationError
 from tofmetry.reconstruct import estimate_normals, global_register, icp, voxel_down
 
@@ -134,6 +135,5 @@ def align_to_reference(model_pts: np.ndarray, ref_pts: np.ndarray, ref_nrm: np.n
     return res
 
 
-def apply_transform(points: np.ndarray, T: np.ndarray) -> np.ndarray:
-    """Apply a (4, 4) rigid transform to (N, 3) points."""
-    return points @ T[:3, :3].T + T[:3, 3]
+#: (N, 3) points carried by a (4, 4) rigid transform (the shared helper, public here)
+apply_transform = transform_points

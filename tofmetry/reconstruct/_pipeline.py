@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from tofmetry._shared.geometry import fit_plane_svd
+from tofmetry._shared.geometry import fit_plane_svd, transform_points
 from tofmetry.errors import EstimationError, InputError, SensorMismatchError
 from tofmetry.reconstruct._adjust import (
     AdjustResult,
@@ -29,7 +29,7 @@ from tofmetry.reconstruct._register import register_pair, rejection_reason
 from tofmetry.reconstruct._regview import RegView, make_reg_view
 from tofmetry.reconstruct._segment import Segmentation, segment_object
 from tofmetry.reconstruct._verdict import assess, calibration_central_mm, calibration_gain_sigma, scale_report
-from tofmetry.reconstruct._world import support_plane_frame, transform_plane, transform_points
+from tofmetry.reconstruct._world import support_plane_frame, transform_plane
 
 
 @contextmanager

@@ -7,8 +7,9 @@ it, measure heights or compare it with a drawing. :func:`support_plane_frame` bu
 * origin: the object's footprint centre (the centroid of its points projected on the plane);
 * x: the first camera's viewing direction projected on the plane (a turntable's "front");
 
-and :func:`to_world` carries poses, clouds, meshes and the plane into it. Without a support plane
-(segmentation skipped) the first camera's frame is kept.
+and :func:`transform_plane` (with :func:`tofmetry._shared.geometry.transform_points`) carries the plane,
+poses, clouds and meshes into it. Without a support plane (segmentation skipped) the first camera's
+frame is kept.
 """
 
 from __future__ import annotations
@@ -50,11 +51,6 @@ def support_plane_frame(plane: np.ndarray, object_points: np.ndarray, camera0: n
     W[:3, :3] = R
     W[:3, 3] = -R @ o
     return W
-
-
-def transform_points(points: np.ndarray, W: np.ndarray) -> np.ndarray:
-    """(N, 3) points [m] carried by the 4x4 ``W``."""
-    return np.asarray(points, np.float64) @ W[:3, :3].T + W[:3, 3]
 
 
 def transform_plane(plane: np.ndarray, W: np.ndarray) -> np.ndarray:
