@@ -2,8 +2,8 @@
 
 Rays go through every pixel of the *distorted* image: the undistorted ray table gives the
 normalised ``(x, y)`` and the camera-frame direction is ``(x, y, 1)``, so the hit parameter
-of a ray is directly its depth Z. Each pixel is also supersampled ``n x n`` (sub-pixel rays
-from the local Jacobian of the ray table) to anti-alias the IR amplitude and to find mixed
+of a ray is directly its depth Z. Each pixel is also supersampled with ``n x n`` sub-pixel rays
+(an n-rooks pattern, :func:`_sub_offsets`, placed through the local Jacobian of the ray table) to anti-alias the IR amplitude and to find mixed
 ("flying") pixels at depth discontinuities.
 
 A bare wall (:func:`tofmetry.simulate.scenes.wall`: one infinite, uniform plane) takes an
@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
+from scipy.special import ndtr
 
 from tofmetry.errors import InputError
 from tofmetry.sensor.intrinsics import CameraIntrinsics
@@ -59,10 +60,49 @@ class Rendering:
     xy: np.ndarray
 
 
-def _sub_offsets(n: int) -> np.ndarray:
-    o = (np.arange(n) + 0.5) / n - 0.5
-    du, dv = np.meshgrid(o, o)
-    return np.column_stack([du.ravel(), dv.ravel()])  # (S, 2)
+def _sub_offsets(n: int, pixels: np.ndarray, blur_px: float = 0.0) -> np.ndarray:
+    """Sub-pixel ray offsets of each pixel, ``n x n`` per pixel: (E, n*n, 2) [px].
+
+    The ``S = n*n`` sub-rays of a pixel sample the pixel's footprint: its area (a unit box)
+    convolved with the lens's point spread (a Gaussian of sigma ``blur_px`` [px]), a separable
+    density. They are placed as an n-rooks ("Latin hypercube") pattern of that density: the ``S``
+    quantiles ``(k + 1/2) / S`` of its marginal in u, paired with the same quantiles in v by a
+    permutation drawn per pixel from a hash of its index (deterministic, independent of which
+    other pixels are sampled). A regular ``n x n`` grid would sense an edge parallel to the pixel
+    rows or columns in steps of ``1/n`` px only, so every pixel along a straight, axis-aligned
+    board edge would carry the same aliasing error (up to ``1/(2n)`` px, coherent along the edge:
+    a bias no corner fit averages out). Here an axis-aligned edge is sensed in steps of ``1/S``
+    of the footprint, and the error of a slanted edge changes from pixel to pixel.
+    """
+    S = n * n
+    o = _footprint_quantiles(S, float(blur_px))
+    k = np.asarray(pixels, np.uint64)[:, None] * np.uint64(S) + np.arange(S, dtype=np.uint64)[None, :]
+    perm = np.argsort(_splitmix64(k), axis=1)
+    return np.stack([np.broadcast_to(o, perm.shape), o[perm]], axis=-1)
+
+
+@lru_cache(maxsize=16)
+def _footprint_quantiles(S: int, blur_px: float) -> np.ndarray:
+    """(S,) quantiles ``(k + 1/2) / S`` [px] of a unit box convolved with a Gaussian of sigma ``blur_px``."""
+    p = (np.arange(S) + 0.5) / S
+    if blur_px <= 0:
+        return p - 0.5
+    t = np.linspace(-0.5 - 6 * blur_px, 0.5 + 6 * blur_px, 4001)
+
+    def g1(x):                          # antiderivative of the Gaussian CDF Phi(x / blur)
+        return x * ndtr(x / blur_px) + blur_px * np.exp(-0.5 * (x / blur_px) ** 2) / np.sqrt(2 * np.pi)
+
+    cdf = g1(t + 0.5) - g1(t - 0.5)
+    return np.interp(p, cdf, t)
+
+
+def _splitmix64(x: np.ndarray) -> np.ndarray:
+    """SplitMix64 finaliser of uint64 keys: a well-mixed deterministic hash (same shape, uint64)."""
+    with np.errstate(over="ignore"):
+        z = x + np.uint64(0x9E3779B97F4A7C15)
+        z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+        return z ^ (z >> np.uint64(31))
 
 
 #: Rays per chunk of the ray cast (the analytic wall path uses the same chunks).
@@ -137,10 +177,11 @@ def render(scene: Scene, intr: CameraIntrinsics, pose: np.ndarray, em: E.ErrorMo
         eidx = np.zeros(0, np.int64)
     gx_v, gx_u = np.gradient(xy[..., 0])
     gy_v, gy_u = np.gradient(xy[..., 1])
-    offs = _sub_offsets(supersample)
+    offs = _sub_offsets(supersample, eidx, em.optical_blur_px)
     xe, ye = xy[..., 0].ravel()[eidx], xy[..., 1].ravel()[eidx]
-    sx = xe[:, None] + gx_u.ravel()[eidx][:, None] * offs[:, 0] + gx_v.ravel()[eidx][:, None] * offs[:, 1]
-    sy = ye[:, None] + gy_u.ravel()[eidx][:, None] * offs[:, 0] + gy_v.ravel()[eidx][:, None] * offs[:, 1]
+    du, dv = offs[..., 0], offs[..., 1]
+    sx = xe[:, None] + gx_u.ravel()[eidx][:, None] * du + gx_v.ravel()[eidx][:, None] * dv
+    sy = ye[:, None] + gy_u.ravel()[eidx][:, None] * du + gy_v.ravel()[eidx][:, None] * dv
     zs, as_, _, _, _ = _cast(scene, R, o, sx.ravel(), sy.ravel(), em)
     zs, as_ = zs.reshape(-1, S), as_.reshape(-1, S)
     amp.reshape(-1)[eidx] = as_.mean(axis=1)
