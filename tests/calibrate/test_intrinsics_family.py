@@ -13,7 +13,7 @@ Targets (issue: IR intrinsics at OpenCV's accuracy or better):
 * the predicted ray error (from the parameter covariance) is of the size of the true one.
 
 Measured with ``python -m bench.intrinsics_family`` on 20 lenses x 15 images (medians, p90 in
-brackets): tofmetry ray RMS 0.062 (0.128) px; OpenCV SB + cornerSubPix half cell 0.215 (0.353) px;
+brackets): tofmetry ray RMS 0.064 (0.093) px; OpenCV SB + cornerSubPix half cell 0.245 (0.336) px;
 SB corners alone 0.62 (0.91) px; textbook 15 (94) px: its 11x11 window is wider than half the
 18-30 px squares and jumps to neighbouring corners.
 """
@@ -95,6 +95,7 @@ def test_family_predicted_ray_error_has_the_right_size(family):
     ratio = np.array([r["ratio_rms"] for r in rows])
     # one draw per lens of an error made of a few parameter modes: true / predicted scatters like
     # sqrt(chi2_k / k) with k ~ 3 (10-90 %: 0.3-1.5). Measured on 20 lenses: median 0.64,
-    # p10 0.34, p90 1.45. The prediction must be of the right size: median within 0.3-2
+    # p10 0.34, p90 1.45; since the renderer's n-rooks edge sampling: 0.87, p10 0.45, p90 1.50.
+    # The prediction must be of the right size: median within 0.3-2
     assert 0.3 < np.median(ratio) < 2.0, f"seeds {seeds}: ratios {np.round(ratio, 2)}"
     assert ratio.max() < 5.0, f"seeds {seeds}: ratios {np.round(ratio, 2)}"
