@@ -9,6 +9,7 @@ Noise statistics are merged pairwise on the cluster (a tree), never all on one w
 
 from __future__ import annotations
 
+import shutil
 import time
 
 from distributed import worker_client
@@ -20,6 +21,7 @@ from tofmetry.batch.outputs import fresh_staging, publish, staging_dir
 from tofmetry.errors import TofmetryError
 from tofmetry.io import Capture
 from tofmetry.pipelines.assess import write_assessment
+from tofmetry.pipelines.calibration_files import load_calibration
 
 
 def is_chunked(spec: dict) -> bool:
@@ -89,6 +91,8 @@ def run_chunked(spec: dict, out: str, token: str, *deps: dict) -> dict:
         o = options(spec)
         inp = spec["inputs"]
         cap = Capture(inp["capture"])
+        if spec["kind"] == "correct":    # a bad calibration fails here, before any chunk runs
+            load_calibration(inp["calibration"]).check_compatible(sensor=cap.sensor, shape=cap.shape)
         n, name = len(cap), f"{token}-{spec['name']}"
         st = str(fresh_staging(out, spec["name"]))
         r = spec.get("retries", 1)
@@ -112,4 +116,5 @@ def run_chunked(spec: dict, out: str, token: str, *deps: dict) -> dict:
         rec["chunks"] = len(parts)
         return rec
     except TofmetryError as exc:
+        shutil.rmtree(staging_dir(out, spec["name"]), ignore_errors=True)
         return failed(spec, exc, time.time() - t0)

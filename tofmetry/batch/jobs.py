@@ -10,6 +10,7 @@ Long recordings go through :mod:`.chunked` instead (see :mod:`.run`).
 from __future__ import annotations
 
 import os
+import shutil
 import socket
 import time
 from pathlib import Path
@@ -32,7 +33,7 @@ from tofmetry.study import load_config
 from tofmetry.study.pipeline import StudyPipeline
 from tofmetry.study.summary import build_report, report_json
 
-from tofmetry.batch.outputs import completed, fresh_staging, input_hashes, publish, settings_hash
+from tofmetry.batch.outputs import completed, fresh_staging, input_hashes, publish, settings_hash, staging_dir
 
 
 class _Opts(BaseModel):
@@ -267,4 +268,5 @@ def run_whole(spec: dict, out: str, *deps: dict) -> dict:
         publish(out, spec, rec)
         return rec
     except TofmetryError as exc:
+        shutil.rmtree(staging_dir(out, spec["name"]), ignore_errors=True)
         return failed(spec, exc, time.perf_counter() - t0)
