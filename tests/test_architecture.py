@@ -27,6 +27,7 @@ import tofmetry  # noqa: E402
 # Top to bottom; "|" separates independent packages of one layer.
 LAYERS = [
     "tofmetry.cli | tofmetry.api",
+    "tofmetry.batch",
     "tofmetry.study",
     "tofmetry.report | tofmetry.pipelines",
     "tofmetry.plan",

@@ -228,6 +228,40 @@ def assess_warmup(source, timestamps_s=None, *, ir: np.ndarray | None = None, pa
         n += 1
     if n != ts.size:
         raise InputError(f"{ts.size} timestamps for {n} frames")
+    return warmup_from_series(ts, dist, sel, "ir_max" if ir_img is not None else "depth_min", tolerance_mm=tolerance_mm,
+                              smooth_window_s=smooth_window_s, final_window_s=final_window_s, notes=notes)
+
+
+def warmup_from_series(timestamps_s: np.ndarray, distance_mm: np.ndarray, patch: tuple[int, int, int], patch_source: str,
+                       *, tolerance_mm: float, smooth_window_s: float | None, final_window_s: float,
+                       notes: list[str] | None = None) -> WarmupResult:
+    """The warm-up analysis of a patch-distance series (the second half of :func:`assess_warmup`).
+
+    Lets the series be measured in pieces (e.g. chunks of a long recording on several workers,
+    concatenated in frame order) and analysed once, with the same result as one pass.
+
+    Parameters
+    ----------
+    timestamps_s : (T,) float [s], strictly increasing frame times
+    distance_mm : (T,) float [mm], mean depth of the patch per frame (NaN: patch less than half valid)
+    patch : (u0, v0, size) of the followed patch [px]
+    patch_source : "ir_max" or "depth_min"
+    tolerance_mm, smooth_window_s, final_window_s : as in :func:`assess_warmup` (> 0; smooth_window_s None:
+        the same default)
+    notes : notes gathered so far (extended, not copied)
+
+    Returns
+    -------
+    WarmupResult
+    """
+    ts = np.asarray(timestamps_s, np.float64)
+    dist = np.asarray(distance_mm, np.float64)
+    if ts.shape != dist.shape or ts.ndim != 1:
+        raise InputError(f"warm-up series: {ts.shape} timestamps for {dist.shape} distances (expected two equal (T,) arrays)")
+    notes = [] if notes is None else notes
+    if smooth_window_s is None:
+        smooth_window_s = max(120.0, 5.0 * float(np.median(np.diff(ts))))
+    sel = tuple(int(x) for x in patch)
     t = ts - ts[0]
     if np.isnan(dist).sum() > 0:
         notes.append(f"{int(np.isnan(dist).sum())} frame(s) with less than half of the patch valid were skipped")
@@ -251,7 +285,7 @@ def assess_warmup(source, timestamps_s=None, *, ir: np.ndarray | None = None, pa
     if t_stab is not None and not confirmed:
         notes.append("stabilisation only reached within the final window: record longer to confirm it")
     return WarmupResult(
-        time_s=t, distance_mm=dist, smoothed_mm=sm, patch=sel, patch_source="ir_max" if ir_img is not None else "depth_min",
+        time_s=t, distance_mm=dist, smoothed_mm=sm, patch=sel, patch_source=patch_source,
         tolerance_mm=float(tolerance_mm), smooth_window_s=float(smooth_window_s), final_window_s=float(final_window_s),
         final_level_mm=final, stabilisation_time_s=t_stab, total_drift_mm=float(final - first),
         drift_range_mm=float(np.nanmax(sm) - np.nanmin(sm)),
