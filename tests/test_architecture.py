@@ -28,10 +28,12 @@ import tofmetry  # noqa: E402
 LAYERS = [
     "tofmetry.cli | tofmetry.api",
     "tofmetry.study",
+    "tofmetry.record",
     "tofmetry.report | tofmetry.pipelines",
     "tofmetry.plan",
     "tofmetry.evaluate",
     "tofmetry.reconstruct",
+    "tofmetry.devices",
     "tofmetry.calibrate | tofmetry.assess | tofmetry.simulate",
     "tofmetry.pointcloud",
     "tofmetry.io",
