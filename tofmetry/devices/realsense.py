@@ -89,6 +89,11 @@ class RealSenseDevice(Device):
             intr, fps = intrinsics_from_rs(vprof.get_intrinsics(), rs), float(vprof.fps())
         else:
             intr, fps = None, float(self.fps)
+            for sp in (self._sensor.get_stream_profiles() if self._sensor is not None else []):
+                if sp.stream_type() == rs.stream.depth and sp.is_video_stream_profile():
+                    vp = sp.as_video_stream_profile()
+                    intr, fps = intrinsics_from_rs(vp.get_intrinsics(), rs), float(vp.fps())
+                    break
         units = self._option("depth_units")
         self._scale_mm = 1.0 if units is None else float(units) * 1000.0
         return DeviceInfo(name="realsense", sensor="realsense", serial=serial or "RealSense frame queue",
