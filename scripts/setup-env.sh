@@ -31,6 +31,6 @@ stamp=".venv/.tofmetry-installed"
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
   echo "[setup] installing tofmetry and its dependencies into .venv"
   .venv/bin/python -m pip install -q --upgrade pip
-  .venv/bin/python -m pip install -q -e ".[test,mkv,e57,batch]"
+  .venv/bin/python -m pip install -q -e ".[test,mkv,e57,batch,realsense]"
   touch "$stamp"
 fi

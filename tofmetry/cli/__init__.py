@@ -14,7 +14,7 @@ from __future__ import annotations
 import typer
 from rich.markup import escape
 
-from tofmetry.cli import assess, batch, calibrate, core, interop, model, simulate, study
+from tofmetry.cli import assess, batch, calibrate, core, interop, model, record, simulate, study
 from tofmetry.cli._common import console
 from tofmetry.errors import TofmetryError
 
@@ -42,7 +42,7 @@ def _root(version: bool = typer.Option(False, "--version", callback=_version, is
     """Time-of-flight RGB-D camera metrology: assess, calibrate, model, evaluate (Kinect v2 first)."""
 
 
-for _mod in (core, simulate, assess, calibrate, model, interop, study, batch):
+for _mod in (core, simulate, assess, calibrate, model, interop, study, record, batch):
     _mod.register(app)
 
 

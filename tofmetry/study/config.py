@@ -102,6 +102,23 @@ class ModelConfig(_Cfg):
         "materials stage, else the study's figure (+12 mm at 1/6 amplitude, i.e. 12/ln 6).")
 
 
+class RecordingConfig(_Cfg):
+    """Real recordings found in DATA_DIR (an iai_kinect2 board recording, Azure Kinect .mkv files)."""
+
+    board: str = Field("5x7", description="Inner corners COLSxROWS of the board of an iai_kinect2 recording (its files "
+                       "do not store it; the default is the board of the shared Kinect v2 recording).")
+    square_mm: float = Field(30.0, gt=0, description="Square size of that board [mm].")
+    judge_fraction: float = Field(2 / 7, gt=0, lt=1, description="Share of the board poses, the last recorded, that "
+                                  "no fit sees and that judge the calibration (70 poses: 0050-0069).")
+    mkv_max_frames: int | None = Field(None, description="Frames of each .mkv imported (unset: all).")
+
+    @field_validator("board")
+    @classmethod
+    def _board(cls, v: str) -> str:
+        BoardSpec.parse(v, 1.0)
+        return v
+
+
 class StudyConfig(_Cfg):
     """The whole study; sections map to TOML tables."""
 
@@ -110,6 +127,7 @@ class StudyConfig(_Cfg):
     intrinsics: IntrinsicsConfig = Field(default_factory=IntrinsicsConfig)
     depth: DepthConfig = Field(default_factory=DepthConfig)
     model: ModelConfig = Field(default_factory=ModelConfig)
+    recording: RecordingConfig = Field(default_factory=RecordingConfig)
 
 
 def load_config(path: str | Path | None) -> StudyConfig:

@@ -25,6 +25,7 @@ from tofmetry.study.stage import StageOutcome, StudyContext
 from tofmetry.study.stages_assess import stage_materials, stage_noise, stage_outdoor, stage_sensor, stage_warmup
 from tofmetry.study.stages_cal import stage_depth, stage_intrinsics
 from tofmetry.study.stages_model import stage_model
+from tofmetry.study.stages_real import stage_board, stage_mkv
 
 #: (key, title, stage function) in the order they run
 STAGES: list[tuple[str, str, Callable[[StudyContext, StageOutcome], None]]] = [
@@ -36,4 +37,6 @@ STAGES: list[tuple[str, str, Callable[[StudyContext, StageOutcome], None]]] = [
     ("intrinsics", "IR camera intrinsics (Brown model) and stability", stage_intrinsics),
     ("depth", "Depth calibration and validation on held-out stations", stage_depth),
     ("model", "3D model of the object and its accuracy", stage_model),
+    ("board", "Board recording: intrinsics, board depth calibration, validation on poses no fit saw", stage_board),
+    ("mkv", "Azure Kinect recordings: import and point clouds", stage_mkv),
 ]

@@ -103,7 +103,7 @@ def comparison_rows(ctx: StudyContext) -> list[ComparisonRow]:
             rows.append(ComparisonRow("plane-fit residual std before → after", f"{b[0]:.1f}–{b[1]:.1f} → {a[0]:.1f}–{a[1]:.1f} mm",
                                       "2–5 → 1–3 mm", "§4.3", _lower_is_better(a[1], 3.0)))
     md = _get(ctx, "model")
-    if md and md.get("calibrated"):
+    if md and md.get("calibrated") and "mean_abs_mm" in md["calibrated"]:  # no reference: no accuracy rows
         c = md["calibrated"]
         rows.append(ComparisonRow("registration", md.get("registration_summary", "automatic"),
                                   "hand-picked points, 2–4 mm pairwise (2 cm with targets)", "§5.2.1", "better",
