@@ -99,8 +99,10 @@ def test_azure_calibration_mapping_follows_the_sdk():
     # SDK: cx = 0.5 * 1024 - 192 (crop) - 0.5 (pixel-centre origin); fx = 0.49 * 1024
     assert (d.width, d.height) == (640, 576)
     assert d.cx == pytest.approx(319.5) and d.cy == pytest.approx(512 - 180 - 0.5) and d.fx == pytest.approx(0.49 * 1024)
-    # k4..k6 = 0 here: the Brown refit is the same model (p1 = params[13], p2 = params[12])
-    np.testing.assert_allclose(d.distortion, [0.3, -0.1, -2e-4, 1e-4, 0.01], atol=1e-6)
+    # the native rational model is kept (p1 = params[13], p2 = params[12]); k4..k6 = 0 here, so a
+    # Brown refit is the same model
+    assert d.model == "rational"
+    np.testing.assert_allclose(d.distortion, [0.3, -0.1, -2e-4, 1e-4, 0.01, 0, 0, 0], atol=1e-6)
     assert cams["depth"].refit_max_px < 1e-3
     c = cams["color"].intrinsics
     assert (c.width, c.height) == (1280, 720)
@@ -108,7 +110,7 @@ def test_azure_calibration_mapping_follows_the_sdk():
     np.testing.assert_allclose(cams["color"].to_depth.translation, [-0.032, 0.0, 0.004])
 
 
-def test_azure_rational_model_is_refitted_and_reported():
+def test_azure_rational_model_is_kept_and_refit_cost_reported():
     from tofmetry.io.azure_kinect import parse_calibration
 
     j = _azure_json()
@@ -117,6 +119,7 @@ def test_azure_rational_model_is_refitted_and_reported():
     assert cams["color"] is None
     assert 0 < cams["depth"].refit_rms_px < 2.0
     assert cams["depth"].rational[5] == 0.2
+    assert cams["depth"].intrinsics.distortion[5] == 0.2 and cams["depth"].intrinsics.model == "rational"
 
 
 def test_azure_mkv_without_depth_track(tmp_path):

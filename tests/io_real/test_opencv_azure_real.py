@@ -186,3 +186,21 @@ def test_azure_colored_cloud_through_factory_extrinsics(azure_capture):
     fig.savefig(out.parent / "azure_colored.png", dpi=80)
     plt.close(fig)
     assert (out.parent / "azure_colored.png").stat().st_size > 10000
+
+
+def test_azure_cloud_reports_share_coloured_and_marks_no_colour(azure_capture):
+    """``cloud --color`` on the real recording: the device's own colour calibration (native
+    rational lenses), a colour-camera z-buffer, and the share of points coloured in the result and
+    the PLY. Measured: 89.4 % coloured, 11 084 points hidden behind the mug and the window frame."""
+    from tofmetry.io import read_ply
+    from tofmetry.pipelines.cloud import capture_cloud
+
+    out, _ = azure_capture
+    run = capture_cloud(out, out.parent / "cloud_color.ply", color=True, force=True)
+    c = run.color_summary
+    assert c["calibration"] == "capture" and 0.8 < run.share_colored < 0.98
+    assert c["occluded"] > 1000  # the wall strip beside the mug the colour camera cannot see
+    assert c["colored"] + c["occluded"] + c["out_of_view"] == c["points"] == len(run.points)
+    back = read_ply(out.parent / "cloud_color.ply")
+    np.testing.assert_array_equal(back["colored"] > 0.5, run.colored)
+    assert (back["colors"][~run.colored] == 0).all()

@@ -14,6 +14,8 @@
   corner; the X-junction fit in :mod:`._corner_fit`), :mod:`._board_pose` (object points, board
   pose), :mod:`._lens_fit` (Brown model, outlier views, covariance, coverage, cross-validation),
   :mod:`._ray_error` (judging a lens by ray error, predicted ray error)
+* IR–colour extrinsics: :mod:`._stereo` (``cv2.stereoCalibrate``, jackknife uncertainty, held-out pairs);
+  rigs of sensors seeing a common board: :mod:`._rig`
 * :mod:`.board` — board-based depth calibration (board planes as the reference)
 * pipelines (folders in, results out) live in :mod:`tofmetry.pipelines`
 * :mod:`.figures` — study-style figures (Figs. 7a/7b/8/9, validation, corner coverage)
@@ -58,6 +60,9 @@ from tofmetry.calibrate._lens_fit import (
     cross_validate_intrinsics, intrinsic_covariance,
 )
 from tofmetry.calibrate._ray_error import PARAMS, RayError, predicted_ray_error_px, ray_difference_px, ray_error_px
+# IR-colour extrinsics
+from tofmetry.calibrate._stereo import StereoResult, calibrate_stereo, heldout_reprojection
+from tofmetry.calibrate._rig import RigResult, calibrate_rig
 
 __all__ = [
     "DepthCalibration", "CalibrationSupport", "FrameCorrector", "apply_depth_calibration",
@@ -74,4 +79,5 @@ __all__ = [
     "refine_corners", "refine_corners_subpix", "IntrinsicsResult", "calibrate_intrinsics", "corner_coverage",
     "corner_region_coverage", "coverage_mask", "cross_validate_intrinsics", "intrinsic_covariance",
     "PARAMS", "RayError", "predicted_ray_error_px", "ray_difference_px", "ray_error_px",
+    "StereoResult", "calibrate_stereo", "heldout_reprojection", "RigResult", "calibrate_rig",
 ]

@@ -108,6 +108,11 @@ def cloud(
                             undistort=not no_undistort, force=force, advance=adv,
                             accept_implausible=accept_implausible)
     console.print(f"wrote {len(run.points)} points to {output} (intrinsics: {run.intrinsics_source})")
+    if run.color_summary:
+        c = run.color_summary
+        console.print(f"coloured {c['colored']} points ({100 * c['share_colored']:.1f} %): {c['occluded']} hidden from "
+                      f"the colour camera and {c['out_of_view']} outside its view have no colour "
+                      f"(colour calibration: {c['calibration']})")
     print_plausibility(run.plausibility)
     if run.outside_support:
         from tofmetry.cli.calibrate import _outside_how

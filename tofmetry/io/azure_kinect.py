@@ -15,11 +15,11 @@ metres). As in the Azure Kinect SDK, the mode-specific intrinsics are obtained b
 binned resolution, subtracting the crop offset and moving to the pixel-centre origin (-0.5).
 
 The lens model is Brown-Conrady *rational* (OpenCV ``k1,k2,p1,p2,k3,k4,k5,k6``): its radial
-factor has a denominator (``1 + k4 r^2 + k5 r^4 + k6 r^6``), which tofmetry's 5-coefficient
-model cannot hold. We **refit** ``(k1, k2, p1, p2, k3)`` by least squares to the rational model
-over the image (pixels within the SDK's ``MetricRadius``) and report the fit error in pixels;
-``codx, cody`` (centre of distortion; 0 on this device) are dropped, and the exact rational
-coefficients are kept in ``capture.json`` (``extra["azure"]``).
+factor has a denominator (``1 + k4 r^2 + k5 r^4 + k6 r^6``). tofmetry keeps it as it is
+(``CameraIntrinsics(model="rational")``): projection and ray tables reproduce OpenCV's rational
+model to < 0.01 px over the whole image. For information, the importer still reports what a
+5-coefficient Brown refit would cost (``depth_brown_refit_rms_px``; 6.5 px at worst on the real
+device). ``codx, cody`` (centre of distortion; 0 on Azure Kinect devices) are dropped.
 
 The sensor identity is ``"azure_kinect"`` (profile registered on import of this module), so a
 Kinect v2 calibration is refused for these captures (``DepthCalibration.check_compatible``).
@@ -70,9 +70,10 @@ class AzureCamera:
 
     Attributes
     ----------
-    intrinsics : 5-coefficient Brown refit (what tofmetry uses).
+    intrinsics : the factory lens, rational model (what tofmetry uses).
     rational : (8,) OpenCV rational coefficients ``k1,k2,p1,p2,k3,k4,k5,k6`` (exact).
-    refit_rms_px, refit_max_px : error of the Brown refit against the rational model [px].
+    refit_rms_px, refit_max_px : what a 5-coefficient Brown refit would cost against the rational
+        model [px] (information only: the refit is not used).
     to_depth : Extrinsics depth -> this camera [m] (identity for the depth camera).
     """
 
@@ -143,7 +144,7 @@ def _mode_camera(cam: dict, binned, crop, out, source: str, max_radius: float | 
     rational = np.array([k1, k2, p1, p2, k3, k4, k5, k6])
     K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
     d5, rms, mx = brown_from_rational(K, rational, out, max_radius)
-    return CameraIntrinsics(out[0], out[1], fx, fy, cx, cy, tuple(d5)), rational, rms, mx
+    return CameraIntrinsics(out[0], out[1], fx, fy, cx, cy, tuple(rational), "rational"), rational, rms, mx
 
 
 def parse_calibration(calib: dict, depth_mode: str, color_height: int | None, source: str = "calibration.json") -> dict:
@@ -154,7 +155,7 @@ def parse_calibration(calib: dict, depth_mode: str, color_height: int | None, so
     binned, crop, out = DEPTH_MODES[depth_mode]
     mr = float(dcam.get("MetricRadius", 0)) or None
     intr, rat, rms, mx = _mode_camera(dcam, binned, crop, out, source, mr)
-    dropped = ("k4, k5, k6 (rational denominator, refitted into k1, k2, k3)", "codx, cody (centre of distortion)")
+    dropped = ("codx, cody (centre of distortion)",)
     res = {"depth": AzureCamera(intr, rat, rms, mx, Extrinsics.identity("depth", "depth"), dropped), "color": None}
     if color_height:
         ccam = _camera_json(calib, "CALIBRATION_CameraPurposePhotoVideo", source)
@@ -398,10 +399,11 @@ def import_azure_kinect(src: str | os.PathLike, out: str | os.PathLike, force: b
         if c is not None:
             write_intrinsics(w.staging / "color_intrinsics.json", c.intrinsics, sensor=SENSOR)
             atomic_write_json(w.staging / "extrinsics.json", c.to_depth.to_dict())
-    notes = [f"depth lens: rational model refitted to 5 Brown coefficients, {d.refit_rms_px:.3f} px RMS "
-             f"(max {d.refit_max_px:.3f} px); dropped: {'; '.join(d.dropped)}"]
+    notes = [f"depth lens: factory rational model kept (a Brown refit would cost {d.refit_rms_px:.3f} px RMS, "
+             f"max {d.refit_max_px:.3f} px); dropped: {'; '.join(d.dropped)}"]
     if c is not None:
-        notes.append(f"colour lens: Brown refit {c.refit_rms_px:.3f} px RMS (max {c.refit_max_px:.3f} px)")
+        notes.append(f"colour lens: factory rational model kept (a Brown refit would cost {c.refit_rms_px:.3f} px RMS, "
+                     f"max {c.refit_max_px:.3f} px)")
     return {"frames": int(w.n), "depth_mode": info.depth_mode, "color": info.color_index is not None,
             "sensor": SENSOR, "notes": notes}
 

@@ -25,7 +25,8 @@ from tofmetry.pipelines.calibration_files import load_calibration
 from tofmetry.pipelines.frame_path import FramePath
 from tofmetry.pipelines.frame_stream import stream_frames
 from tofmetry.pipelines.plausibility import check_support, enforce
-from tofmetry.pointcloud import amplitude_colors, robust_mean_depth, sample_colors
+from tofmetry.io.azure_kinect import load_capture_calibration
+from tofmetry.pointcloud import amplitude_colors, colour_points, robust_mean_depth
 from tofmetry.sensor import CameraIntrinsics, get_profile
 
 
@@ -46,6 +47,10 @@ class CloudRun:
     outside_support : valid pixels (of the frame, or of the mean) outside the calibration's support,
         corrected by its fallback (0 without calibration)
     plausibility : the plausibility gate's record (every valid pixel outside the support fails it)
+    colored : (N,) bool, the colour camera sees the point (colour frames only, else None): the
+        others have *no colour* (RGB 0 and ``colored`` 0 in the PLY), not black
+    color_summary : counts of the colouring (points, colored, out_of_view, occluded,
+        share_colored) and where the colour camera's calibration came from; empty without colour
     """
 
     points: np.ndarray
@@ -60,13 +65,21 @@ class CloudRun:
     seconds: float
     outside_support: int = 0
     plausibility: dict = field(default_factory=dict)
+    colored: np.ndarray | None = None
+    color_summary: dict = field(default_factory=dict)
+
+    @property
+    def share_colored(self) -> float | None:
+        """Share of the points the colour camera coloured (None without colour frames)."""
+        return self.color_summary.get("share_colored")
 
     def to_dict(self) -> dict:
         return {"points": int(len(self.points)), "colored": self.colors is not None, "n_frames": self.n_frames,
                 "intrinsics": self.intrinsics.to_dict(), "intrinsics_source": self.intrinsics_source,
                 "calibrated": self.calibrated, "averaged": self.averaged,
                 "output": None if self.output is None else str(self.output), "seconds": self.seconds,
-                "outside_support": self.outside_support, "plausibility": self.plausibility}
+                "outside_support": self.outside_support, "plausibility": self.plausibility,
+                "color": self.color_summary}
 
 
 def _mean_corrected_depth(cap: Capture, path: FramePath, workers: int | None,
@@ -143,10 +156,13 @@ def capture_cloud(capture: str | os.PathLike | Capture, output: str | os.PathLik
         depth = cap.depth(frame)
         pts, idx = path.points(depth), path.index(depth)
         outside = path.outside_range(depth)
-    cols = None
+    cols, colored, csum, scalars = None, None, {}, None
     if color and cap.has_color:
-        prof = get_profile(cap.sensor)
-        cols, _ = sample_colors(pts, cap.color(frame), prof.color, prof.ir_to_color)
+        cintr, ext, csrc = _colour_calibration(cap)
+        res = colour_points(pts, cap.color(frame), cintr, ext, depth_focal_px=0.5 * (intr.fx + intr.fy))
+        cols, colored = res.colors, res.colored
+        csum = {**res.summary(), "calibration": csrc}
+        scalars = {"colored": colored.astype(np.float32)}
     elif cap.has_ir:
         ir = cap.ir_mean() if average else cap.ir(frame)
         cols = amplitude_colors(ir.ravel()[idx])
@@ -155,7 +171,18 @@ def capture_cloud(capture: str | os.PathLike | Capture, output: str | os.PathLik
         gate = enforce(check_support(outside, len(pts), cal.support_range_mm, str(cap.path)),
                        f"the cloud of {cap.path}", accept_implausible)
     comments = [f"accepted implausible: {f}" for f in gate.get("findings", [])] if gate.get("accepted") else None
-    out = None if output is None else write_ply(output, pts, colors=cols, comments=comments)
+    out = None if output is None else write_ply(output, pts, colors=cols, scalars=scalars, comments=comments)
     return CloudRun(points=pts, colors=cols, index=idx, n_frames=len(cap) if average else 1, intrinsics=intr,
                     intrinsics_source=source, calibrated=cal is not None, averaged=average, output=out,
-                    seconds=time.perf_counter() - t0, outside_support=outside, plausibility=gate)
+                    seconds=time.perf_counter() - t0, outside_support=outside, plausibility=gate,
+                    colored=colored, color_summary=csum)
+
+
+def _colour_calibration(cap: Capture):
+    """Colour intrinsics, depth -> colour extrinsics and their source: the capture's own (an
+    imported device calibration beside the frames) or the sensor profile's typical values."""
+    if (cap.path / "color_intrinsics.json").is_file() and (cap.path / "extrinsics.json").is_file():
+        cintr, ext = load_capture_calibration(cap.path)
+        return cintr, ext, "capture"
+    prof = get_profile(cap.sensor)
+    return prof.color, prof.ir_to_color, f"profile {prof.name} (typical values)"

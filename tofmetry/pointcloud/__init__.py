@@ -1,5 +1,6 @@
 """Point clouds from depth maps: back-projection, colouring, temporal statistics."""
 
+from tofmetry.pointcloud._colour import ColourSample, colour_points, colour_zbuffer
 from tofmetry.pointcloud._project import (
     amplitude_colors,
     depth_to_points,
@@ -9,6 +10,6 @@ from tofmetry.pointcloud._project import (
 from tofmetry.pointcloud._temporal import RunningDepthStats, TemporalStats, robust_mean_depth, temporal_stats
 
 __all__ = [
-    "amplitude_colors", "depth_to_points", "depth_to_xyz_image", "sample_colors",
+    "ColourSample", "colour_points", "colour_zbuffer", "amplitude_colors", "depth_to_points", "depth_to_xyz_image", "sample_colors",
     "RunningDepthStats", "TemporalStats", "robust_mean_depth", "temporal_stats",
 ]

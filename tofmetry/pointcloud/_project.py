@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from tofmetry.errors import InputError
+from tofmetry.pointcloud._colour import colour_points
 from tofmetry.sensor.extrinsics import Extrinsics
 from tofmetry.sensor.intrinsics import CameraIntrinsics
 
@@ -85,12 +86,12 @@ def amplitude_colors(ir: np.ndarray, lo_pct: float = 1.0, hi_pct: float = 99.0) 
 
 
 def sample_colors(points: np.ndarray, color_image: np.ndarray, color_intr: CameraIntrinsics,
-                  depth_to_color: Extrinsics, occlusion_tol_m: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
+                  depth_to_color: Extrinsics, occlusion_tol_m: float = 0.005,
+                  depth_focal_px: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Colour depth points from a colour image through the extrinsics, with occlusion test.
 
-    Each point is projected into the colour camera (with its distortion); a point is
-    coloured only if it falls inside the image and is the nearest (within
-    ``occlusion_tol_m``) of all points landing on the same colour pixel (z-buffer).
+    The array form of :func:`~tofmetry.pointcloud.colour_points` (which see): a point is coloured
+    only when the colour camera sees it (colour-camera z-buffer of splatted points).
 
     Parameters
     ----------
@@ -98,35 +99,13 @@ def sample_colors(points: np.ndarray, color_image: np.ndarray, color_intr: Camer
     color_image : (Hc, Wc, 3) uint8 RGB
     color_intr : CameraIntrinsics of the colour camera (Hc, Wc)
     depth_to_color : Extrinsics, depth camera -> colour camera [m]
+    occlusion_tol_m : base depth tolerance of the visibility test [m]
+    depth_focal_px : focal length of the depth camera [px] (splat size); default 2 colour px
 
     Returns
     -------
-    colors : (N, 3) uint8 (0 where uncoloured)
+    colors : (N, 3) uint8 (0 where uncoloured: that is *no colour*, see ``ok``)
     ok : (N,) bool, True where a colour was sampled
     """
-    if color_image.shape[:2] != color_intr.shape:
-        raise InputError(
-            f"color image {color_image.shape[1]}x{color_image.shape[0]} does not match colour intrinsics "
-            f"{color_intr.width}x{color_intr.height}"
-        )
-    pc = depth_to_color.apply(points)
-    uv = color_intr.project(pc)
-    ui = np.rint(uv[:, 0])
-    vi = np.rint(uv[:, 1])
-    inside = (pc[:, 2] > 0) & np.isfinite(ui) & (ui >= 0) & (ui < color_intr.width) & (vi >= 0) & (vi < color_intr.height)
-    colors = np.zeros((len(points), 3), np.uint8)
-    ok = np.zeros(len(points), bool)
-    if not inside.any():
-        return colors, ok
-    idx = np.flatnonzero(inside)
-    # z-buffer on a coarser grid: one depth pixel covers several colour pixels, so occlusion
-    # is decided per colour block of about the depth pixel footprint
-    lin = (vi[idx].astype(np.int64) // 2) * (color_intr.width // 2 + 1) + (ui[idx].astype(np.int64) // 2)
-    z = pc[idx, 2]
-    zmin = np.full(lin.max() + 1, np.inf)
-    np.minimum.at(zmin, lin, z)
-    visible = z <= zmin[lin] + occlusion_tol_m
-    sel = idx[visible]
-    colors[sel] = color_image[vi[sel].astype(np.int64), ui[sel].astype(np.int64)]
-    ok[sel] = True
-    return colors, ok
+    res = colour_points(points, color_image, color_intr, depth_to_color, depth_focal_px, occlusion_tol_m)
+    return res.colors, res.colored

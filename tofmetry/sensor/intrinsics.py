@@ -1,4 +1,4 @@
-"""Pinhole + Brown distortion camera model (OpenCV convention).
+"""Pinhole camera model with a Brown, rational or fisheye lens (OpenCV conventions).
 
 Frames and conventions
 ----------------------
@@ -12,6 +12,10 @@ Frames and conventions
      r^2 = x^2 + y^2,\\ \\rho = 1 + k_1 r^2 + k_2 r^4 + k_3 r^6 \\\\
      x_d = x\\rho + 2p_1xy + p_2(r^2+2x^2),\\ y_d = y\\rho + p_1(r^2+2y^2) + 2p_2xy \\\\
      u = f_x x_d + c_x,\\ v = f_y y_d + c_y
+
+  That is the default ``brown`` model; ``model="rational"`` (8 coefficients, OpenCV's rational
+  model, the Azure Kinect factory lens) and ``model="fisheye"`` (Kannala–Brandt, 4 coefficients,
+  ``cv2.fisheye``) are the others: see :mod:`tofmetry.sensor.lens`.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ from functools import lru_cache
 import numpy as np
 
 from tofmetry.errors import InputError
+from tofmetry.sensor import lens as _lens
 
 
 @dataclass(frozen=True)
@@ -37,8 +42,11 @@ class CameraIntrinsics:
         Focal lengths [px].
     cx, cy : float
         Principal point [px], pixel-centre origin (OpenCV convention).
-    distortion : tuple of 5 float
-        Brown coefficients ``(k1, k2, p1, p2, k3)``, OpenCV order.
+    distortion : tuple of float
+        Lens coefficients in OpenCV order: Brown ``(k1, k2, p1, p2, k3)`` (default), rational
+        ``(k1, k2, p1, p2, k3, k4, k5, k6)`` or fisheye ``(k1, k2, k3, k4)``.
+    model : str
+        Lens model: ``"brown"`` (default), ``"rational"`` or ``"fisheye"``.
     """
 
     width: int
@@ -47,12 +55,15 @@ class CameraIntrinsics:
     fy: float
     cx: float
     cy: float
-    distortion: tuple[float, float, float, float, float] = field(default=(0.0, 0.0, 0.0, 0.0, 0.0))
+    distortion: tuple[float, ...] = field(default=(0.0, 0.0, 0.0, 0.0, 0.0))
+    model: str = "brown"
 
     def __post_init__(self) -> None:
         dist = tuple(float(d) for d in np.asarray(self.distortion, dtype=float).ravel())
-        if len(dist) == 4:
+        if self.model == "brown" and len(dist) == 4:
             dist = dist + (0.0,)
+        if self.model == "rational" and len(dist) == 5:
+            dist = dist + (0.0, 0.0, 0.0)
         object.__setattr__(self, "distortion", dist)
         object.__setattr__(self, "width", int(self.width))
         object.__setattr__(self, "height", int(self.height))
@@ -65,10 +76,7 @@ class CameraIntrinsics:
         """Raise :class:`InputError` naming the first invalid field."""
         if self.width <= 0 or self.height <= 0:
             raise InputError(f"intrinsics: width/height must be positive, found {self.width}x{self.height}")
-        if len(self.distortion) != 5:
-            raise InputError(
-                f"intrinsics: distortion must have 5 coefficients [k1,k2,p1,p2,k3], found {len(self.distortion)}"
-            )
+        _lens.check_model(self.model, self.distortion)
         vals = {"fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy}
         for k, v in vals.items():
             if not math.isfinite(v):
@@ -96,7 +104,7 @@ class CameraIntrinsics:
 
     @property
     def dist_array(self) -> np.ndarray:
-        """(5,) float64 distortion ``[k1, k2, p1, p2, k3]``."""
+        """(n,) float64 lens coefficients in OpenCV order (5 Brown, 8 rational, 4 fisheye)."""
         return np.asarray(self.distortion, dtype=np.float64)
 
     @property
@@ -121,16 +129,20 @@ class CameraIntrinsics:
         sx, sy = width / self.width, height / self.height
         return CameraIntrinsics(
             width, height, self.fx * sx, self.fy * sy,
-            (self.cx + 0.5) * sx - 0.5, (self.cy + 0.5) * sy - 0.5, self.distortion,
+            (self.cx + 0.5) * sx - 0.5, (self.cy + 0.5) * sy - 0.5, self.distortion, self.model,
         )
 
     def to_dict(self) -> dict:
-        """Contract form: ``{"width","height","fx","fy","cx","cy","distortion":[k1,k2,p1,p2,k3]}``."""
-        return {
+        """Contract form: ``{"width","height","fx","fy","cx","cy","distortion":[k1,k2,p1,p2,k3]}``,
+        plus ``"model"`` for a lens other than Brown (the distortion then has its model's length)."""
+        d = {
             "width": self.width, "height": self.height,
             "fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy,
             "distortion": list(self.distortion),
         }
+        if self.model != "brown":
+            d["model"] = self.model
+        return d
 
     @classmethod
     def from_dict(cls, d: dict, *, source: str = "intrinsics") -> "CameraIntrinsics":
@@ -140,12 +152,17 @@ class CameraIntrinsics:
         missing = [k for k in ("width", "height", "fx", "fy", "cx", "cy") if k not in d]
         if missing:
             raise InputError(f"{source}: missing key(s) {missing}; expected width, height, fx, fy, cx, cy, distortion")
-        dist = d.get("distortion", [0.0] * 5)
-        if not isinstance(dist, (list, tuple)) or len(dist) not in (4, 5):
-            raise InputError(f"{source}: 'distortion' must be a list [k1,k2,p1,p2,k3], found {dist!r}")
+        model = d.get("model", "brown")
+        if model not in _lens.MODELS:
+            raise InputError(f"{source}: unknown lens 'model' {model!r}; expected one of {sorted(_lens.MODELS)}")
+        dist = d.get("distortion", [0.0] * _lens.MODELS[model])
+        sizes = {"brown": (4, 5), "rational": (5, 8), "fisheye": (4,)}[model]
+        if not isinstance(dist, (list, tuple)) or len(dist) not in sizes:
+            raise InputError(f"{source}: 'distortion' of the {model} model must be a list "
+                             f"[{','.join(_lens.COEFFICIENT_NAMES[model])}], found {dist!r}")
         try:
             return cls(int(d["width"]), int(d["height"]), float(d["fx"]), float(d["fy"]),
-                       float(d["cx"]), float(d["cy"]), tuple(float(x) for x in dist))
+                       float(d["cx"]), float(d["cy"]), tuple(float(x) for x in dist), model)
         except (TypeError, ValueError) as exc:
             if isinstance(exc, InputError):
                 raise InputError(f"{source}: {exc}") from None
@@ -153,7 +170,7 @@ class CameraIntrinsics:
 
     # ------------------------------------------------------------------ model
     def distort_normalized(self, xy: np.ndarray) -> np.ndarray:
-        """Apply Brown distortion to normalised coordinates.
+        """Apply the lens distortion to normalised coordinates.
 
         Parameters
         ----------
@@ -164,10 +181,10 @@ class CameraIntrinsics:
         -------
         (N, 2) float64 distorted normalised coordinates.
         """
-        return _distort(np.asarray(xy, dtype=np.float64), self.dist_array)
+        return _lens.distort(np.asarray(xy, dtype=np.float64), self.model, self.dist_array)
 
     def undistort_normalized(self, xy_d: np.ndarray, iterations: int = 20) -> np.ndarray:
-        """Invert :meth:`distort_normalized` by Newton iteration (to ~1e-12).
+        """Invert :meth:`distort_normalized` by Newton iteration (to ~1e-12; NaN where it fails).
 
         Parameters
         ----------
@@ -178,7 +195,7 @@ class CameraIntrinsics:
         -------
         (N, 2) float64 undistorted normalised coordinates.
         """
-        return _undistort(np.asarray(xy_d, dtype=np.float64), self.dist_array, iterations)
+        return _lens.undistort(np.asarray(xy_d, dtype=np.float64), self.model, self.dist_array, max(iterations, 30))
 
     def project(self, points: np.ndarray) -> np.ndarray:
         """Project camera-frame points to pixels, with distortion.
@@ -197,14 +214,16 @@ class CameraIntrinsics:
         with np.errstate(divide="ignore", invalid="ignore"):
             xy = p[:, :2] / z[:, None]
         xy[z <= 0] = np.nan
-        xd = _distort(xy, self.dist_array)
+        xd = _lens.distort(xy, self.model, self.dist_array)
         return np.column_stack([self.fx * xd[:, 0] + self.cx, self.fy * xd[:, 1] + self.cy])
 
     def pixel_to_normalized(self, uv: np.ndarray, undistort: bool = True) -> np.ndarray:
         """Pixels (N, 2) -> undistorted normalised coordinates (N, 2)."""
         uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
         xy_d = np.column_stack([(uv[:, 0] - self.cx) / self.fx, (uv[:, 1] - self.cy) / self.fy])
-        return _undistort(xy_d, self.dist_array, 20) if (undistort and self.has_distortion) else xy_d
+        if undistort and (self.has_distortion or self.model == "fisheye"):
+            return _lens.undistort(xy_d, self.model, self.dist_array)
+        return xy_d
 
     def backproject(self, uv: np.ndarray, depth: np.ndarray, undistort: bool = True) -> np.ndarray:
         """Back-project pixels with Z depth to camera-frame points.
@@ -236,52 +255,13 @@ class CameraIntrinsics:
         return _ray_table_cached(self._key(), bool(undistort))
 
     def _key(self) -> tuple:
-        return (self.width, self.height, self.fx, self.fy, self.cx, self.cy, self.distortion)
-
-
-def _distort(xy: np.ndarray, d: np.ndarray) -> np.ndarray:
-    k1, k2, p1, p2, k3 = d
-    x, y = xy[:, 0], xy[:, 1]
-    r2 = x * x + y * y
-    rad = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * rad + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-    yd = y * rad + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-    return np.column_stack([xd, yd])
-
-
-def _undistort(xy_d: np.ndarray, d: np.ndarray, iterations: int) -> np.ndarray:
-    k1, k2, p1, p2, k3 = d
-    xd, yd = xy_d[:, 0], xy_d[:, 1]
-    # initial guess: divide by the radial factor at the distorted radius
-    r2d = xd * xd + yd * yd
-    rad0 = 1 + r2d * (k1 + r2d * (k2 + r2d * k3))
-    x = xd / rad0
-    y = yd / rad0
-    for _ in range(iterations):
-        r2 = x * x + y * y
-        rad = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        drad = k1 + r2 * (2 * k2 + 3 * k3 * r2)  # d rad / d r2
-        fx = x * rad + 2 * p1 * x * y + p2 * (r2 + 2 * x * x) - xd
-        fy = y * rad + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y - yd
-        # Jacobian
-        j11 = rad + 2 * x * x * drad + 2 * p1 * y + 6 * p2 * x
-        j12 = 2 * x * y * drad + 2 * p1 * x + 2 * p2 * y
-        j21 = 2 * x * y * drad + 2 * p1 * x + 2 * p2 * y
-        j22 = rad + 2 * y * y * drad + 6 * p1 * y + 2 * p2 * x
-        det = j11 * j22 - j12 * j21
-        dx = (j22 * fx - j12 * fy) / det
-        dy = (-j21 * fx + j11 * fy) / det
-        x = x - dx
-        y = y - dy
-        if np.nanmax(np.abs(dx) + np.abs(dy), initial=0.0) < 1e-15:
-            break
-    return np.column_stack([x, y])
+        return (self.width, self.height, self.fx, self.fy, self.cx, self.cy, self.distortion, self.model)
 
 
 @lru_cache(maxsize=16)
 def _ray_table_cached(key: tuple, undistort: bool) -> np.ndarray:
-    w, h, fx, fy, cx, cy, dist = key
-    intr = CameraIntrinsics(w, h, fx, fy, cx, cy, dist)
+    w, h, fx, fy, cx, cy, dist, model = key
+    intr = CameraIntrinsics(w, h, fx, fy, cx, cy, dist, model)
     u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
     xy = intr.pixel_to_normalized(np.column_stack([u.ravel(), v.ravel()]), undistort=undistort)
     table = xy.reshape(h, w, 2)

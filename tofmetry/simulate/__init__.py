@@ -9,6 +9,7 @@
 
 from tofmetry.simulate import scenes
 from tofmetry.simulate.camera import Frame, Frames, VirtualKinect
+from tofmetry.simulate.color import ColourCamera, ColourRendering, default_texture, occluder_scene, render_colour, true_point_colours
 from tofmetry.simulate.errors import TERMS, ErrorModel
 from tofmetry.simulate.family import SensorDraw, default_sensor, random_sensor, station_tilts
 from tofmetry.simulate.meshes import balustrade_mesh
@@ -21,4 +22,5 @@ from tofmetry.simulate import datasets  # noqa: E402  (imports the above)
 
 __all__ = ["VirtualKinect", "ErrorModel", "Frames", "Frame", "Rendering", "render", "TERMS", "Scene", "scenes",
            "datasets", "balustrade_mesh", "look_at", "orbit_poses", "SensorDraw", "random_sensor", "default_sensor",
-           "station_tilts", "StationMean", "wall_station_means"]
+           "station_tilts", "StationMean", "wall_station_means",
+           "ColourCamera", "ColourRendering", "default_texture", "occluder_scene", "render_colour", "true_point_colours"]
