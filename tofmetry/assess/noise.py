@@ -208,8 +208,29 @@ def assess_noise(source, *, subsets=DEFAULT_SUBSETS, row: int | None = None, blo
             block_acc[b] = (s, c, k)
     if n < 2:
         raise InputError(f"noise analysis needs at least 2 frames of a static scene, found {n}")
+    block_stds = []
+    for b in blocks:
+        st = block_stats[b]
+        if st.n >= 2:
+            res = st.result()
+            block_stds.append((b, st.n, res.std[res.count == st.n]))
+    return noise_result_from(n, shape, rs.result(), snaps, wanted, row, min_gain, block_stds)
+
+
+def noise_result_from(n: int, shape: tuple[int, int], full, snaps: dict[int, np.ndarray], wanted: list[int],
+                      row: int | None, min_gain: float, block_stds: list) -> NoiseResult:
+    """The :class:`NoiseResult` of ``n`` frames from their accumulated statistics (one pass or merged chunks).
+
+    Parameters
+    ----------
+    n : frames; shape : (H, W)
+    full : the per-pixel statistics of all frames (``TemporalStats``: ``std``, ``mean_depth_mm()``)
+    snaps : {k: (H, W) std map of the first k frames [mm]}, for the sizes ``wanted`` reached
+    wanted : the requested sizes (>= 2); row : profile row (None: the middle row)
+    block_stds : [(b, n_blocks, (M,) std [mm] of the b-frame block means at pixels valid in every block)]
+    """
     notes = []
-    full = rs.result()
+    snaps = dict(snaps)
     if not snaps:
         snaps[n] = full.std
         notes.append(f"only {n} frames: std map over all of them (subsets {wanted} need more frames)")
@@ -221,20 +242,16 @@ def assess_noise(source, *, subsets=DEFAULT_SUBSETS, row: int | None = None, blo
     r = h // 2 if row is None else int(row)
     if not 0 <= r < h:
         raise InputError(f"row {r} outside the image rows 0..{h - 1}")
-    profiles = {k: snaps[k][r].copy() for k in sizes}
     rec, reason = recommend_n(summaries, min_gain)
     sigma1 = sigma_from_stds(full.std, n)
     prec = []
-    for b in blocks:
-        st = block_stats[b]
-        if st.n < 2:
-            continue
-        res = st.result()
-        m = sigma_from_stds(res.std[res.count == st.n], st.n)
-        prec.append({"n": b, "n_blocks": st.n, "std_of_mean_mm": m, "expected_mm": sigma1 / math.sqrt(b),
+    for b, nb, stds in block_stds:
+        m = sigma_from_stds(stds, nb)
+        prec.append({"n": b, "n_blocks": nb, "std_of_mean_mm": m, "expected_mm": sigma1 / math.sqrt(b),
                      "ratio": m / (sigma1 / math.sqrt(b)) if sigma1 > 0 else float("nan")})
     return NoiseResult(
-        n_frames=n, shape=shape, std_maps=snaps, summaries=summaries, row=r, profiles=profiles,
-        recommended_n=rec, recommendation_reason=reason, block_precision=prec, sigma_single_mm=sigma1,
-        mean_depth_mm=full.mean_depth_mm(), min_gain=min_gain, notes=notes,
+        n_frames=n, shape=(h, w), std_maps=snaps, summaries=summaries, row=r,
+        profiles={k: snaps[k][r].copy() for k in sizes}, recommended_n=rec, recommendation_reason=reason,
+        block_precision=prec, sigma_single_mm=sigma1, mean_depth_mm=full.mean_depth_mm(), min_gain=min_gain,
+        notes=notes,
     )

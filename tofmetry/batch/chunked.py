@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tofmetry.assess import NoiseResult, recommend_n, select_patch, sigma_from_stds, summarize_std_map, warmup_from_series
+from tofmetry.assess import NoiseResult, noise_result_from, select_patch, warmup_from_series
 from tofmetry.assess.noise import DEFAULT_BLOCKS, DEFAULT_SUBSETS
 from tofmetry.batch.stats import Moments, merge_moments
 from tofmetry.errors import EstimationError, InputError
@@ -195,33 +195,10 @@ def noise_result(part: NoisePart, subsets=DEFAULT_SUBSETS, row: int | None = Non
     if n < 2:
         raise InputError(f"noise analysis needs at least 2 frames of a static scene, found {n}")
     wanted = sorted({int(k) for k in subsets if int(k) >= 2})
-    full = part.full.to_temporal()
     snaps = {k: m.std() for k, m in sorted(part.snaps.items())}
-    notes = []
-    if not snaps:
-        snaps[n] = full.std
-        notes.append(f"only {n} frames: std map over all of them (subsets {wanted} need more frames)")
-    elif max(wanted) > n:
-        notes.append(f"subsets larger than the {n} frames were skipped: {[w for w in wanted if w > n]}")
-    sizes = sorted(snaps)
-    summaries = [summarize_std_map(snaps[k], k) for k in sizes]
-    h, w = part.full.shape
-    r = h // 2 if row is None else int(row)
-    if not 0 <= r < h:
-        raise InputError(f"row {r} outside the image rows 0..{h - 1}")
-    rec, reason = recommend_n(summaries, min_gain)
-    sigma1 = sigma_from_stds(full.std, n)
-    prec = []
-    for b, st in sorted(part.blocks.items()):
-        if st.n_frames < 2:
-            continue
-        m = sigma_from_stds(st.std()[st.count == st.n_frames], st.n_frames)
-        prec.append({"n": b, "n_blocks": st.n_frames, "std_of_mean_mm": m, "expected_mm": sigma1 / math.sqrt(b),
-                     "ratio": m / (sigma1 / math.sqrt(b)) if sigma1 > 0 else float("nan")})
-    return NoiseResult(n_frames=n, shape=(h, w), std_maps=snaps, summaries=summaries, row=r,
-                       profiles={k: snaps[k][r].copy() for k in sizes}, recommended_n=rec, recommendation_reason=reason,
-                       block_precision=prec, sigma_single_mm=sigma1, mean_depth_mm=full.mean_depth_mm(),
-                       min_gain=min_gain, notes=notes)
+    block_stds = [(b, st.n_frames, st.std()[st.count == st.n_frames]) for b, st in sorted(part.blocks.items())
+                  if st.n_frames >= 2]
+    return noise_result_from(n, part.full.shape, part.full.to_temporal(), snaps, wanted, row, min_gain, block_stds)
 
 
 # ------------------------------------------------------------------------------------------- warm-up

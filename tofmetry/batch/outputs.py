@@ -16,6 +16,7 @@ import os
 import shutil
 from pathlib import Path
 
+from tofmetry._shared.atomic import replace_dir
 from tofmetry.errors import InputError
 from tofmetry.io import atomic_write_json, read_json
 
@@ -97,11 +98,4 @@ def publish(out: str | os.PathLike, spec: dict, record: dict) -> Path:
     output of the job is replaced only once the new one is in place)."""
     st, final = staging_dir(out, spec["name"]), final_dir(out, spec["name"])
     atomic_write_json(st / MARKER, record)
-    if final.exists():
-        old = final.with_name(f".{final.name}.batch-old-{os.getpid()}")
-        os.replace(final, old)
-        os.replace(st, final)
-        shutil.rmtree(old, ignore_errors=True)
-    else:
-        os.replace(st, final)
-    return final
+    return replace_dir(st, final)
