@@ -84,9 +84,13 @@ class ErrorModel:
         ``steep_mm max(0, d - steep_start_m)^steep_power``. Default: linear trend + 3 harmonics
         of the 80 MHz half wavelength + steep growth past 4.4 m.
     optical_blur_px : float
-        Gaussian sigma of the lens's point spread [px], on top of the pixel's own area: every
-        sub-ray of a supersampled pixel (:func:`tofmetry.simulate.render.render`) is displaced by
-        it. Measured on the real Kinect v2 board recording (``../shared/data``, 14 IR images):
+        Gaussian sigma of the lens's point spread [px], on top of the pixel's own area, in the IR
+        amplitude image: the sub-rays of a supersampled pixel's amplitude
+        (:func:`tofmetry.simulate.render.render`) sample the pixel area convolved with it. The
+        depth of a mixed pixel is still taken over the pixel's area alone (the flying-pixel model
+        matched to the study): spreading it by the point spread too widens the band of mixed
+        pixels along depth edges to about two pixels, which the reconstruction's registration does
+        not yet survive on the study's small 8-view scan (model vs reference 5.7 mm instead of 0.5). Measured on the real Kinect v2 board recording (``../shared/data``, 14 IR images):
         tofmetry's X-junction corner fit finds an edge sigma of 0.39-0.51 px (median 0.41 px),
         against 0.29 px for a pixel's area alone (sqrt(1/12)); the optics add sqrt(0.41^2 - 0.29^2)
         = 0.29 px. With 0 the edges are as sharp as the pixel grid allows, sharper than a real

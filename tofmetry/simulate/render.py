@@ -177,14 +177,22 @@ def render(scene: Scene, intr: CameraIntrinsics, pose: np.ndarray, em: E.ErrorMo
         eidx = np.zeros(0, np.int64)
     gx_v, gx_u = np.gradient(xy[..., 0])
     gy_v, gy_u = np.gradient(xy[..., 1])
-    offs = _sub_offsets(supersample, eidx, em.optical_blur_px)
     xe, ye = xy[..., 0].ravel()[eidx], xy[..., 1].ravel()[eidx]
-    du, dv = offs[..., 0], offs[..., 1]
-    sx = xe[:, None] + gx_u.ravel()[eidx][:, None] * du + gx_v.ravel()[eidx][:, None] * dv
-    sy = ye[:, None] + gy_u.ravel()[eidx][:, None] * du + gy_v.ravel()[eidx][:, None] * dv
-    zs, as_, _, _, _ = _cast(scene, R, o, sx.ravel(), sy.ravel(), em)
-    zs, as_ = zs.reshape(-1, S), as_.reshape(-1, S)
-    amp.reshape(-1)[eidx] = as_.mean(axis=1)
+    jac = (gx_u.ravel()[eidx][:, None], gx_v.ravel()[eidx][:, None], gy_u.ravel()[eidx][:, None],
+           gy_v.ravel()[eidx][:, None])
+
+    def sub_rays(blur_px: float):
+        offs = _sub_offsets(supersample, eidx, blur_px)
+        du, dv = offs[..., 0], offs[..., 1]
+        sx = xe[:, None] + jac[0] * du + jac[1] * dv
+        sy = ye[:, None] + jac[2] * du + jac[3] * dv
+        z_, a_, _, _, _ = _cast(scene, R, o, sx.ravel(), sy.ravel(), em)
+        return z_.reshape(-1, S), a_.reshape(-1, S)
+
+    # the depth of a mixed pixel from its area (the flying-pixel model as matched to the study, §3.3.2);
+    # the IR image through the lens's point spread as well (the edge width of a real Kinect's IR)
+    zs, as_ = sub_rays(0.0)
+    amp.reshape(-1)[eidx] = (sub_rays(em.optical_blur_px)[1] if em.optical_blur_px > 0 and eidx.size else as_).mean(axis=1)
 
     depth0 = z_c.copy()
     with np.errstate(invalid="ignore", divide="ignore"):
