@@ -12,7 +12,8 @@ from tofmetry.assess.noise import (
 )
 from tofmetry.assess.outdoor import OutdoorResult, assess_outdoor, flying_cloud
 from tofmetry.assess.regions import Region, auto_grey_board_regions, regions_from_dict, regions_to_dict
-from tofmetry.assess.warmup import WarmupResult, assess_warmup, local_linear_smooth, select_patch, warmup_from_series
+from tofmetry.assess.warmup import (WarmupResult, assess_warmup, capture_temperature, drift_temperature_slope,
+                                    local_linear_smooth, select_patch, warmup_from_series)
 
 
 __all__ = [
@@ -21,5 +22,5 @@ __all__ = [
     "NoiseResult", "StdSummary", "assess_noise", "noise_result_from", "recommend_n", "sigma_from_stds", "summarize_std_map",
     "OutdoorResult", "assess_outdoor", "flying_cloud",
     "Region", "auto_grey_board_regions", "regions_from_dict", "regions_to_dict",
-    "WarmupResult", "assess_warmup", "local_linear_smooth", "select_patch", "save_figures", "warmup_from_series",
+    "WarmupResult", "assess_warmup", "capture_temperature", "drift_temperature_slope", "local_linear_smooth", "select_patch", "save_figures", "warmup_from_series",
 ]

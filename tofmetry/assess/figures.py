@@ -24,9 +24,18 @@ def _save(fig, path: Path) -> Path:
 
 
 def warmup_figures(res, out_dir) -> list[Path]:
-    """``warmup.png``: patch distance vs operating time, smoothed curve, stabilisation time."""
+    """``warmup.png``: patch distance vs operating time, smoothed curve, stabilisation time.
+
+    Where the recording holds temperatures (``res.temperature_c``), the temperature is drawn
+    against time on a second axis, and a second panel plots the distance against the temperature
+    with the fitted drift per degree (``res.temperature_fit``)."""
     out = Path(out_dir)
-    fig, ax = subplots(figsize=(8, 4.5))
+    temp = res.temperature_c
+    has_temp = temp is not None and np.isfinite(temp).any()
+    if has_temp:
+        fig, (ax, axt) = subplots(1, 2, figsize=(13, 4.8), gridspec_kw={"width_ratios": [1.45, 1], "wspace": 0.38})
+    else:
+        fig, ax = subplots(figsize=(8, 4.5))
     t = res.time_s / 60.0
     ax.plot(t, res.distance_mm, ".", ms=3, color="0.6", label="patch mean (per frame)")
     ax.plot(t, res.smoothed_mm, "-", color="C0", lw=2, label=f"smoothed ({res.smooth_window_s:.0f} s window)")
@@ -39,9 +48,35 @@ def warmup_figures(res, out_dir) -> list[Path]:
     ax.set_xlabel("operating time since first frame [min]")
     ax.set_ylabel("mean distance of the patch [mm]")
     u0, v0, s = res.patch
-    ax.set_title(f"Warm-up drift (patch {s}x{s} px at u={u0}, v={v0}; total drift {res.total_drift_mm:+.1f} mm)")
+    ax.set_title(f"Warm-up drift (patch {s}x{s} px at u={u0}, v={v0}; total drift {res.total_drift_mm:+.1f} mm)",
+                 fontsize=10 if has_temp else None)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="lower right")
+    handles, labels = ax.get_legend_handles_labels()
+    if has_temp:
+        name = res.temperature_name or "sensor"
+        tw = ax.twinx()
+        (line,) = tw.plot(t, temp, "-", color="C1", lw=1.2, label=f"{name} temperature")
+        tw.set_ylabel(f"{name} temperature [°C]", color="C1")
+        tw.tick_params(axis="y", colors="C1")
+        handles.append(line)
+        labels.append(line.get_label())
+        sc = axt.scatter(temp, res.distance_mm, c=t, s=10, cmap="viridis", label="patch mean (per frame)")
+        fit = res.temperature_fit
+        if fit is not None:
+            lo, hi = fit["temperature_range_c"]
+            xx = np.array([lo, hi])
+            yy = fit["intercept_mm"] + fit["slope_mm_per_c"] * (xx - fit["mean_temperature_c"])
+            axt.plot(xx, yy, "-", color="C3", lw=1.5,
+                     label=f"{fit['slope_mm_per_c']:+.3f} ± {fit['slope_se_mm_per_c']:.3f} mm/°C (1 s.e., n={fit['n']})")
+            axt.set_title(f"Drift against temperature (R² {fit['r2']:.3f})", fontsize=10)
+        else:
+            axt.set_title("Drift against temperature (too little temperature change for a slope)", fontsize=10)
+        axt.set_xlabel(f"{name} temperature [°C]")
+        axt.set_ylabel("mean distance of the patch [mm]")
+        axt.grid(alpha=0.3)
+        axt.legend(fontsize=8, loc="lower right")
+        fig.colorbar(sc, ax=axt, label="operating time [min]", shrink=0.9)
+    ax.legend(handles, labels, fontsize=8, loc="lower right")
     return [_save(fig, out / "warmup.png")]
 
 

@@ -6,6 +6,11 @@ The sensor looks at a static wall while frames are recorded at intervals (study:
 necessarily at the centre), or, without IR, the patch of smallest depth. Its mean depth
 against the operating time is smoothed by local linear regression, and the time after
 which the smoothed curve stays within a tolerance of its final level is reported.
+
+Where the recording holds the sensor temperature per frame (``capture.json`` ``temperature_c``,
+written by ``tofmetry record``), the patch distance is also regressed on the temperature: the
+drift per degree (mm/°C) with a standard error that allows for the serial correlation of a
+warm-up series (:func:`drift_temperature_slope`).
 """
 
 from __future__ import annotations
@@ -40,6 +45,11 @@ class WarmupResult:
         stabilisation time to the tolerance; a wide range means the curve hovers near the
         tolerance (e.g. an overshoot of about the tolerance when the fan starts)
     notes : list of str, warnings for the user (fallbacks, short recording...)
+    temperature_c : (T,) float64 [°C] sensor temperature per frame (NaN where not reported), or None
+        when the recording holds no temperatures
+    temperature_name : which of the recorded temperatures (e.g. ``"sensor"``), or None
+    temperature_fit : :func:`drift_temperature_slope` of the patch distance on the temperature
+        (``slope_mm_per_c``, its standard error and 95 % interval ...), or None
     """
 
     time_s: np.ndarray
@@ -59,8 +69,14 @@ class WarmupResult:
     stabilisation_range_s: tuple = (None, None)
     t0_s: float = 0.0
     notes: list[str] = field(default_factory=list)
+    temperature_c: np.ndarray | None = None
+    temperature_name: str | None = None
+    temperature_fit: dict | None = None
 
     def to_dict(self) -> dict:
+        series = {"time_s": self.time_s, "distance_mm": self.distance_mm, "smoothed_mm": self.smoothed_mm}
+        if self.temperature_c is not None:
+            series["temperature_c"] = self.temperature_c
         return {
             "analysis": "warmup",
             "patch": {"u0": self.patch[0], "v0": self.patch[1], "size": self.patch[2], "source": self.patch_source},
@@ -73,7 +89,11 @@ class WarmupResult:
             "residual_drift_mm": self.residual_drift_mm, "stable_confirmed": self.stable_confirmed,
             "t0_s": self.t0_s, "n_frames": int(len(self.time_s)), "duration_s": float(self.time_s[-1]),
             "notes": list(self.notes),
-            "series": {"time_s": self.time_s, "distance_mm": self.distance_mm, "smoothed_mm": self.smoothed_mm},
+            "temperature": None if self.temperature_c is None else {
+                "name": self.temperature_name, "fit": self.temperature_fit,
+                "range_c": [float(np.nanmin(self.temperature_c)), float(np.nanmax(self.temperature_c))]
+                if np.isfinite(self.temperature_c).any() else None},
+            "series": series,
         }
 
 
@@ -160,8 +180,109 @@ def _stable_after(t: np.ndarray, dev: np.ndarray, tol: float) -> float | None:
     return float(t[outside[-1] + 1])
 
 
+def capture_temperature(source, n: int) -> tuple[np.ndarray | None, str | None]:
+    """The per-frame temperature a capture holds (``capture.json`` ``temperature_c``), if any.
+
+    Parameters
+    ----------
+    source : Capture-like object (``meta.extra``) or anything else (no temperature)
+    n : number of frames of the capture
+
+    Returns
+    -------
+    (temperature_c, name): (n,) float64 [°C] with NaN where a frame has none, and the name of the
+    temperature used (``"sensor"`` when present, else the first name in sorted order); (None, None)
+    when the capture holds no temperatures.
+
+    Raises
+    ------
+    InputError : ``temperature_c`` is not a dict of lists of one value (or null) per frame
+    """
+    extra = getattr(getattr(source, "meta", None), "extra", None)
+    temps = extra.get("temperature_c") if isinstance(extra, dict) else None
+    if not temps:
+        return None, None
+    where = f"{getattr(source, 'path', 'capture')}/capture.json 'temperature_c'"
+    if not isinstance(temps, dict):
+        raise InputError(f"{where}: expected an object name -> list of temperatures [°C], found {type(temps).__name__}")
+    name = "sensor" if "sensor" in temps else sorted(temps)[0]
+    vals = temps[name]
+    if not isinstance(vals, list) or len(vals) != n:
+        found = f"{len(vals)} values" if isinstance(vals, list) else type(vals).__name__
+        raise InputError(f"{where}: expected a list of {n} temperatures for {name!r} (one per frame), found {found}")
+    try:
+        return np.array([np.nan if v is None else float(v) for v in vals], np.float64), str(name)
+    except (TypeError, ValueError):
+        raise InputError(f"{where}: {name!r} holds a value that is not a number") from None
+
+
+def drift_temperature_slope(temperature_c: np.ndarray, distance_mm: np.ndarray, min_range_c: float = 0.5) -> dict | None:
+    """Least-squares slope of the patch distance on the sensor temperature, with an honest uncertainty.
+
+    The frames of a warm-up series are not independent: the residuals around the line wander
+    slowly and the temperature is a smooth trend, so the plain least-squares error understates the
+    uncertainty (by a factor of 2–3 when the residuals' lag-1 correlation is 0.9). The standard
+    error is therefore inflated for AR(1) residuals (Bayley and Hammersley's effective number of
+    frames, ``n_eff = n (1 - q) / (1 + q)`` with ``q`` the product of the lag-1 autocorrelations of
+    the residuals and of the temperature), and the 95 % interval uses Student's t with
+    ``n_eff - 2`` degrees of freedom. In simulation (the virtual sensor's temperature curve, 49 or
+    120 frames, AR(1) residuals, 400 draws each) the 95 % interval covered the true slope in 96 % of
+    the draws for independent residuals, 89–90 % at a lag-1 correlation of 0.5 and 77–88 % at 0.9,
+    against 95 %, 72 % and 34–40 % for the plain least-squares interval.
+
+    Parameters
+    ----------
+    temperature_c : (T,) float [°C] per frame in recording order (NaN: not reported; the frame is left out)
+    distance_mm : (T,) float [mm] patch distance per frame (NaN: left out)
+    min_range_c : below this temperature range [°C] no slope is estimated (None is returned)
+
+    Returns
+    -------
+    dict or None (fewer than 5 frames with both values, or a temperature range below ``min_range_c``):
+    ``slope_mm_per_c``, ``slope_se_mm_per_c`` (AR(1)-corrected), ``slope_ci95_mm_per_c`` [low, high],
+    ``slope_se_ols_mm_per_c`` (assuming independent frames, for comparison), ``n_effective``,
+    ``residual_lag1_corr``, ``intercept_mm`` (distance at the mean temperature), ``mean_temperature_c``,
+    ``r2``, ``residual_rms_mm``, ``n``, ``temperature_range_c`` [min, max].
+    """
+    from scipy.stats import t as student_t
+
+    x = np.asarray(temperature_c, np.float64).ravel()
+    y = np.asarray(distance_mm, np.float64).ravel()
+    if x.shape != y.shape:
+        raise InputError(f"drift_temperature_slope: {x.size} temperatures for {y.size} distances (expected one per frame)")
+    ok = np.isfinite(x) & np.isfinite(y)
+    x, y = x[ok], y[ok]
+    n = x.size
+    if n < 5 or float(x.max() - x.min()) < min_range_c:
+        return None
+    xm, ym = x.mean(), y.mean()
+    dx = x - xm
+    sxx = float(dx @ dx)
+    b = float(dx @ (y - ym)) / sxx
+    e = y - ym - b * dx
+
+    def lag1(v: np.ndarray) -> float:
+        d = float(v @ v)
+        return float(v[1:] @ v[:-1]) / d if d > 0 else 0.0
+
+    r_e = lag1(e)
+    q = min(max(r_e * lag1(dx), 0.0), 0.98)
+    se_ols = float(np.sqrt((e @ e) / (n - 2) / sxx))
+    se = se_ols * float(np.sqrt((1 + q) / (1 - q)))
+    n_eff = n * (1 - q) / (1 + q)
+    half = float(student_t.ppf(0.975, max(n_eff - 2.0, 1.0))) * se
+    ss_tot = float((y - ym) @ (y - ym))
+    return {"slope_mm_per_c": b, "slope_se_mm_per_c": se, "slope_ci95_mm_per_c": [b - half, b + half],
+            "slope_se_ols_mm_per_c": se_ols, "n_effective": float(n_eff), "residual_lag1_corr": r_e,
+            "intercept_mm": float(ym), "mean_temperature_c": float(xm),
+            "r2": 1.0 - float(e @ e) / ss_tot if ss_tot > 0 else float("nan"),
+            "residual_rms_mm": float(np.sqrt(np.mean(e ** 2))), "n": int(n),
+            "temperature_range_c": [float(x.min()), float(x.max())]}
+
+
 def assess_warmup(source, timestamps_s=None, *, ir: np.ndarray | None = None, patch: int = 10,
                   tolerance_mm: float = 1.0, smooth_window_s: float | None = None, final_window_s: float = 600.0,
+                  temperature_c: np.ndarray | None = None,
                   progress: Callable[[], None] | None = None) -> WarmupResult:
     """Warm-up drift of a static wall recording.
 
@@ -186,6 +307,10 @@ def assess_warmup(source, timestamps_s=None, *, ir: np.ndarray | None = None, pa
         kernel flattens (a 180 s kernel lowered the simulated fan overshoot by ~0.08 mm).
     final_window_s : float
         The final level is the median of the smoothed curve over this last stretch [s].
+    temperature_c : (T,) float [°C], optional
+        Sensor temperature per frame (NaN where unknown); taken from the capture's ``capture.json``
+        ``temperature_c`` if omitted (:func:`capture_temperature`). With it the result also holds
+        the drift against the temperature (:func:`drift_temperature_slope`).
     progress : callable, optional
         Called once per frame.
 
@@ -228,13 +353,18 @@ def assess_warmup(source, timestamps_s=None, *, ir: np.ndarray | None = None, pa
         n += 1
     if n != ts.size:
         raise InputError(f"{ts.size} timestamps for {n} frames")
+    name = None
+    if temperature_c is None:
+        temperature_c, name = capture_temperature(source, ts.size)
     return warmup_from_series(ts, dist, sel, "ir_max" if ir_img is not None else "depth_min", tolerance_mm=tolerance_mm,
-                              smooth_window_s=smooth_window_s, final_window_s=final_window_s, notes=notes)
+                              smooth_window_s=smooth_window_s, final_window_s=final_window_s, notes=notes,
+                              temperature_c=temperature_c, temperature_name=name)
 
 
 def warmup_from_series(timestamps_s: np.ndarray, distance_mm: np.ndarray, patch: tuple[int, int, int], patch_source: str,
                        *, tolerance_mm: float, smooth_window_s: float | None, final_window_s: float,
-                       notes: list[str] | None = None) -> WarmupResult:
+                       notes: list[str] | None = None, temperature_c: np.ndarray | None = None,
+                       temperature_name: str | None = None) -> WarmupResult:
     """The warm-up analysis of a patch-distance series (the second half of :func:`assess_warmup`).
 
     Lets the series be measured in pieces (e.g. chunks of a long recording on several workers,
@@ -249,6 +379,8 @@ def warmup_from_series(timestamps_s: np.ndarray, distance_mm: np.ndarray, patch:
     tolerance_mm, smooth_window_s, final_window_s : as in :func:`assess_warmup` (> 0; smooth_window_s None:
         the same default)
     notes : notes gathered so far (extended, not copied)
+    temperature_c : (T,) float [°C] sensor temperature per frame (NaN: unknown), or None
+    temperature_name : which temperature it is (e.g. ``"sensor"``), for the report
 
     Returns
     -------
@@ -262,6 +394,17 @@ def warmup_from_series(timestamps_s: np.ndarray, distance_mm: np.ndarray, patch:
     if smooth_window_s is None:
         smooth_window_s = max(120.0, 5.0 * float(np.median(np.diff(ts))))
     sel = tuple(int(x) for x in patch)
+    temp = fit = None
+    if temperature_c is not None:
+        temp = np.asarray(temperature_c, np.float64).ravel()
+        if temp.shape != ts.shape:
+            raise InputError(f"warm-up series: {temp.size} temperatures for {ts.size} frames (expected one per frame)")
+        fit = drift_temperature_slope(temp, dist)
+        if fit is None:
+            ok = np.isfinite(temp)
+            span = float(np.ptp(temp[ok])) if ok.any() else 0.0
+            notes.append(f"no drift per degree: the temperature varied by {span:.2f} °C over {int(ok.sum())} frame(s) "
+                         "(at least 0.5 °C and 5 frames are needed)")
     t = ts - ts[0]
     if np.isnan(dist).sum() > 0:
         notes.append(f"{int(np.isnan(dist).sum())} frame(s) with less than half of the patch valid were skipped")
@@ -291,4 +434,6 @@ def warmup_from_series(timestamps_s: np.ndarray, distance_mm: np.ndarray, patch:
         drift_range_mm=float(np.nanmax(sm) - np.nanmin(sm)),
         residual_drift_mm=float(np.nanmax(after) - np.nanmin(after)),
         stable_confirmed=bool(confirmed), stabilisation_range_s=t_range, t0_s=float(ts[0]), notes=notes,
+        temperature_c=temp, temperature_name=(temperature_name or "sensor") if temp is not None else None,
+        temperature_fit=fit,
     )

@@ -86,6 +86,9 @@ def warmup(capture: Path = typer.Argument(..., help="Capture of a static wall wi
         ("total drift", _fmt(res.total_drift_mm, "+.2f", " mm")),
         ("drift range", _fmt(res.drift_range_mm, ".2f", " mm")),
         ("residual drift after stabilisation (p-p)", _fmt(res.residual_drift_mm, ".2f", " mm")),
+        *([("drift per degree of the " + str(res.temperature_name) + " temperature",
+            f"{res.temperature_fit['slope_mm_per_c']:+.3f} ± {res.temperature_fit['slope_se_mm_per_c']:.3f} mm/°C")]
+          if res.temperature_fit else []),
     ])
 
 

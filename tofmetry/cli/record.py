@@ -1,4 +1,5 @@
-"""CLI: ``tofmetry record {warmup,wall,board,object} -o DIR`` — guided recording with a device.
+"""CLI: ``tofmetry record {warmup,wall,board,object} -o DIR`` — guided recording with a device;
+``tofmetry record recover DIR`` finishes recordings that were cut off.
 
 The command only parses, builds the device and the session, and shows the live status; the
 protocols are :mod:`tofmetry.record`. With ``--device virtual`` a simulated operator
@@ -176,6 +177,19 @@ def object_(output: Path = _OUT, device: str = _DEV, playback: Optional[Path] = 
     dev = _device(device, playback, None, realtime, scenes.balustrade() if device == "virtual" else None)
     _run(dev, ObjectSession(output, size_m, n_views=views, distance_m=distance_m, frames=frames,
                             min_overlap=min_overlap), None, calibration=calibration, max_frames=max_frames)
+
+
+@app.command("recover")
+def recover(folder: Path = typer.Argument(..., help="A recording (capture or dataset folder) that was cut off.")) -> None:
+    """Finish every cut recording under FOLDER: drop the frame in flight, write the final capture.json."""
+    from tofmetry.io.live_capture import recover_recordings
+
+    done = recover_recordings(folder)
+    if not done:
+        console.print(f"nothing to recover: no cut recording in {escape(str(folder))}", highlight=False)
+    for path, r in done:
+        console.print(f"recovered {escape(str(path))}: {r['frames']} complete frame(s) kept, "
+                      f"{len(r['removed'])} file(s) of the frame in flight removed", highlight=False)
 
 
 def register(root: typer.Typer) -> None:

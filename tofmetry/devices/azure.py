@@ -2,12 +2,16 @@
 ``pyk4a-bundle``: the Python binding with the Azure Kinect SDK inside).
 
 A live device or an ``.mkv`` recording played back by the SDK. Depth is delivered in mm as the
-SDK gives it; the factory calibration gives the depth intrinsics (the SDK's 8-coefficient rational
-model is reduced to tofmetry's 5-coefficient Brown model by least squares, as the MKV importer does)
-and the depth->colour extrinsics; the capture's temperature is reported where the SDK has it.
+SDK gives it; the factory calibration gives the depth and colour intrinsics in the SDK's own
+8-coefficient rational lens model (``CameraIntrinsics(model="rational")``, as tofmetry's MKV importer
+keeps it) and the depth->colour extrinsics. pyk4a's captures carry no temperature: a live device
+reports the temperature of its IMU (``"imu"``, read at each frame); a playback reports none.
 
 ``pyk4a-bundle`` is built against numpy 1.x: in an environment with numpy 2 it cannot be imported,
-and :class:`~tofmetry.devices.base.MissingExtraError` says so.
+and :class:`~tofmetry.devices.base.MissingExtraError` says so. This module imports nothing else
+that needs numpy 2 or OpenCV, so it runs in a separate ``numpy<2`` environment
+(``tests/devices/test_pyk4a_playback.py`` plays the shared MKV back through it there and compares
+the frames bit for bit with the importer).
 """
 
 from __future__ import annotations
@@ -27,14 +31,14 @@ def _k4a():
     return require("pyk4a", EXTRA, "Azure Kinect")
 
 
-def _intrinsics(calib, kind, size, reduce_rational) -> CameraIntrinsics:
+def _intrinsics(calib, kind, size) -> CameraIntrinsics:
+    """A camera of a pyk4a ``Calibration`` in the mode's pixels: (W, H), K and OpenCV's rational
+    coefficients ``k1,k2,p1,p2,k3,k4,k5,k6`` as the SDK gives them."""
     K = np.asarray(calib.get_camera_matrix(kind), np.float64)
-    rational = np.asarray(calib.get_distortion_coefficients(kind), np.float64).ravel()
-    dist = tuple(float(x) for x in rational[[0, 1, 2, 3, 4]]) if rational.size >= 5 else (0.0,) * 5
-    if reduce_rational is not None and rational.size == 8:
-        dist5 = reduce_rational(K, rational, size)[0]
-        dist = tuple(float(x) for x in dist5)
-    return CameraIntrinsics(int(size[0]), int(size[1]), K[0, 0], K[1, 1], K[0, 2], K[1, 2], dist)
+    dist = np.asarray(calib.get_distortion_coefficients(kind), np.float64).ravel()
+    model = "rational" if dist.size == 8 else "brown"
+    return CameraIntrinsics(int(size[0]), int(size[1]), float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
+                            tuple(float(x) for x in dist), model)
 
 
 class AzureKinectDevice(Device):
@@ -44,50 +48,57 @@ class AzureKinectDevice(Device):
     ----------
     mkv : recording to play back (None: the live device)
     device_id : index of the live device
-    reduce_rational : callable ``(K, rational8, (W, H)) -> (dist5, ...)`` reducing the SDK's rational
-        model to Brown (default: :func:`tofmetry.io.azure_kinect.brown_from_rational`, as the importer)
     """
 
     name = "azure"
 
-    def __init__(self, mkv: str | os.PathLike | None = None, *, device_id: int = 0, reduce_rational=None):
+    def __init__(self, mkv: str | os.PathLike | None = None, *, device_id: int = 0):
         super().__init__()
         self.mkv = None if mkv is None else str(mkv)
         self.device_id = device_id
-        self._reduce = reduce_rational
         self._src = None
 
     def _open(self) -> DeviceInfo:
         k4a = _k4a()
-        if self._reduce is None:
-            from tofmetry.io.azure_kinect import brown_from_rational   # cv2: only once a device is used
-
-            self._reduce = lambda K, r, size: brown_from_rational(K, r, size)
         if self.mkv is not None:
             if not os.path.isfile(self.mkv):
                 raise DeviceError(f"Azure Kinect playback: file not found: {self.mkv}")
             self._src = k4a.PyK4APlayback(self.mkv)
-            self._src.open()
+            try:
+                self._src.open()
+            except k4a.K4AException as exc:
+                raise DeviceError(f"Azure Kinect playback: cannot open {self.mkv} ({exc})") from None
             serial = f"playback of {self.mkv}"
+            fps = _FPS.get(int(self._src.configuration["camera_fps"]), 30.0)
         else:
-            self._src = k4a.PyK4A(device_id=self.device_id)
-            self._src.start()
-            serial = str(getattr(self._src, "serial", f"device {self.device_id}"))
+            config = k4a.Config()                 # NFOV unbinned depth, 720p colour, 30 fps, IMU on
+            self._src = k4a.PyK4A(config=config, device_id=self.device_id)
+            try:
+                self._src.start()
+            except k4a.K4AException as exc:
+                raise DeviceError(f"Azure Kinect: cannot start device {self.device_id} ({exc})") from None
+            try:
+                serial = str(self._src.serial)
+            except k4a.K4AException:
+                serial = f"device {self.device_id}"
+            fps = _FPS.get(int(config.camera_fps), 30.0)
         calib = self._src.calibration
         CT = k4a.CalibrationType
         depth_size = _mode_size(calib, "depth")
-        depth = _intrinsics(calib, CT.DEPTH, depth_size, self._reduce) if depth_size else None
+        depth = _intrinsics(calib, CT.DEPTH, depth_size) if depth_size else None
         color_size = _mode_size(calib, "color")
-        color = _intrinsics(calib, CT.COLOR, color_size, self._reduce) if color_size else None
+        color = _intrinsics(calib, CT.COLOR, color_size) if color_size else None
         ext = None
-        try:
+        if color_size:
+            # pyk4a >= 1.3 gives the translation in metres (the SDK's mm divided by 1000)
             R, t = calib.get_extrinsic_parameters(CT.DEPTH, CT.COLOR)
-            ext = Extrinsics(np.asarray(R, np.float64).reshape(3, 3), np.asarray(t, np.float64).ravel() / 1000.0,
-                             "depth", "color")
-        except (AttributeError, ValueError, RuntimeError):
-            pass
+            ext = Extrinsics(np.asarray(R, np.float64).reshape(3, 3), np.asarray(t, np.float64).ravel(), "depth", "color")
         return DeviceInfo(name="azure", sensor="azure_kinect", serial=serial, depth_intrinsics=depth,
-                          color_intrinsics=color, depth_to_color=ext, depth_unit_mm=1.0, fps=30.0)
+                          color_intrinsics=color, depth_to_color=ext, depth_unit_mm=1.0, fps=fps)
+
+    @property
+    def _k4a(self):
+        return _k4a()
 
     def _read(self) -> DeviceFrame | None:
         while True:
@@ -97,8 +108,15 @@ class AzureKinectDevice(Device):
                 return None
             if cap.depth is not None:
                 break
-        temp = getattr(cap, "temperature", None)
-        temps = {"sensor": float(temp)} if temp is not None and np.isfinite(temp) else {}
+        temps = {}
+        if self.mkv is None:                      # the IMU's temperature, the only one pyk4a exposes
+            try:
+                sample = self._src.get_imu_sample(timeout=0)
+                temp = None if sample is None else float(sample["temperature"])
+            except (self._k4a.K4AException, KeyError, TypeError, ValueError):
+                temp = None
+            if temp is not None and np.isfinite(temp):
+                temps = {"imu": temp}
         ir = None if cap.ir is None else np.clip(cap.ir, 0, 65535).astype(np.uint16)
         return DeviceFrame(depth=np.asarray(cap.depth, np.uint16), timestamp_s=cap.depth_timestamp_usec / 1e6,
                            ir=ir, temperature_c=temps)
@@ -107,6 +125,10 @@ class AzureKinectDevice(Device):
         if self._src is not None:
             (self._src.close if self.mkv is not None else self._src.stop)()
             self._src = None
+
+
+#: pyk4a ``FPS`` enum value -> frames per second (``k4a_fps_t``)
+_FPS = {0: 5.0, 1: 15.0, 2: 30.0}
 
 
 def _mode_size(calib, which: str) -> tuple[int, int] | None:

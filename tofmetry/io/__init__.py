@@ -16,14 +16,15 @@
 """
 
 from tofmetry.io._atomic import atomic_dir, atomic_write_bytes, atomic_write_json, read_json
-from tofmetry.io.capture import Capture, CaptureMeta, CaptureWriter, EmptyFrameWarning, read_capture, write_capture
+from tofmetry.io.capture import (Capture, CaptureMeta, CaptureWriter, CutRecordingWarning, EmptyFrameWarning, read_capture,
+                                 write_capture)
 from tofmetry.io.datasets import ScanDataset, Station, WallDataset, write_stations_csv
 from tofmetry.io.intrinsics_json import read_intrinsics, write_intrinsics
 from tofmetry.io.ply import read_ply, write_ply
 
 __all__ = [
     "atomic_dir", "atomic_write_bytes", "atomic_write_json", "read_json",
-    "Capture", "CaptureMeta", "CaptureWriter", "EmptyFrameWarning", "read_capture", "write_capture",
+    "Capture", "CaptureMeta", "CaptureWriter", "CutRecordingWarning", "EmptyFrameWarning", "read_capture", "write_capture",
     "ScanDataset", "Station", "WallDataset", "write_stations_csv",
     "read_intrinsics", "write_intrinsics", "read_ply", "write_ply",
 ]

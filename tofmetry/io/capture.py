@@ -37,6 +37,10 @@ class EmptyFrameWarning(UserWarning):
     """A depth frame in which every pixel is 0 (no measurement)."""
 
 
+class CutRecordingWarning(UserWarning):
+    """A live recording that was never closed (power cut, crash): read as its complete frames."""
+
+
 def _frame_files(folder: Path, suffixes: tuple[str, ...]) -> list[Path]:
     if not folder.is_dir():
         return []
@@ -108,12 +112,15 @@ class Capture:
         else:
             self.meta = CaptureMeta(sensor="unknown")
         self.depth_files = _frame_files(self.path / "depth", images.DEPTH_SUFFIXES)
+        self.ir_files = _frame_files(self.path / "ir", (".png", ".tif", ".tiff", ".npy"))
+        self.color_files = _frame_files(self.path / "color", (".jpg", ".jpeg", ".png"))
+        rec = self.meta.extra.get("recording")
+        if isinstance(rec, dict) and rec.get("complete") is False:
+            self._read_cut_recording()
         if not self.depth_files:
             raise FormatError(
                 f"{self.path}: no depth frames found (expected depth/000000.png ... in the capture folder)"
             )
-        self.ir_files = _frame_files(self.path / "ir", (".png", ".tif", ".tiff", ".npy"))
-        self.color_files = _frame_files(self.path / "color", (".jpg", ".jpeg", ".png"))
         self._shape = self._check_headers()
         if self.meta.timestamps_s is not None and len(self.meta.timestamps_s) != len(self.depth_files):
             raise FormatError(
@@ -121,6 +128,34 @@ class Capture:
             )
         if self.ir_files and len(self.ir_files) != len(self.depth_files):
             raise FormatError(f"{self.path / 'ir'}: {len(self.ir_files)} IR frames for {len(self.depth_files)} depth frames")
+
+    def _read_cut_recording(self) -> None:
+        """A live recording never closed: keep the frames 0..n-1 that have a depth file and a line in
+        ``frames.jsonl`` (timestamps and temperatures from it), warn, change nothing on disk."""
+        from tofmetry.io.live_capture import read_frames_log
+
+        rows = read_frames_log(self.path)
+        stems = {p.stem for p in self.depth_files}
+        n = 0
+        while f"{n:06d}" in stems and n in rows:
+            n += 1
+        if n == 0:
+            raise FormatError(f"{self.path}: a recording cut off before its first complete frame (no frame has both "
+                              f"its depth file and its line in frames.jsonl)")
+        keep = {f"{i:06d}" for i in range(n)}
+        dropped = len(self.depth_files) - n
+        self.depth_files = [p for p in self.depth_files if p.stem in keep]
+        self.ir_files = [p for p in self.ir_files if p.stem in keep]
+        self.color_files = [p for p in self.color_files if p.stem in keep]
+        self.meta.timestamps_s = [rows[i]["timestamp_s"] for i in range(n)]
+        keys = sorted({k for i in range(n) for k in rows[i]["temperature_c"]})
+        if keys:
+            self.meta.extra["temperature_c"] = {k: [rows[i]["temperature_c"].get(k) for i in range(n)] for k in keys}
+        warnings.warn(f"{self.path}: the recording was never closed (cut off, or still recording); read as its {n} complete "
+                      "frame(s)"
+                      + (f" ({dropped} incomplete depth frame(s) left out)" if dropped else "")
+                      + f"; run 'tofmetry record recover {self.path}' to finish it on disk",
+                      CutRecordingWarning, stacklevel=3)
 
     # ---------------------------------------------------------------- checks
     def _check_headers(self) -> tuple[int, int]:

@@ -13,7 +13,10 @@ place at the end: right for processing outputs, wrong for a 90-minute recording.
 
 At any moment the folder reads as a capture of the frames written so far. After a cut,
 :func:`recover_capture` removes the files of the frame in flight (IR or colour without its depth)
-and writes the final ``capture.json`` from ``frames.jsonl``.
+and writes the final ``capture.json`` from ``frames.jsonl`` (``tofmetry record recover DIR``, which
+finds every cut capture under DIR: :func:`recover_recordings`). Until then,
+:class:`~tofmetry.io.Capture` reads a cut recording as its complete frames (those logged in
+``frames.jsonl`` with their depth file), with a warning, and changes nothing on disk.
 """
 
 from __future__ import annotations
@@ -143,6 +146,67 @@ class LiveCaptureWriter:
         self.close()
 
 
+def read_frames_log(path: str | os.PathLike) -> dict[int, dict]:
+    """The rows of a recording's ``frames.jsonl`` by frame index (a line cut short is left out).
+
+    Parameters
+    ----------
+    path : the capture folder
+
+    Returns
+    -------
+    dict index -> ``{"index", "timestamp_s", "temperature_c"}``; empty when there is no log
+    """
+    rows: dict[int, dict] = {}
+    log = Path(path) / FRAMES_LOG
+    if log.is_file():
+        for line in log.read_text(encoding="utf-8", errors="replace").splitlines():
+            try:
+                r = json.loads(line)
+                rows[int(r["index"])] = {"index": int(r["index"]), "timestamp_s": float(r["timestamp_s"]),
+                                         "temperature_c": dict(r.get("temperature_c") or {})}
+            except (ValueError, KeyError, TypeError, AttributeError):
+                continue                     # the line in flight, cut short
+    return rows
+
+
+def is_cut_recording(meta: dict) -> bool:
+    """True when a ``capture.json`` dict is that of a live recording never closed (``recording.complete`` false)."""
+    rec = meta.get("recording") if isinstance(meta, dict) else None
+    return isinstance(rec, dict) and rec.get("complete") is False
+
+
+def find_cut_recordings(root: str | os.PathLike) -> list[Path]:
+    """Capture folders at or under ``root`` whose recording was cut off (``capture.json`` says not complete)."""
+    root = Path(root)
+    metas = [root / "capture.json"] if (root / "capture.json").is_file() else sorted(root.rglob("capture.json"))
+    out = []
+    for m in metas:
+        try:
+            if is_cut_recording(read_json(m, "capture.json")):
+                out.append(m.parent)
+        except FormatError:
+            continue
+    return out
+
+
+def recover_recordings(root: str | os.PathLike) -> list[tuple[Path, dict]]:
+    """Finish every cut recording at or under ``root`` (:func:`recover_capture` on each).
+
+    Returns
+    -------
+    list of (capture folder, its :func:`recover_capture` result); empty when nothing was cut
+
+    Raises
+    ------
+    InputError : ``root`` is not a folder
+    """
+    root = Path(root)
+    if not root.is_dir():
+        raise InputError(f"recover: {root} is not a folder (expected a recording made by tofmetry record)")
+    return [(p, recover_capture(p)) for p in find_cut_recordings(root)]
+
+
 def recover_capture(path: str | os.PathLike) -> dict:
     """Finish a recording that was cut off: drop the frame in flight, write the final ``capture.json``.
 
@@ -162,15 +226,7 @@ def recover_capture(path: str | os.PathLike) -> dict:
     for p in path.rglob(".*.tmp"):
         p.unlink()
         removed.append(str(p.relative_to(path)))
-    rows = {}
-    log = path / FRAMES_LOG
-    if log.is_file():
-        for line in log.read_text(encoding="utf-8").splitlines():
-            try:
-                r = json.loads(line)
-                rows[int(r["index"])] = r
-            except (ValueError, KeyError, TypeError):
-                continue                     # the line in flight, cut short
+    rows = read_frames_log(path)
     n = len(depth)
     for i in range(n):
         if i not in rows:                    # a depth frame whose log line never made it: drop it

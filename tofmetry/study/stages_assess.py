@@ -67,7 +67,8 @@ def stage_warmup(ctx: StudyContext, out: StageOutcome) -> None:
     d, out.figures = _record(ctx, "warmup", res)
     st = d["stabilisation_time_min"]
     out.data = {k: d[k] for k in ("stabilisation_time_min", "stabilisation_range_s", "total_drift_mm", "drift_range_mm",
-                                  "residual_drift_mm", "final_level_mm", "n_frames", "duration_s", "patch", "notes")}
+                                  "residual_drift_mm", "final_level_mm", "n_frames", "duration_s", "patch", "notes",
+                                  "temperature")}
     rng = [None if x is None else x / 60.0 for x in d["stabilisation_range_s"]]
     rng_txt = " – ".join("not reached" if x is None else f"{x:.1f}" for x in rng) + " min"
     out.tables.append(("Warm-up (study §3.2: ~5 mm over 30 min, then ~1 mm)", ["quantity", "value"], [
@@ -77,8 +78,24 @@ def stage_warmup(ctx: StudyContext, out: StageOutcome) -> None:
         [f"… at {1.1 * a.warmup_tolerance_mm:.2g} / {0.9 * a.warmup_tolerance_mm:.2g} mm tolerance", rng_txt],
         ["total drift", f"{d['total_drift_mm']:+.2f} mm"],
         ["residual drift after stabilisation", f"{d['residual_drift_mm']:.2f} mm"],
+        *_temperature_rows(d["temperature"]),
     ]))
     out.paragraphs += d["notes"]
+
+
+def _temperature_rows(temp: dict | None) -> list[list[str]]:
+    """Table rows of the drift against the recorded temperature (none when the recording holds no temperature)."""
+    if not temp:
+        return []
+    rows = []
+    if temp.get("range_c"):
+        rows.append([f"{temp['name']} temperature", f"{temp['range_c'][0]:.1f} – {temp['range_c'][1]:.1f} °C"])
+    f = temp.get("fit")
+    if f:
+        lo, hi = f["slope_ci95_mm_per_c"]
+        rows.append(["drift per degree (s.e. for correlated frames; 95 % interval)",
+                     f"{f['slope_mm_per_c']:+.3f} ± {f['slope_se_mm_per_c']:.3f} mm/°C ({lo:+.3f} … {hi:+.3f})"])
+    return rows
 
 
 def stage_noise(ctx: StudyContext, out: StageOutcome) -> None:

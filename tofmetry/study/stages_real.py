@@ -1,8 +1,9 @@
-"""Study stages for real recordings found in DATA_DIR: an iai_kinect2 board recording and Azure Kinect MKVs.
+"""Study stages for real recordings found in DATA_DIR: board recordings and Azure Kinect MKVs.
 
-* **board**: the recording is imported as a board dataset; intrinsics and the board depth calibration
-  are fitted on the poses recorded first and judged on the last ``judge_fraction`` of them, which no
-  fit sees (``tofmetry calibrate depth DS --train-poses ... --judge-poses ...``).
+* **board**: a board dataset (``board.json`` + ``poses/``, as ``tofmetry record board`` writes it) or an
+  iai_kinect2 board recording (imported as a board dataset first); intrinsics and the board depth
+  calibration are fitted on the poses recorded first and judged on the last ``judge_fraction`` of them,
+  which no fit sees (``tofmetry calibrate depth DS --train-poses ... --judge-poses ...``).
 * **mkv**: each ``.mkv`` is imported as a capture (factory calibration included) and turned into a
   point cloud (``tofmetry import azure-kinect`` + ``tofmetry cloud``).
 
@@ -15,7 +16,7 @@ from pathlib import Path
 
 from tofmetry.io import atomic_write_json
 from tofmetry.io.azure_kinect import import_azure_kinect
-from tofmetry.io.board_dataset import BoardSpec
+from tofmetry.io.board_dataset import BoardDataset, BoardSpec
 from tofmetry.pipelines import save_calibration, write_depth_report
 from tofmetry.pipelines.board import calibrate_board
 from tofmetry.pipelines.cloud import capture_cloud
@@ -35,6 +36,14 @@ def find_board_recording(root: Path) -> Path | None:
     return None
 
 
+def find_board_dataset(root: Path) -> Path | None:
+    """The first folder (DATA_DIR or a sub-folder) holding a board dataset: ``board.json`` and ``poses/``."""
+    for p in _candidates(root):
+        if (p / "board.json").is_file() and (p / "poses").is_dir():
+            return p
+    return None
+
+
 def find_mkvs(root: Path) -> list[Path]:
     """``.mkv`` files in DATA_DIR and its immediate sub-folders."""
     return [f for p in _candidates(root) for f in sorted(p.glob("*.mkv"))]
@@ -42,20 +51,30 @@ def find_mkvs(root: Path) -> list[Path]:
 
 def stage_board(ctx: StudyContext, out: StageOutcome) -> None:
     """Intrinsics, board depth calibration and its validation on poses no fit saw (real board recording)."""
-    src = find_board_recording(ctx.data_dir)
-    if src is None:
-        raise Skip(f"no board recording (NNNN_depth.png + NNNN_ir_points.yaml, iai_kinect2) in {ctx.data_dir} or its "
-                   "sub-folders; stage skipped")
-    c = ctx.config.recording
-    spec = BoardSpec.parse(c.board, c.square_mm)
+    dataset, recording = find_board_dataset(ctx.data_dir), find_board_recording(ctx.data_dir)
+    if dataset is None and recording is None:
+        raise Skip(f"no board dataset (board.json + poses/, as tofmetry record board writes it) and no board recording "
+                   f"(NNNN_depth.png + NNNN_ir_points.yaml, iai_kinect2) in {ctx.data_dir} or its sub-folders; "
+                   "stage skipped")
     d = ctx.stage_dir("board")
-    imp = import_iai_kinect2(src, d / "dataset", spec, force=True)
-    names = sorted(p.name for p in (d / "dataset" / "poses").iterdir() if p.is_dir())
+    imp: dict = {}
+    if dataset is not None:                       # recorded by tofmetry: the board is in its board.json
+        src, ds_dir = dataset, dataset
+        spec = BoardDataset(dataset).board
+        if recording is not None:
+            out.paragraphs.append(f"The board recording {recording} was not used: the board dataset {dataset} was.")
+    else:
+        src, ds_dir = recording, d / "dataset"
+        c = ctx.config.recording
+        spec = BoardSpec.parse(c.board, c.square_mm)
+        imp = import_iai_kinect2(src, ds_dir, spec, force=True)
+    c = ctx.config.recording
+    names = list(BoardDataset(ds_dir).names)
     n_judge = max(1, round(len(names) * c.judge_fraction))
     if len(names) - n_judge < 3:
         raise Skip(f"{src}: only {len(names)} poses, too few to fit on some and judge on the others")
     train, judge = names[:-n_judge], names[-n_judge:]
-    run = calibrate_board(d / "dataset", ctx.intrinsics, train_poses=",".join(train), judge_poses=",".join(judge),
+    run = calibrate_board(ds_dir, ctx.intrinsics, train_poses=",".join(train), judge_poses=",".join(judge),
                           accept_implausible=ctx.accept_implausible)
     save_calibration(d / "calibration.npz", run.calibration)
     if ctx.calibration_path is None:
@@ -72,7 +91,7 @@ def stage_board(ctx: StudyContext, out: StageOutcome) -> None:
                 "prediction": j.get("prediction"), "notes": list(run.notes), "import": {k: v for k, v in imp.items()
                                                                                      if isinstance(v, (int, str))}}
     out.paragraphs.append(
-        f"Board recording {src} ({len(names)} poses, {spec.cols}x{spec.rows} inner corners, {spec.square_mm:g} mm "
+        f"Board {'dataset' if dataset is not None else 'recording'} {src} ({len(names)} poses, {spec.cols}x{spec.rows} inner corners, {spec.square_mm:g} mm "
         f"squares). Fitted on poses {train[0]}–{train[-1]} (intrinsics included: {run.intrinsics_source}); judged on "
         f"poses {judge[0]}–{judge[-1]}, which no fit saw.")
     out.tables.append((f"IR intrinsics ({run.intrinsics_source})", ["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"],
