@@ -10,7 +10,7 @@ import typer
 from tofmetry.cli._common import (
     ACCEPT_IMPLAUSIBLE_HELP, console, load_intrinsics_option, print_plausibility, progress, refuse_existing,
 )
-from tofmetry.cli.stereo import stereo_cmd
+from tofmetry.cli.stereo import rig_cmd, stereo_cmd
 
 calibrate_app = typer.Typer(help="Calibrate the camera: IR intrinsics (checkerboard) and ToF depth (wall).",
                             rich_markup_mode=None, no_args_is_help=True)
@@ -434,5 +434,6 @@ def register(app: typer.Typer) -> None:
     calibrate_app.command("depth")(depth)
     calibrate_app.command("validate")(validate)
     calibrate_app.command("stereo")(stereo_cmd)
+    calibrate_app.command("rig")(rig_cmd)
     app.add_typer(calibrate_app, name="calibrate")
     app.command("correct")(correct)
