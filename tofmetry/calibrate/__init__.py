@@ -55,6 +55,7 @@ from tofmetry.calibrate._corners import (
     CornerDetection, detect_board, detect_corners, find_grid, grid_consistency_px, normalize_ir, refine_corners,
     refine_corners_subpix,
 )
+from tofmetry.calibrate._charuco import CharucoBoard, CharucoDetection, detect_charuco
 from tofmetry.calibrate._lens_fit import (
     IntrinsicsResult, calibrate_intrinsics, corner_coverage, corner_region_coverage, coverage_mask,
     cross_validate_intrinsics, intrinsic_covariance,
@@ -76,7 +77,7 @@ __all__ = [
     "summarize",
     "board_object_points", "check_corners", "reprojection_rms_with", "solve_board_pose", "CornerRefinement",
     "CornerDetection", "detect_board", "detect_corners", "find_grid", "grid_consistency_px", "normalize_ir",
-    "refine_corners", "refine_corners_subpix", "IntrinsicsResult", "calibrate_intrinsics", "corner_coverage",
+    "refine_corners", "refine_corners_subpix", "CharucoBoard", "CharucoDetection", "detect_charuco", "IntrinsicsResult", "calibrate_intrinsics", "corner_coverage",
     "corner_region_coverage", "coverage_mask", "cross_validate_intrinsics", "intrinsic_covariance",
     "PARAMS", "RayError", "predicted_ray_error_px", "ray_difference_px", "ray_error_px",
     "StereoResult", "calibrate_stereo", "heldout_reprojection", "RigResult", "calibrate_rig",

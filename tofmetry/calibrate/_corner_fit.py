@@ -57,7 +57,7 @@ class CornerRefinement:
 
 
 def _xjunction_fit(img: np.ndarray, c0: np.ndarray, dirs: np.ndarray, radius: np.ndarray,
-                   iters: tuple[int, int] = (10, 6)):
+                   iters: tuple[int, int] = (10, 6), keep=None):
     """Batched Levenberg-Marquardt fit of the blurred X-junction model (see module docstring).
 
     Parameters
@@ -65,6 +65,9 @@ def _xjunction_fit(img: np.ndarray, c0: np.ndarray, dirs: np.ndarray, radius: np
     img : (H, W) float image; c0 : (C, 2) start [px]; dirs : (C, 2, 2) edge directions;
     radius : (C,) disc radius [px]; iters : LM iterations with the disc centred on ``c0``, then
         re-centred on the estimate.
+    keep : optional callable ``keep(X, Y) -> (C, n) bool`` on the integer pixel columns and rows
+        (C, n) of each corner's window: pixels to use (e.g. not on a ChArUco marker); it should be
+        point-symmetric about the corner, as the model is.
 
     Returns
     -------
@@ -80,6 +83,8 @@ def _xjunction_fit(img: np.ndarray, c0: np.ndarray, dirs: np.ndarray, radius: np
     base = np.round(c0).astype(np.int64)
     X, Y = base[:, :1] + ox[None], base[:, 1:] + oy[None]
     inside = (X >= 0) & (X < W) & (Y >= 0) & (Y < H)
+    if keep is not None:
+        inside &= np.asarray(keep(X, Y), bool)
     I = np.where(inside, img[np.clip(Y, 0, H - 1), np.clip(X, 0, W - 1)], 0.0).astype(np.float64)
     lo, hi = np.nanpercentile(np.where(inside, I, np.nan), [5, 95], axis=1)
     mid, half = 0.5 * (hi + lo), np.maximum(0.5 * (hi - lo), 1e-9)

@@ -205,7 +205,25 @@ def grid_consistency_px(corners: np.ndarray, board: tuple[int, int], exclude: np
     cols, rows = int(board[0]), int(board[1])
     c = check_corners(corners, (cols, rows), "grid_consistency_px")
     n = len(c)
-    gi, gj = np.arange(n) % cols, np.arange(n) // cols
+    return grid_consistency_ids(c, np.arange(n) % cols, np.arange(n) // cols, exclude, reach)
+
+
+def grid_consistency_ids(corners: np.ndarray, gi: np.ndarray, gj: np.ndarray, exclude: np.ndarray | None = None,
+                         reach: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`grid_consistency_px` for any subset of a board's corners (e.g. a partial ChArUco view).
+
+    Parameters
+    ----------
+    corners : (N, 2) [px]; gi, gj : (N,) int grid column and row of each corner
+    exclude : optional (N,) bool, corners not used to predict the others
+
+    Returns
+    -------
+    residual : (N,) [px] (NaN where too few neighbours); predicted : (N, 2) [px]
+    """
+    c = np.asarray(corners, np.float64).reshape(-1, 2)
+    n = len(c)
+    gi, gj = np.asarray(gi, np.int64), np.asarray(gj, np.int64)
     ex = np.zeros(n, bool) if exclude is None else np.asarray(exclude, bool)
     pred = np.full((n, 2), np.nan)
     for k in range(n):

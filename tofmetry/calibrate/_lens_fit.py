@@ -203,21 +203,36 @@ def intrinsic_covariance(obj: list[np.ndarray], img: list[np.ndarray], K: np.nda
     return 0.5 * (cov + cov.T)
 
 
-def _prepare(corners, names, board, square_mm):
+def _prepare(corners, names, board, square_mm, object_points=None):
+    """Names, per-view object points (float32 (N_v, 3) [mm]) and corners (float32 (N_v, 1, 2))."""
     if names is None:
         names = [f"view{k:03d}" for k in range(len(corners))]
     names = list(names)
     if len(corners) != len(names):
         raise InputError(f"calibrate_intrinsics: {len(corners)} corner sets for {len(names)} names")
-    obj = board_object_points(board, square_mm).astype(np.float32)
-    imgs = [check_corners(c, board, str(nm)).astype(np.float32).reshape(-1, 1, 2) for nm, c in zip(names, corners)]
-    return names, obj, imgs
+    if object_points is None:
+        obj = board_object_points(board, square_mm).astype(np.float32)
+        imgs = [check_corners(c, board, str(nm)).astype(np.float32).reshape(-1, 1, 2) for nm, c in zip(names, corners)]
+        return names, [obj] * len(imgs), imgs
+    if len(object_points) != len(corners):
+        raise InputError(f"calibrate_intrinsics: {len(object_points)} object-point sets for {len(corners)} corner sets")
+    objs, imgs = [], []
+    for nm, o, c in zip(names, object_points, corners):
+        o = np.asarray(o, np.float64).reshape(-1, 3)
+        c = np.asarray(c, np.float64).reshape(-1, 2)
+        if len(o) != len(c) or len(c) < 6 or not (np.all(np.isfinite(o)) and np.all(np.isfinite(c))):
+            raise InputError(f"calibrate_intrinsics: view {nm}: expected >= 6 finite corners with as many object "
+                             f"points, found {len(c)} corners and {len(o)} object points")
+        objs.append(o.astype(np.float32))
+        imgs.append(c.astype(np.float32).reshape(-1, 1, 2))
+    return names, objs, imgs
 
 
 def calibrate_intrinsics(corners: list[np.ndarray], names: list[str] | None, board: tuple[int, int], square_mm: float,
                          image_size: tuple[int, int], leave_one_out: bool = True, fix_k3: bool = False,
                          min_coverage: float = 0.5, advance=None, *, reject_px: float | None = 1.0,
-                         reject_factor: float = 5.0, flags: int = 0) -> IntrinsicsResult:
+                         reject_factor: float = 5.0, flags: int = 0,
+                         object_points: list[np.ndarray] | None = None) -> IntrinsicsResult:
     """Brown-model calibration from detected checkerboard corners, with outlier-view rejection.
 
     Parameters
@@ -236,6 +251,9 @@ def calibrate_intrinsics(corners: list[np.ndarray], names: list[str] | None, boa
         view RMS)`` in the first fit are rejected (mis-detected corners) and the fit repeated
         once; ``reject_px=None`` keeps every view
     flags : extra OpenCV calibration flags
+    object_points : optional list of (N_v, 3) board coordinates [mm], one per view, for views
+        that see only part of the board (ChArUco): ``corners[v]`` is then (N_v, 2) and ``board``
+        / ``square_mm`` are not used for the object points
 
     Returns
     -------
@@ -249,11 +267,11 @@ def calibrate_intrinsics(corners: list[np.ndarray], names: list[str] | None, boa
     """
     if len(corners) < 3:
         raise EstimationError(f"intrinsic calibration needs at least 3 images with a detected board, found {len(corners)}")
-    names, obj, imgs = _prepare(corners, names, board, square_mm)
+    names, objs, imgs = _prepare(corners, names, board, square_mm, object_points)
     corners = [c.reshape(-1, 2).astype(np.float64) for c in imgs]
     flags = int(flags) | (cv2.CALIB_FIX_K3 if fix_k3 else 0)
     size = (int(image_size[0]), int(image_size[1]))
-    rms, vals, std, per_view, K, dist, rv, tv = _calib([obj] * len(imgs), imgs, size, flags)
+    rms, vals, std, per_view, K, dist, rv, tv = _calib(objs, imgs, size, flags)
     rejected, rej_rms, thr = [], {}, float("nan")
     if reject_px is not None:
         thr = max(float(reject_px), reject_factor * float(np.median(per_view)))
@@ -263,7 +281,8 @@ def calibrate_intrinsics(corners: list[np.ndarray], names: list[str] | None, boa
             rej_rms = {names[j]: float(per_view[j]) for j in bad}
             keep = [j for j in range(len(imgs)) if j not in set(bad)]
             names, imgs, corners = [names[j] for j in keep], [imgs[j] for j in keep], [corners[j] for j in keep]
-            rms, vals, std, per_view, K, dist, rv, tv = _calib([obj] * len(imgs), imgs, size, flags)
+            objs = [objs[j] for j in keep]
+            rms, vals, std, per_view, K, dist, rv, tv = _calib(objs, imgs, size, flags)
     w, h = size
     intr = CameraIntrinsics(w, h, vals[0], vals[1], vals[2], vals[3], tuple(vals[4:]))
     res = IntrinsicsResult(
@@ -276,7 +295,7 @@ def calibrate_intrinsics(corners: list[np.ndarray], names: list[str] | None, boa
                             f"(mis-detected corners?): " + ", ".join(f"{n} {r:.2f} px" for n, r in rej_rms.items()))
     # covariance (with correlations) and the ray error it predicts over the whole image
     free = std > 0
-    cov = intrinsic_covariance([obj] * len(imgs), corners, K, dist, rv, tv, free)
+    cov = intrinsic_covariance(objs, corners, K, dist, rv, tv, free)
     ok = bool(np.allclose(np.sqrt(np.diag(cov)), std, rtol=0.01, atol=1e-12))
     if not ok:
         cov = np.diag(std ** 2)
@@ -305,7 +324,7 @@ def calibrate_intrinsics(corners: list[np.ndarray], names: list[str] | None, boa
         folds = []
         for j in range(len(imgs)):
             others = imgs[:j] + imgs[j + 1:]
-            folds.append(_calib([obj] * len(others), others, size, flags)[1])
+            folds.append(_calib(objs[:j] + objs[j + 1:], others, size, flags)[1])
             if advance is not None:
                 advance()
         folds = np.array(folds)
@@ -322,6 +341,18 @@ def calibrate_intrinsics(corners: list[np.ndarray], names: list[str] | None, boa
     return res
 
 
+def _pnp_rms(intr: CameraIntrinsics, obj: np.ndarray, corners: np.ndarray) -> float:
+    """Reprojection RMS [px] of one view with fixed intrinsics, its pose solved (IPPE + LM)."""
+    o = np.asarray(obj, np.float64).reshape(-1, 3)
+    c = np.asarray(corners, np.float64).reshape(-1, 2)
+    ok, rv, tv = cv2.solvePnP(o, c, intr.K, intr.dist_array, flags=cv2.SOLVEPNP_IPPE)
+    if not ok:
+        raise EstimationError("solvePnP failed for a held-out view")
+    rv, tv = cv2.solvePnPRefineLM(o, c, intr.K, intr.dist_array, rv, tv)
+    p, _ = cv2.projectPoints(o, rv, tv, intr.K, intr.dist_array)
+    return float(np.sqrt(np.mean(np.sum((p.reshape(-1, 2) - c) ** 2, axis=1))))
+
+
 def _folds(n: int, k: int, seed: int) -> list[np.ndarray]:
     if n < 2:
         raise EstimationError(f"cross-validation needs at least 2 poses, found {n}")
@@ -332,7 +363,7 @@ def _folds(n: int, k: int, seed: int) -> list[np.ndarray]:
 
 def cross_validate_intrinsics(corners: list[np.ndarray], board: tuple[int, int], square_mm: float,
                               image_size: tuple[int, int], k: int = 5, seed: int = 0, fix_k3: bool = False,
-                              exclude: list[int] | None = None) -> dict:
+                              exclude: list[int] | None = None, object_points: list[np.ndarray] | None = None) -> dict:
     """k-fold pose-wise cross-validation of the intrinsics.
 
     Calibrate on k-1 folds of views (no rejection inside the folds), then solve each held-out
@@ -344,6 +375,8 @@ def cross_validate_intrinsics(corners: list[np.ndarray], board: tuple[int, int],
     corners : list of (cols*rows, 2) [px]
     k : number of folds (clamped to [2, n views]); seed : fold assignment
     exclude : view indices left out entirely (e.g. the views rejected by :func:`calibrate_intrinsics`)
+    object_points : optional per-view (N_v, 3) board coordinates [mm] (partial views, ChArUco),
+        as in :func:`calibrate_intrinsics`
 
     Returns
     -------
@@ -352,13 +385,18 @@ def cross_validate_intrinsics(corners: list[np.ndarray], board: tuple[int, int],
     """
     keep = [i for i in range(len(corners)) if i not in set(exclude or [])]
     cs = [corners[i] for i in keep]
+    os_ = None if object_points is None else [object_points[i] for i in keep]
     held = np.full(len(cs), np.nan)
     folds = _folds(len(cs), k, seed)
     for test in folds:
         tset = set(test.tolist())
         train = [c for i, c in enumerate(cs) if i not in tset]
+        train_o = None if os_ is None else [o for i, o in enumerate(os_) if i not in tset]
         fit = calibrate_intrinsics(train, None, board, square_mm, image_size, leave_one_out=False, fix_k3=fix_k3,
-                                   min_coverage=0.0, reject_px=None)
-        held[test] = reprojection_rms_with(fit.intrinsics, [cs[i] for i in test], board, square_mm)
+                                   min_coverage=0.0, reject_px=None, object_points=train_o)
+        if os_ is None:
+            held[test] = reprojection_rms_with(fit.intrinsics, [cs[i] for i in test], board, square_mm)
+        else:
+            held[test] = [_pnp_rms(fit.intrinsics, os_[i], cs[i]) for i in test]
     return {"per_view_rms_px": held, "rms_px": float(np.sqrt(np.mean(held ** 2))),
             "median_px": float(np.median(held)), "max_px": float(np.max(held)), "k": len(folds), "views": keep}

@@ -10,7 +10,7 @@ import typer
 from tofmetry.cli._common import (
     ACCEPT_IMPLAUSIBLE_HELP, console, load_intrinsics_option, print_plausibility, progress, refuse_existing,
 )
-from tofmetry.cli.stereo import stereo_cmd
+from tofmetry.cli.stereo import rig_cmd, stereo_cmd
 
 calibrate_app = typer.Typer(help="Calibrate the camera: IR intrinsics (checkerboard) and ToF depth (wall).",
                             rich_markup_mode=None, no_args_is_help=True)
@@ -117,9 +117,13 @@ def _notes(notes) -> None:
 def intrinsics_cmd(
     images_dir: Path = typer.Argument(..., help="Folder of checkerboard images: 8- or 16-bit grey (PNG, BMP, TIFF, "
                                       "PGM, ...), greyscale stored as colour (BMP, JPEG) or .npy."),
-    board: str = typer.Option(..., "--board", help="Inner corners COLSxROWS, e.g. 9x6."),
+    board: str = typer.Option(..., "--board", help="Inner corners COLSxROWS, e.g. 9x6, or 'charuco' (with "
+                              "--squares, --marker-mm, --dictionary)."),
     square_mm: float = typer.Option(..., "--square-mm", help="Square size [mm]."),
     output: Path = typer.Option(..., "-o", "--output", help="intrinsics.json to write."),
+    squares: str = typer.Option("13x10", "--squares", help="ChArUco: squares COLSxROWS (not inner corners)."),
+    marker_mm: float = typer.Option(56.0, "--marker-mm", help="ChArUco: marker side [mm]."),
+    dictionary: str = typer.Option("DICT_4X4_100", "--dictionary", help="ChArUco: OpenCV ArUco dictionary."),
     yaml: Optional[Path] = typer.Option(None, "--yaml", help="OpenCV YAML export (default: calib_ir.yaml next to "
                                         "the output)."),
     report: Optional[Path] = typer.Option(None, "--report", help="Folder for report JSON + figures "
@@ -129,7 +133,7 @@ def intrinsics_cmd(
     force: bool = typer.Option(False, "--force", help="Overwrite outputs (the JSON, the YAML and the report)."),
     accept_implausible: bool = typer.Option(False, "--accept-implausible", help=ACCEPT_IMPLAUSIBLE_HELP),
 ) -> None:
-    """Estimate fx, fy, cx, cy, k1, k2, p1, p2, k3 from checkerboard images (outlier views rejected,
+    """Estimate fx, fy, cx, cy, k1, k2, p1, p2, k3 from checkerboard or ChArUco images (outlier views rejected,
     uncertainties, predicted ray error over the whole image, uncovered image corners, leave-one-out
     stability, 5-fold held-out reprojection error)."""
     from rich.table import Table
@@ -140,13 +144,21 @@ def intrinsics_cmd(
     from tofmetry.io.board_dataset import BoardSpec
     from tofmetry.io.iai_kinect2 import write_calib_ir
 
-    spec = BoardSpec.parse(board, square_mm)
+    charuco = None
+    if board.strip().lower() == "charuco":
+        from tofmetry.calibrate import CharucoBoard
+
+        sq = BoardSpec.parse(squares, square_mm)
+        charuco = CharucoBoard(sq.size[0], sq.size[1], sq.square_mm, float(marker_mm), dictionary)
+        spec = BoardSpec.parse(f"{charuco.inner[0]}x{charuco.inner[1]}", square_mm)
+    else:
+        spec = BoardSpec.parse(board, square_mm)
     ypath = yaml or output.with_name("calib_ir.yaml")
     rdir = report or output.with_name(f"{output.stem}_report")
     refuse_existing([output, ypath, rdir], force)
     with progress("detect corners, calibrate, leave-one-out, cross-validate", None) as adv:
         run = intrinsics_from_images(images_dir, spec.size, spec.square_mm, leave_one_out=not no_loo, fix_k3=fix_k3,
-                                     advance=adv, accept_implausible=accept_implausible)
+                                     advance=adv, accept_implausible=accept_implausible, charuco=charuco)
     res = run.result
     if run.rejected:
         why = getattr(run, "rejected_reasons", {})
@@ -422,5 +434,6 @@ def register(app: typer.Typer) -> None:
     calibrate_app.command("depth")(depth)
     calibrate_app.command("validate")(validate)
     calibrate_app.command("stereo")(stereo_cmd)
+    calibrate_app.command("rig")(rig_cmd)
     app.add_typer(calibrate_app, name="calibrate")
     app.command("correct")(correct)

@@ -1,4 +1,4 @@
-"""CLI commands: ``tofmetry simulate {wall,wall-dataset,checkerboard,scan,warmup,noise,materials,outdoor}``.
+"""CLI commands: ``tofmetry simulate {wall,wall-dataset,checkerboard,charuco,scan,warmup,noise,materials,outdoor}``.
 
 Every command writes a simulated dataset folder (contract captures + truth files at the
 root) and refuses to overwrite an existing folder without ``--force``. ``--sensor random``
@@ -108,6 +108,19 @@ def checkerboard(output: Path = _OUT, images: int = typer.Option(20, "--images",
         p = datasets.checkerboard_images(output, images, (cols, rows), square_mm, seed, force=force, progress=adv,
                                          sensor=draw)
     _done(p, f"{images} checkerboard IR images")
+
+
+@sim_app.command("charuco")
+def charuco(output: Path = _OUT, images: int = typer.Option(10, "--images", help="Number of IR images."),
+            seed: int = _SEED, sensor: str = _SENSOR, force: bool = _FORCE) -> None:
+    """IR images of a ChArUco board (13x10 squares of 80 mm, 56 mm DICT_4X4_100 markers), partial views
+    included, for intrinsic calibration (+ board.json, truth.json)."""
+    from tofmetry.simulate import datasets
+
+    draw = _sensor(sensor, seed)
+    with progress("rendering ChArUco images", images) as adv:
+        p = datasets.charuco_images(output, images, None, seed, force=force, progress=adv, sensor=draw)
+    _done(p, f"{images} ChArUco IR images")
 
 
 @sim_app.command("scan")

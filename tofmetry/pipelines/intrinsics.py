@@ -1,4 +1,4 @@
-"""Intrinsics pipeline: a folder of checkerboard images in, an :class:`IntrinsicsRun` out."""
+"""Intrinsics pipeline: a folder of checkerboard or ChArUco images in, an :class:`IntrinsicsRun` out."""
 
 from __future__ import annotations
 
@@ -9,7 +9,9 @@ from pathlib import Path
 import numpy as np
 
 from tofmetry.calibrate import figures as F
-from tofmetry.calibrate import IntrinsicsResult, calibrate_intrinsics, cross_validate_intrinsics, detect_board
+from tofmetry.calibrate import (
+    CharucoBoard, IntrinsicsResult, calibrate_intrinsics, cross_validate_intrinsics, detect_board, detect_charuco,
+)
 from tofmetry.errors import InputError
 from tofmetry.io import atomic_write_json
 from tofmetry.io.images import GRAY_IMAGE_SUFFIXES, read_gray_image
@@ -37,6 +39,9 @@ class IntrinsicsRun:
         ``model_fraction`` (share of corners refined by the X-junction fit), ``median_corner_std_px``
         (median standard uncertainty of its corners from the fit residuals [px]), ``median_blur_px``
         (fitted edge blur, Gaussian sigma [px]), ``dtype`` (of the file)
+    object_points : list of (N_v, 3) board coordinates [mm] per ``names`` (ChArUco: each view's
+        own corners), empty for a checkerboard (every view has the whole board)
+    charuco : the ChArUco board (``CharucoBoard.to_dict()``), None for a checkerboard
     plausibility : the plausibility gate's record (:mod:`tofmetry.pipelines.plausibility`):
         ``{"checked", "accepted", "findings"}``; ``accepted`` is True when implausible findings were
         accepted by the caller (``--accept-implausible``)
@@ -56,6 +61,8 @@ class IntrinsicsRun:
     detections: dict = field(default_factory=dict)
     rejected_reasons: dict = field(default_factory=dict)
     plausibility: dict = field(default_factory=dict)
+    object_points: list = field(default_factory=list)
+    charuco: dict | None = None
 
     @property
     def intrinsics(self) -> CameraIntrinsics:
@@ -68,7 +75,8 @@ class IntrinsicsRun:
         return {**self.result.to_dict(), "images_dir": self.images_dir, "board": list(self.board),
                 "square_mm": self.square_mm, "image_size": list(self.image_size), "detected": self.names,
                 "rejected": self.rejected, "rejected_reasons": self.rejected_reasons, "cross_validation": cv,
-                "detections": self.detections, "seconds": self.seconds, "plausibility": self.plausibility}
+                "detections": self.detections, "seconds": self.seconds, "plausibility": self.plausibility,
+                "charuco": self.charuco}
 
 
 def list_board_images(images_dir: Path) -> list[Path]:
@@ -86,7 +94,7 @@ def list_board_images(images_dir: Path) -> list[Path]:
 
 def intrinsics_from_images(images_dir: Path, board: tuple[int, int], square_mm: float, *, leave_one_out: bool = True,
                            fix_k3: bool = False, advance=None, k_folds: int = 5,
-                           accept_implausible: bool = False) -> IntrinsicsRun:
+                           accept_implausible: bool = False, charuco: CharucoBoard | None = None) -> IntrinsicsRun:
     """Detect the board in every image of ``images_dir``, calibrate, reject outlier views,
     analyse stability (leave-one-out) and cross-validate (k-fold over views, held-out views'
     pose solved with the fitted intrinsics).
@@ -98,6 +106,9 @@ def intrinsics_from_images(images_dir: Path, board: tuple[int, int], square_mm: 
         (:func:`~tofmetry.io.images.read_gray_image`); all of one size
     board : (cols, rows) inner corners; square_mm : square size [mm]
     advance : optional progress callable (one call per image, per leave-one-out refit, per fold)
+    charuco : a ChArUco board instead of a checkerboard (``board`` and ``square_mm`` are then taken
+        from it): views that see part of the board count (:func:`~tofmetry.calibrate.detect_charuco`,
+        at least 6 corners after the neighbour check)
     accept_implausible : return a result that fails the plausibility gate
         (:func:`~tofmetry.pipelines.plausibility.check_intrinsics`: reprojection RMS above 1 px, a
         focal length far from the sensor profile's ...) instead of raising; ``run.plausibility`` says so
@@ -113,11 +124,14 @@ def intrinsics_from_images(images_dir: Path, board: tuple[int, int], square_mm: 
     """
     t0 = time.perf_counter()
     images_dir = Path(images_dir)
+    if charuco is not None:
+        board, square_mm = charuco.inner, charuco.square_mm
     cols, rows = (int(x) for x in board)
     if cols < 2 or rows < 2 or not square_mm > 0:
         raise InputError(f"board needs >= 2x2 inner corners and square_mm > 0; found {cols}x{rows}, {square_mm}")
     adv = _adv(advance)
     corners, names, rejected, size, detections, rejected_reasons = [], [], [], None, {}, {}
+    objs = []
     for f in list_board_images(images_dir):
         img = read_gray_image(f)
         s = (img.shape[1], img.shape[0])
@@ -125,6 +139,22 @@ def intrinsics_from_images(images_dir: Path, board: tuple[int, int], square_mm: 
             size = s
         elif s != size:
             raise InputError(f"{f}: size {s[0]}x{s[1]} differs from the first image's {size[0]}x{size[1]}")
+        if charuco is not None:
+            cd = detect_charuco(img, charuco)
+            if cd is None:
+                rejected.append(f.name)
+                rejected_reasons[f.name] = "fewer than 6 ChArUco corners found"
+            else:
+                corners.append(cd.corners)
+                objs.append(cd.object_points)
+                names.append(f.name)
+                std = cd.std_px[np.isfinite(cd.std_px)]
+                detections[f.name] = {"detector": f"charuco-{cd.stretch}", "corners": len(cd.ids),
+                                      "markers": cd.n_markers, "model_fraction": cd.fraction_model,
+                                      "median_corner_std_px": float(np.median(std)) if std.size else float("nan"),
+                                      "dropped_ids": cd.dropped, "dtype": str(img.dtype)}
+            adv()
+            continue
         det = detect_board(img, (cols, rows))
         if det is None:
             rejected.append(f.name)
@@ -143,15 +173,17 @@ def intrinsics_from_images(images_dir: Path, board: tuple[int, int], square_mm: 
                                   "median_blur_px": float(np.nanmedian(ref.blur_px)) if ref.model_ok.any()
                                   else float("nan"), "dtype": str(img.dtype)}
         adv()
+    obj_arg = objs if charuco is not None else None
     res = calibrate_intrinsics(corners, names, (cols, rows), square_mm, size, leave_one_out=leave_one_out,
-                               fix_k3=fix_k3, advance=adv)
+                               fix_k3=fix_k3, advance=adv, object_points=obj_arg)
     gate = enforce(check_intrinsics(res.intrinsics, res.rms_px), f"the intrinsic calibration of {images_dir} "
                    f"(board {cols}x{rows}, {square_mm:g} mm squares)", accept_implausible)
     excl = [names.index(n) for n in res.rejected_views]
-    cv = cross_validate_intrinsics(corners, (cols, rows), square_mm, size, k=k_folds, fix_k3=fix_k3, exclude=excl) \
-        if len(corners) - len(excl) >= 4 else {}
+    cv = cross_validate_intrinsics(corners, (cols, rows), square_mm, size, k=k_folds, fix_k3=fix_k3, exclude=excl,
+                                   object_points=obj_arg) if len(corners) - len(excl) >= 4 else {}
     return IntrinsicsRun(res, names, rejected, list(res.rejected_views), corners, size, (cols, rows), float(square_mm),
-                         cv, str(images_dir), time.perf_counter() - t0, detections, rejected_reasons, gate)
+                         cv, str(images_dir), time.perf_counter() - t0, detections, rejected_reasons, gate,
+                         objs, None if charuco is None else charuco.to_dict())
 
 
 def write_intrinsics_report(run: IntrinsicsRun, folder: Path) -> list[Path]:

@@ -31,7 +31,7 @@ from tofmetry.simulate.walls import DEFAULT_DISTANCES_MM, iter_wall_stations, pl
 
 Progress = Callable[[int], None] | None
 
-__all__ = ["DEFAULT_DISTANCES_MM", "wall_capture", "wall_dataset", "checkerboard_images", "scan", "warmup", "noise",
+__all__ = ["DEFAULT_DISTANCES_MM", "wall_capture", "wall_dataset", "checkerboard_images", "charuco_images", "scan", "warmup", "noise",
            "materials", "outdoor", "write_frames"]
 
 
@@ -198,6 +198,70 @@ def checkerboard_images(out: str | os.PathLike, n_images: int = 20, board: tuple
         truth = _truth_common(vk, seed, sensor) | {
             "dataset": "checkerboard_images", "board": {"cols": cols, "rows": rows, "square_mm": float(square_mm)},
             "board_frame": "origin at the first inner corner, x along columns, y along rows, z into the board",
+            "images": [{"file": n, "board_to_camera": T} for n, T in zip(names, poses)]}
+        atomic_write_json(tmp / "truth.json", truth)
+    return out
+
+
+#: The ChArUco board the virtual sensor renders by default: 13 x 10 squares of 80 mm (104 x 80 cm, an A0
+#: print; 108 corners), 56 mm DICT_4X4_100 markers: a marker module of 9.3 mm is 2.8 px at 1.2 m on the
+#: Kinect v2, 2 px at 45 deg tilt, the least the ArUco decoder reads reliably on the dark IR image.
+CHARUCO_DEFAULT = {"squares_x": 13, "squares_y": 10, "square_mm": 80.0, "marker_mm": 56.0,
+                   "dictionary": "DICT_4X4_100"}
+#: Distances of the ChArUco views [m]: far enough for most of the large board to be in view.
+CHARUCO_DISTANCES_M = (0.7, 1.2)
+
+
+def charuco_poses_for(n_images: int, intr, board: dict, seed: int) -> list:
+    """The board-to-camera poses [m] of :func:`charuco_images` (``rng [seed, 11]``)."""
+    from tofmetry.simulate.poses import charuco_poses
+
+    sq = board["square_mm"] / 1000.0
+    c, r = board["squares_x"] - 1, board["squares_y"] - 1
+    gx, gy = np.meshgrid(np.arange(1, c + 1) * sq, np.arange(1, r + 1) * sq)
+    pts = np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)])
+    return charuco_poses(n_images, intr, board["squares_x"] * sq, board["squares_y"] * sq,
+                         np.random.default_rng([int(seed), 11]), dist_range=CHARUCO_DISTANCES_M, corners_m=pts)
+
+
+def charuco_images(out: str | os.PathLike, n_images: int = 10, board: dict | None = None, seed: int = 0,
+                   errors: ErrorModel | None = None, supersample: int = 4, force: bool = False,
+                   progress: Progress = None, sensor: SensorDraw | None = None) -> Path:
+    """IR images (16-bit PNG) of a ChArUco board for intrinsic calibration, partial views included.
+
+    The board (``board``: ``squares_x, squares_y, square_mm, marker_mm, dictionary``; default
+    :data:`CHARUCO_DEFAULT`, 104 x 80 cm) at 0.7-1.2 m, tilted up to 45 deg, aimed in turn at the
+    image centre, corners and edges and overhanging them
+    (:func:`tofmetry.simulate.poses.charuco_poses`): the corners reach the image border. Writes
+    ``out/ir_000.png ...``, ``out/board.json`` (the board, ``"type": "charuco"``) and
+    ``out/truth.json`` (true intrinsics, board-to-camera poses; OpenCV's ChArUco board frame:
+    origin at the outer top-left corner of the squares). Returns ``out``.
+    """
+    from tofmetry.io.images import write_png16
+
+    b = dict(CHARUCO_DEFAULT if board is None else board)
+    if n_images < 1:
+        raise InputError(f"charuco_images: n_images must be >= 1, found {n_images}")
+    sensor = _sensor(errors, sensor, quantize=False)
+    vk = sensor.camera(seed, supersample)
+    poses = charuco_poses_for(n_images, vk.intrinsics, b, seed)
+    out = Path(out)
+    with atomic_dir(out, force=force) as tmp:
+        names = []
+        for k, T in enumerate(poses):
+            scene = scenes.charuco(b["squares_x"], b["squares_y"], b["square_mm"] / 1000.0, b["marker_mm"] / 1000.0,
+                                   b["dictionary"], board_to_world=T)
+            fr = next(vk.iter_frames(scene, 1))
+            name = f"ir_{k:03d}.png"
+            write_png16(tmp / name, fr.ir)
+            names.append(name)
+            if progress is not None:
+                progress(1)
+        atomic_write_json(tmp / "board.json", {"type": "charuco", **b})
+        truth = _truth_common(vk, seed, sensor) | {
+            "dataset": "charuco_images", "board": {"type": "charuco", **b},
+            "board_frame": "OpenCV ChArUco: origin at the outer top-left corner of the squares, x along columns, "
+                           "y along rows, z into the board; metres",
             "images": [{"file": n, "board_to_camera": T} for n, T in zip(names, poses)]}
         atomic_write_json(tmp / "truth.json", truth)
     return out

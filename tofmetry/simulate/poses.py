@@ -130,3 +130,62 @@ def board_poses(n: int, intr: CameraIntrinsics, cols: int, rows: int, square_m: 
         T[:3, 3] = c - R @ centre_off
         poses.append(T)
     return poses
+
+
+def charuco_poses(n: int, intr: CameraIntrinsics, width_m: float, height_m: float, rng: np.random.Generator,
+                  dist_range: tuple = (0.55, 1.0), max_tilt_deg: float = 45.0, min_inside: float = 0.3,
+                  corners_m: np.ndarray | None = None) -> list[np.ndarray]:
+    """Board-to-camera poses for a board that may leave the image (ChArUco, partial views).
+
+    Pose ``k`` aims the board's centre at a pixel between the image centre and the region
+    ``BOARD_ANCHORS[k % 9]`` (0.5-0.95 of the way, so a board larger than the field of view
+    overhangs the image corner or edge and its corners reach the image border), at a distance
+    drawn in ``dist_range`` [m], tilted as in :func:`board_poses`. A pose is kept when at least
+    ``min_inside`` of ``corners_m`` (board points, default a 9 x 9 grid over the board) project
+    inside the image.
+
+    Parameters
+    ----------
+    width_m, height_m : board size [m]; board frame origin at its top-left corner, x right, y down
+
+    Returns
+    -------
+    list of (4, 4) board-to-camera [m].
+    """
+    W, H = intr.width, intr.height
+    if corners_m is None:
+        gx, gy = np.meshgrid(np.linspace(0, width_m, 9), np.linspace(0, height_m, 9))
+        corners_m = np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)])
+    centre_off = np.array([width_m / 2, height_m / 2, 0.0])
+    r_max = 1.05 * float(np.max(np.linalg.norm(intr.pixel_to_normalized(
+        np.array([[0.0, 0.0], [W - 1.0, 0.0], [0.0, H - 1.0], [W - 1.0, H - 1.0]])), axis=1)))
+    poses: list[np.ndarray] = []
+    tries = 0
+    while len(poses) < n:
+        tries += 1
+        if tries > 200 * max(n, 1):
+            raise InputError("charuco_poses: could not place the board; use a larger board or a longer distance range")
+        k = len(poses)
+        ax, ay = BOARD_ANCHORS[k % len(BOARD_ANCHORS)]
+        tilt = max_tilt_deg * rng.uniform(0.35, 1.0)
+        if (ax, ay) == (0.5, 0.5):
+            ang, reach = rng.uniform(0, 2 * np.pi), 0.0
+        else:
+            ang = np.arctan2(ay - 0.5, ax - 0.5) + (np.pi if k % 2 else 0.0) + rng.normal(0, 0.3)
+            reach = rng.uniform(0.5, 0.95)
+        R = rotation_xyz(tilt * np.sin(ang), -tilt * np.cos(ang), rng.uniform(-15, 15))
+        target = np.array([W / 2 + reach * (ax - 0.5) * W, H / 2 + reach * (ay - 0.5) * H])
+        xy = intr.pixel_to_normalized(target[None])[0]
+        c = rng.uniform(*dist_range) * np.array([xy[0], xy[1], 1.0])
+        T = np.eye(4)
+        T[:3, :3] = R
+        T[:3, 3] = c - R @ centre_off
+        p = corners_m @ R.T + T[:3, 3]
+        if np.any(p[:, 2] < 0.2):
+            continue
+        uv = intr.project(p)
+        inside = (uv[:, 0] >= 2) & (uv[:, 1] >= 2) & (uv[:, 0] <= W - 3) & (uv[:, 1] <= H - 3)
+        inside &= np.linalg.norm(p[:, :2] / p[:, 2:], axis=1) <= r_max     # no wrap-around of the distortion
+        if inside.mean() >= min_inside:
+            poses.append(T)
+    return poses

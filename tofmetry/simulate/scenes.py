@@ -20,7 +20,7 @@ import numpy as np
 from tofmetry.errors import InputError
 from tofmetry.simulate.surfaces import Hits, MeshSurface, PlaneSurface, Scene, Texture, _uniform_texture
 
-__all__ = ["Hits", "MeshSurface", "PlaneSurface", "Scene", "Texture", "wall", "checkerboard", "grey_board",
+__all__ = ["Hits", "MeshSurface", "PlaneSurface", "Scene", "Texture", "wall", "checkerboard", "charuco", "grey_board",
            "material_board", "mesh_on_ground", "balustrade", "outdoor_table", "ground_plane", "rotation_xyz",
            "GREY_LEVELS", "MATERIALS"]
 
@@ -107,6 +107,89 @@ def checkerboard(cols: int = 9, rows: int = 6, square_m: float = 0.04, board_to_
     return Scene("checkerboard", [surf], {1: "white", 2: "black"},
                  {"type": "checkerboard", "cols": cols, "rows": rows, "square_m": square_m,
                   "board_to_world": T.tolist(), "albedo_black": black, "albedo_white": white})
+
+
+def charuco_pattern(squares_x: int, squares_y: int, square_m: float, marker_m: float,
+                    dictionary: str = "DICT_4X4_50") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The printed pattern of an OpenCV ChArUco board (``cv2.aruco.CharucoBoard``, default pattern).
+
+    Returns
+    -------
+    black : (squares_y, squares_x) bool, the black squares (row j, column i)
+    marker_rect : (M, 2) [m], top-left corner (x, y) of each marker in the board frame (board
+        frame of OpenCV: origin at the board's outer top-left corner, x along the squares, y down)
+    bits : (M, n+2, n+2) bool, each marker's modules including its black border (True = white)
+    """
+    import cv2
+
+    if squares_x < 2 or squares_y < 2 or not 0 < marker_m < square_m:
+        raise InputError(f"scenes.charuco: need >= 2x2 squares and 0 < marker_m < square_m, found "
+                         f"{squares_x}x{squares_y}, square {square_m}, marker {marker_m}")
+    try:
+        d = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary))
+    except AttributeError:
+        raise InputError(f"scenes.charuco: unknown ArUco dictionary {dictionary!r} (e.g. DICT_4X4_50)") from None
+    b = cv2.aruco.CharucoBoard((int(squares_x), int(squares_y)), float(square_m), float(marker_m), d)
+    corners = np.asarray(b.getObjPoints(), float)           # (M, 4, 3): TL, TR, BR, BL
+    ids = np.asarray(b.getIds()).ravel()
+    n = d.markerSize + 2
+    bits = np.stack([cv2.aruco.generateImageMarker(d, int(k), n, borderBits=1) > 127 for k in ids])
+    black = np.ones((squares_y, squares_x), bool)
+    centre = corners.mean(axis=1)
+    black[np.floor(centre[:, 1] / square_m).astype(int), np.floor(centre[:, 0] / square_m).astype(int)] = False
+    return black, corners[:, 0, :2].copy(), bits
+
+
+def charuco(squares_x: int = 9, squares_y: int = 7, square_m: float = 0.08, marker_m: float = 0.056,
+            dictionary: str = "DICT_4X4_50", board_to_world: np.ndarray | None = None, margin_m: float = 0.02,
+            black: float = 0.133, white: float = 0.8) -> Scene:
+    """Printed ChArUco board (OpenCV's ``CharucoBoard`` pattern) as an albedo texture on a plane.
+
+    Board frame (OpenCV's): origin at the outer top-left corner of the squares, x along the
+    ``squares_x`` columns, y along the rows (down on the print), z into the board; chessboard
+    corner ``k`` (OpenCV id, row-major over the ``(squares_x-1) x (squares_y-1)`` inner corners)
+    is at ``((i+1) s, (j+1) s, 0)``. Markers are exact module grids (no resampling of a bitmap).
+    Labels: 1 = white (incl. margin and marker modules), 2 = black.
+
+    Parameters
+    ----------
+    squares_x, squares_y : squares along x and y; square_m, marker_m : square and marker side [m]
+    dictionary : name of an OpenCV predefined dictionary (``cv2.aruco.DICT_...``)
+    board_to_world : (4, 4); default centres the board 1 m in front of an identity camera
+    margin_m : white margin around the squares [m]
+    """
+    blk, rect, bits = charuco_pattern(squares_x, squares_y, square_m, marker_m, dictionary)
+    T = np.eye(4) if board_to_world is None else np.asarray(board_to_world, float)
+    if board_to_world is None:
+        T[:3, 3] = [-squares_x * square_m / 2, -squares_y * square_m / 2, 1.0]
+    s, m, nb = square_m, marker_m, bits.shape[1]
+    # marker index per square (-1: none)
+    mk = -np.ones((squares_y, squares_x), np.int64)
+    mk[np.floor((rect[:, 1] + m / 2) / s).astype(int), np.floor((rect[:, 0] + m / 2) / s).astype(int)] = np.arange(len(rect))
+
+    def tex(u, v):
+        i = np.floor(u / s).astype(np.int64)
+        j = np.floor(v / s).astype(np.int64)
+        inside = (i >= 0) & (i < squares_x) & (j >= 0) & (j < squares_y)
+        ic, jc = np.clip(i, 0, squares_x - 1), np.clip(j, 0, squares_y - 1)
+        is_black = inside & blk[jc, ic]
+        k = np.where(inside, mk[jc, ic], -1)
+        has = k >= 0
+        kk = np.maximum(k, 0)
+        a = np.floor((u - rect[kk, 0]) / m * nb).astype(np.int64)
+        b = np.floor((v - rect[kk, 1]) / m * nb).astype(np.int64)
+        in_m = has & (a >= 0) & (a < nb) & (b >= 0) & (b < nb)
+        mod_white = bits[kk, np.clip(b, 0, nb - 1), np.clip(a, 0, nb - 1)]
+        dark = is_black | (in_m & ~mod_white)
+        return (np.where(dark, black, white), np.where(dark, 2, 1).astype(np.int32), np.zeros(u.shape, bool),
+                np.zeros(u.shape))
+
+    ext = (-margin_m, squares_x * s + margin_m, -margin_m, squares_y * s + margin_m)
+    surf = PlaneSurface(T[:3, 3].copy(), T[:3, 0].copy(), T[:3, 1].copy(), ext, tex)
+    return Scene("charuco", [surf], {1: "white", 2: "black"},
+                 {"type": "charuco", "squares_x": squares_x, "squares_y": squares_y, "square_m": square_m,
+                  "marker_m": marker_m, "dictionary": dictionary, "board_to_world": T.tolist(),
+                  "albedo_black": black, "albedo_white": white})
 
 
 #: Grey levels of :func:`grey_board` (white 0.8 ... black 0.133 = 1/6 of white).
