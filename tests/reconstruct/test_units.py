@@ -170,3 +170,25 @@ def test_amplitude_bias_model():
     b = amplitude_bias_mm(z, white / 6.0, wm, intr)
     np.testing.assert_allclose(b, 12.0, atol=1e-9)
     assert PAPER_K_MM_PER_LN == pytest.approx(6.697, abs=1e-3)
+
+
+def test_information_matrix_point_to_plane_sees_the_sliding_directions():
+    """Two copies of a flat patch (z = 1 m, normal toward the camera): point-to-plane matches
+    constrain only the depth translation and the two tilts. The information along the in-plane
+    translations and the rotation about the normal must be exactly 0; the depth translation
+    carries one unit per match; Open3D's point-to-point matrix claims the sliding directions
+    are as well determined as the depth."""
+    from tofmetry.reconstruct._o3d import information_matrix
+
+    rng = np.random.default_rng(3)
+    p = np.c_[rng.uniform(-0.1, 0.1, (500, 2)), np.ones(500)]
+    n = np.tile([0.0, 0.0, -1.0], (500, 1))
+    info = information_matrix(p, p, 0.003, np.eye(4), n)
+    assert info.shape == (6, 6)
+    np.testing.assert_allclose(info, info.T)
+    for k in (2, 3, 4):  # rotation about z, translations x, y
+        assert np.abs(info[k]).max() <= 1e-9
+    assert info[5, 5] == pytest.approx(500.0)
+    assert np.all(np.linalg.eigvalsh(info) >= -1e-9)
+    p2p = information_matrix(p, p, 0.003, np.eye(4))
+    assert p2p[3, 3] == pytest.approx(p2p[5, 5])

@@ -122,9 +122,38 @@ def icp(src_pts, tgt_pts, tgt_nrm, init: np.ndarray, max_dist_m: float, kernel: 
                  len(res.correspondence_set))
 
 
-def information_matrix(src_pts, tgt_pts, max_dist_m: float, transform: np.ndarray) -> np.ndarray:
-    """6x6 information matrix of a pairwise alignment (Open3D convention)."""
-    import open3d as o3d
+def information_matrix(src_pts, tgt_pts, max_dist_m: float, transform: np.ndarray,
+                       tgt_nrm: np.ndarray | None = None) -> np.ndarray:
+    """6x6 information matrix of a pairwise alignment (Open3D convention: rotation then
+    translation, perturbation of the source points mapped into the target frame).
 
-    return np.asarray(o3d.pipelines.registration.get_information_matrix_from_point_clouds(
-        to_pcd(src_pts), to_pcd(tgt_pts), max_dist_m, np.asarray(transform, np.float64))).copy()
+    Parameters
+    ----------
+    src_pts, tgt_pts : (N, 3), (M, 3) [m] source and target points (each in its camera frame)
+    max_dist_m : correspondence radius [m] (nearest target point of each mapped source point)
+    transform : (4, 4) source -> target
+    tgt_nrm : (M, 3) unit target normals, or None
+
+    Returns
+    -------
+    (6, 6) float64. With ``tgt_nrm``: the point-to-plane Gauss-Newton matrix ``sum J J^T`` with
+    ``J = (p x n, n)`` per correspondence (unit noise along the normal): it is what the ICP measured,
+    so a direction the matched surfaces do not constrain (sliding along a prism-like object, the
+    yaw of a surface of revolution) carries little information and a pose graph spreads loop errors
+    there. Without normals: Open3D's point-to-point matrix (it counts three constraints per match
+    and so overstates such directions).
+    """
+    if tgt_nrm is None:
+        import open3d as o3d
+
+        return np.asarray(o3d.pipelines.registration.get_information_matrix_from_point_clouds(
+            to_pcd(src_pts), to_pcd(tgt_pts), max_dist_m, np.asarray(transform, np.float64))).copy()
+    from scipy.spatial import cKDTree
+
+    T = np.asarray(transform, np.float64)
+    p = np.asarray(src_pts, np.float64) @ T[:3, :3].T + T[:3, 3]
+    d, k = cKDTree(tgt_pts).query(p, distance_upper_bound=max_dist_m, workers=-1)
+    ok = np.isfinite(d)
+    n = np.asarray(tgt_nrm, np.float64)[k[ok]]
+    J = np.hstack([np.cross(p[ok], n), n])
+    return J.T @ J

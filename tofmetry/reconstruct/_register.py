@@ -224,7 +224,7 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
         ok = _passes(fit, rmse, cfg) and v <= cfg.max_see_through
         if out and not (ok and plane_consistent(src, tgt, T)):
             continue
-        info = information_matrix(src.icp_points, tgt.icp_points, r_final, T)
+        info = information_matrix(src.icp_points, tgt.icp_points, r_final, T, tgt.icp_normals)
         out.append(PairResult(i, j, T, fit, rmse * 1e3, info, method, ok,
                               conditioning=registration_conditioning(src, tgt, T, r_final), see_through=v))
     best = out[0]
@@ -237,7 +237,7 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
             fit, rmse = object_fitness(src, tgt, T, r_final)
             v = vis(T)
             ok = _passes(fit, rmse, cfg) and v <= cfg.max_see_through
-            best = PairResult(i, j, T, fit, rmse * 1e3, information_matrix(src.icp_points, tgt.icp_points, r_final, T),
+            best = PairResult(i, j, T, fit, rmse * 1e3, information_matrix(src.icp_points, tgt.icp_points, r_final, T, tgt.icp_normals),
                               best.method + "+ir-yaw", ok, conditioning=registration_conditioning(src, tgt, T, r_final),
                               see_through=v, ir_yaw=sw)
             return replace(best, alternatives=[a for a in out if not _same_pose(a.transform, T)])
