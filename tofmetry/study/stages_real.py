@@ -122,12 +122,18 @@ def stage_mkv(ctx: StudyContext, out: StageOutcome) -> None:
     for k, f in enumerate(mkvs):
         name = f"{k:02d}-{f.stem}"
         imp = import_azure_kinect(f, d / name / "capture", force=True, max_frames=ctx.config.recording.mkv_max_frames)
-        run = capture_cloud(d / name / "capture", d / name / "cloud.ply", average=True, force=True)
+        # coloured where the recording has colour: points the colour camera cannot see get no colour
+        run = capture_cloud(d / name / "capture", d / name / "cloud.ply", average=True, color=True, force=True)
         z = run.points[:, 2] * 1000.0
+        share = run.share_colored
         rows.append([str(f), imp.get("frames", ""), len(run.points), float(z.min()), float(z.max()), run.intrinsics_source,
-                     f"{name}/cloud.ply"])
-    out.data = {"recordings": [dict(zip(["file", "frames", "points", "z_min_mm", "z_max_mm", "intrinsics", "cloud"], r))
-                               for r in rows]}
-    out.tables.append(("Azure Kinect recordings → point clouds (temporal mean, undistorted, metres)",
-                       ["recording", "frames", "points", "Z min [mm]", "Z max [mm]", "intrinsics", "cloud"], rows))
+                     share, f"{name}/cloud.ply"])
+    keys = ["file", "frames", "points", "z_min_mm", "z_max_mm", "intrinsics", "share_colored", "cloud"]
+    out.data = {"recordings": [dict(zip(keys, r)) for r in rows]}
+    for r in rows:
+        r[6] = "no colour stream" if r[6] is None else f"{100 * r[6]:.1f} %"
+    out.tables.append(("Azure Kinect recordings → point clouds (temporal mean, undistorted, metres; colour from the "
+                       "colour camera where it sees the point, none elsewhere)",
+                       ["recording", "frames", "points", "Z min [mm]", "Z max [mm]", "intrinsics", "coloured", "cloud"],
+                       rows))
     atomic_write_json(d / "result.json", out.data)
