@@ -29,6 +29,7 @@ import numpy as np
 from tofmetry.errors import FormatError, InputError
 from tofmetry.io import images
 from tofmetry.io._atomic import atomic_dir, atomic_write_json, read_json
+from tofmetry.io.frames_log import read_frames_log
 from tofmetry.sensor.intrinsics import CameraIntrinsics
 from tofmetry.sensor.profiles import PROFILES
 
@@ -132,8 +133,6 @@ class Capture:
     def _read_cut_recording(self) -> None:
         """A live recording never closed: keep the frames 0..n-1 that have a depth file and a line in
         ``frames.jsonl`` (timestamps and temperatures from it), warn, change nothing on disk."""
-        from tofmetry.io.live_capture import read_frames_log
-
         rows = read_frames_log(self.path)
         stems = {p.stem for p in self.depth_files}
         n = 0

@@ -32,8 +32,8 @@ from tofmetry.errors import FormatError, InputError
 from tofmetry.io import images
 from tofmetry.io._atomic import atomic_write_json, read_json
 from tofmetry.io.capture import CaptureMeta
+from tofmetry.io.frames_log import FRAMES_LOG, read_frames_log
 
-FRAMES_LOG = "frames.jsonl"
 
 
 def durable_write(path: Path, data: bytes) -> None:
@@ -144,30 +144,6 @@ class LiveCaptureWriter:
 
     def __exit__(self, *exc) -> None:
         self.close()
-
-
-def read_frames_log(path: str | os.PathLike) -> dict[int, dict]:
-    """The rows of a recording's ``frames.jsonl`` by frame index (a line cut short is left out).
-
-    Parameters
-    ----------
-    path : the capture folder
-
-    Returns
-    -------
-    dict index -> ``{"index", "timestamp_s", "temperature_c"}``; empty when there is no log
-    """
-    rows: dict[int, dict] = {}
-    log = Path(path) / FRAMES_LOG
-    if log.is_file():
-        for line in log.read_text(encoding="utf-8", errors="replace").splitlines():
-            try:
-                r = json.loads(line)
-                rows[int(r["index"])] = {"index": int(r["index"]), "timestamp_s": float(r["timestamp_s"]),
-                                         "temperature_c": dict(r.get("temperature_c") or {})}
-            except (ValueError, KeyError, TypeError, AttributeError):
-                continue                     # the line in flight, cut short
-    return rows
 
 
 def is_cut_recording(meta: dict) -> bool:
