@@ -160,3 +160,15 @@ def test_calibrate_rig_ids_errors():
     ids = [[np.arange(6)] * 3, [np.arange(3, 9)] * 3]
     with pytest.raises(InputError, match="shares 0 board views"):
         calibrate_rig([obj] * 3, c, [k, k], ids=ids)
+
+
+def test_stereo_charuco_pairs_without_board_are_named(tmp_path):
+    from tofmetry.pipelines.stereo import stereo_from_images
+    from tofmetry.sensor import KINECT_V2
+
+    ir, color = KINECT_V2.depth, KINECT_V2.color.scaled(960, 540)
+    for k in range(3):
+        cv2.imwrite(str(tmp_path / f"{k:04d}_ir.png"), np.full(ir.shape, 20000, np.uint16))
+        cv2.imwrite(str(tmp_path / f"{k:04d}_color.png"), np.full((*color.shape, 3), 128, np.uint8))
+    with pytest.raises(InputError, match=r"0 pair\(s\).*0000.*fewer than 6 ChArUco corners found in the IR image"):
+        stereo_from_images(tmp_path, BOARD.inner, BOARD.square_mm, ir, color, charuco=BOARD)
