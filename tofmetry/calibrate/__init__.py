@@ -62,7 +62,7 @@ from tofmetry.calibrate._lens_fit import (
 )
 from tofmetry.calibrate._ray_error import PARAMS, RayError, predicted_ray_error_px, ray_difference_px, ray_error_px
 # IR-colour extrinsics
-from tofmetry.calibrate._stereo import StereoResult, calibrate_stereo, heldout_reprojection
+from tofmetry.calibrate._stereo import StereoResult, calibrate_stereo, common_corners, heldout_reprojection
 from tofmetry.calibrate._rig import RigResult, calibrate_rig
 
 __all__ = [
@@ -80,5 +80,5 @@ __all__ = [
     "refine_corners", "refine_corners_subpix", "CharucoBoard", "CharucoDetection", "detect_charuco", "IntrinsicsResult", "calibrate_intrinsics", "corner_coverage",
     "corner_region_coverage", "coverage_mask", "cross_validate_intrinsics", "intrinsic_covariance",
     "PARAMS", "RayError", "predicted_ray_error_px", "ray_difference_px", "ray_error_px",
-    "StereoResult", "calibrate_stereo", "heldout_reprojection", "RigResult", "calibrate_rig",
+    "StereoResult", "calibrate_stereo", "common_corners", "heldout_reprojection", "RigResult", "calibrate_rig",
 ]

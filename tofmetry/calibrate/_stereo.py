@@ -87,6 +87,29 @@ def _stereo(obj, a, b, ir, color, flags):
     return float(rms), R, T.reshape(3), np.asarray(per_view).reshape(-1, 2)
 
 
+def common_corners(ids_a: np.ndarray, points_a: np.ndarray, ids_b: np.ndarray,
+                   points_b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The corners two cameras both detected in one view of an identified (ChArUco) board.
+
+    Parameters
+    ----------
+    ids_a, ids_b : (N_a,), (N_b,) int corner ids (unique) detected by camera a and b
+    points_a, points_b : (N_a, 2), (N_b, 2) the corners [px], in the order of their ids
+
+    Returns
+    -------
+    ids : (M,) int64, sorted ids found by both
+    pa, pb : (M, 2) float64 [px], camera a's and b's corners of ``ids``
+    """
+    ia, ib = np.asarray(ids_a, np.int64).ravel(), np.asarray(ids_b, np.int64).ravel()
+    pa, pb = np.asarray(points_a, np.float64).reshape(-1, 2), np.asarray(points_b, np.float64).reshape(-1, 2)
+    if len(ia) != len(pa) or len(ib) != len(pb):
+        raise InputError(f"common_corners: {len(ia)} / {len(ib)} ids for {len(pa)} / {len(pb)} corners; "
+                         "expected one id per corner")
+    ids, ka, kb = np.intersect1d(ia, ib, assume_unique=True, return_indices=True)
+    return ids, pa[ka], pb[kb]
+
+
 def heldout_reprojection(obj_points, ir_points, color_points, ir: CameraIntrinsics, color: CameraIntrinsics,
                          extrinsics: Extrinsics) -> np.ndarray:
     """Colour-image errors of held-out pairs [px], (sum of corners,) float64.

@@ -10,12 +10,30 @@ import typer
 
 from tofmetry.cli._common import console, load_intrinsics_option, progress, refuse_existing
 
+_BOARD_HELP = "Inner corners COLSxROWS, e.g. 9x6, or 'charuco' (with --squares, --marker-mm, --dictionary)."
+
+
+def _parse_board(board: str, square_mm: float, squares: str, marker_mm: float, dictionary: str):
+    """``(BoardSpec, CharucoBoard or None)`` from the board options (as ``calibrate intrinsics``)."""
+    from tofmetry.io.board_dataset import BoardSpec
+
+    if board.strip().lower() != "charuco":
+        return BoardSpec.parse(board, square_mm), None
+    from tofmetry.calibrate import CharucoBoard
+
+    sq = BoardSpec.parse(squares, square_mm)
+    ch = CharucoBoard(sq.size[0], sq.size[1], sq.square_mm, float(marker_mm), dictionary)
+    return BoardSpec.parse(f"{ch.inner[0]}x{ch.inner[1]}", square_mm), ch
+
 
 def stereo_cmd(
     pairs_dir: Path = typer.Argument(..., help="Folder of paired board images NNNN_ir.<ext> and NNNN_color.<ext>."),
-    board: str = typer.Option(..., "--board", help="Inner corners COLSxROWS, e.g. 9x6."),
+    board: str = typer.Option(..., "--board", help=_BOARD_HELP),
     square_mm: float = typer.Option(..., "--square-mm", help="Square size [mm]."),
     output: Path = typer.Option(..., "-o", "--output", help="Folder for calib_pose.yaml and stereo.json."),
+    squares: str = typer.Option("13x10", "--squares", help="ChArUco: squares COLSxROWS (not inner corners)."),
+    marker_mm: float = typer.Option(56.0, "--marker-mm", help="ChArUco: marker side [mm]."),
+    dictionary: str = typer.Option("DICT_4X4_100", "--dictionary", help="ChArUco: OpenCV ArUco dictionary."),
     ir_intrinsics: Optional[Path] = typer.Option(None, "--ir-intrinsics", help="IR intrinsics.json (default: the "
                                                  "sensor profile's typical values)."),
     color_intrinsics: Optional[Path] = typer.Option(None, "--color-intrinsics", help="Colour intrinsics.json "
@@ -24,18 +42,18 @@ def stereo_cmd(
     force: bool = typer.Option(False, "--force", help="Overwrite the outputs."),
 ) -> None:
     """Estimate the IR -> colour extrinsics (intrinsics held fixed) with uncertainties, validate them
-    on held-out pairs (every 4th) and export iai_kinect2's calib_pose.yaml."""
-    from tofmetry.io.board_dataset import BoardSpec
+    on held-out pairs (every 4th) and export iai_kinect2's calib_pose.yaml. With --board charuco,
+    pairs showing part of the board count (the corners both images found)."""
     from tofmetry.pipelines.stereo import list_pairs, stereo_from_images, write_stereo_outputs
     from tofmetry.sensor import get_profile
 
-    spec = BoardSpec.parse(board, square_mm)
+    spec, charuco = _parse_board(board, square_mm, squares, marker_mm, dictionary)
     refuse_existing([output / "calib_pose.yaml", output / "stereo.json"], force)
     prof = get_profile(sensor)
     ir = load_intrinsics_option(ir_intrinsics) or prof.depth
     color = load_intrinsics_option(color_intrinsics) or prof.color
     with progress("detect corners in pairs, calibrate", len(list_pairs(pairs_dir))) as adv:
-        run = stereo_from_images(pairs_dir, spec.size, spec.square_mm, ir, color, advance=adv)
+        run = stereo_from_images(pairs_dir, spec.size, spec.square_mm, ir, color, advance=adv, charuco=charuco)
     for stem, why in run.skipped.items():
         console.print(f"[yellow]pair {stem} not used:[/] {why}")
     r = run.result
@@ -53,22 +71,24 @@ def rig_cmd(
     rig_dir: Path = typer.Argument(..., help="Rig folder: one sub-folder per sensor, each with intrinsics.json and "
                                    "board images; the same image name in two sub-folders = the same board pose. The "
                                    "first sub-folder (by name) is the rig frame."),
-    board: str = typer.Option(..., "--board", help="Inner corners COLSxROWS, e.g. 9x6."),
+    board: str = typer.Option(..., "--board", help=_BOARD_HELP),
     square_mm: float = typer.Option(..., "--square-mm", help="Square size [mm]."),
     output: Path = typer.Option(..., "-o", "--output", help="rig.json to write."),
+    squares: str = typer.Option("13x10", "--squares", help="ChArUco: squares COLSxROWS (not inner corners)."),
+    marker_mm: float = typer.Option(56.0, "--marker-mm", help="ChArUco: marker side [mm]."),
+    dictionary: str = typer.Option("DICT_4X4_100", "--dictionary", help="ChArUco: OpenCV ArUco dictionary."),
     force: bool = typer.Option(False, "--force", help="Overwrite the output."),
 ) -> None:
     """Estimate the extrinsics of every sensor of a rig relative to the first (intrinsics held fixed),
     with jackknife uncertainties and held-out validation (every 4th shared view); writes rig.json."""
     import numpy as np
 
-    from tofmetry.io.board_dataset import BoardSpec
     from tofmetry.pipelines.rig import rig_from_folders, write_rig_outputs
 
-    spec = BoardSpec.parse(board, square_mm)
+    spec, charuco = _parse_board(board, square_mm, squares, marker_mm, dictionary)
     refuse_existing([output], force)
     with progress("detect corners in every sensor's images, calibrate", None) as adv:
-        run = rig_from_folders(rig_dir, spec.size, spec.square_mm, advance=adv)
+        run = rig_from_folders(rig_dir, spec.size, spec.square_mm, advance=adv, charuco=charuco)
     for name, why in run.skipped.items():
         console.print(f"[yellow]{name}: views not used:[/] " + ", ".join(f"{k} ({v})" for k, v in why.items()))
     console.print(f"rig frame: {run.sensors[0]} ({run.result.shared_views[0]} views with a board)")

@@ -14,6 +14,10 @@ checkerboard's corners are found in each image (:func:`~tofmetry.calibrate.detec
 whole board must be seen); a view a sensor did not see whole is skipped for that sensor and named.
 Each sensor is calibrated against the first (:func:`~tofmetry.calibrate.calibrate_rig`, intrinsics
 held fixed, every 4th shared view held out for validation).
+
+With a ChArUco board (``charuco=``) a sensor's view counts when it shows at least 6 identified
+corners (:func:`~tofmetry.calibrate.detect_charuco`, partial views allowed), and each sensor is
+calibrated against the first from the corners both found in a view (at least 6).
 """
 
 from __future__ import annotations
@@ -24,7 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tofmetry.calibrate import RigResult, board_object_points, calibrate_rig, detect_corners
+from tofmetry.calibrate import CharucoBoard, RigResult, board_object_points, calibrate_rig, detect_charuco, \
+    detect_corners
 from tofmetry.errors import InputError
 from tofmetry.io.images import GRAY_IMAGE_SUFFIXES, read_gray_image
 from tofmetry.io.intrinsics_json import read_intrinsics
@@ -80,13 +85,15 @@ def list_rig_sensors(folder: str | os.PathLike) -> list[Path]:
     return subs
 
 
-def rig_from_folders(folder: str | os.PathLike, board: tuple[int, int], square_mm: float, advance=None) -> RigRun:
+def rig_from_folders(folder: str | os.PathLike, board: tuple[int, int], square_mm: float, advance=None,
+                     charuco: CharucoBoard | None = None) -> RigRun:
     """Detect the board in every sensor's images and calibrate the rig (see the module docstring).
 
     Parameters
     ----------
     folder : the rig folder; board : (cols, rows) inner corners; square_mm : square size [mm]
     advance : optional progress callable, one call per image
+    charuco : a ChArUco board instead of a checkerboard (``board``, ``square_mm`` then ignored)
 
     Raises
     ------
@@ -102,6 +109,7 @@ def rig_from_folders(folder: str | os.PathLike, board: tuple[int, int], square_m
     if not views:
         raise InputError(f"{folder}: no board images in the sensor sub-folders (expected e.g. 0000.png)")
     corners = [[None] * len(views) for _ in subs]
+    ids = [[None] * len(views) for _ in subs]
     skipped: dict = {n: {} for n in names}
     for s, (p, k, m) in enumerate(zip(subs, intr, imgs)):
         for v, stem in enumerate(views):
@@ -112,16 +120,23 @@ def rig_from_folders(folder: str | os.PathLike, board: tuple[int, int], square_m
             if img.shape[:2] != k.shape:
                 raise InputError(f"{m[stem]}: image is {img.shape[1]}x{img.shape[0]}, {p / 'intrinsics.json'} says "
                                  f"{k.width}x{k.height}")
-            c = detect_corners(img, board)
-            if c is None:
-                skipped[names[s]][stem] = "board not found whole"
+            if charuco is not None:
+                d = detect_charuco(img, charuco)
+                if d is None:
+                    skipped[names[s]][stem] = "fewer than 6 ChArUco corners found"
+                else:
+                    corners[s][v], ids[s][v] = d.corners, d.ids
             else:
-                corners[s][v] = _oriented(c, board)
+                c = detect_corners(img, board)
+                if c is None:
+                    skipped[names[s]][stem] = "board not found whole"
+                else:
+                    corners[s][v] = _oriented(c, board)
             if advance is not None:
                 advance()
-    obj = board_object_points(board, square_mm)
+    obj = charuco.object_points() if charuco is not None else board_object_points(board, square_mm)
     try:
-        res = calibrate_rig([obj] * len(views), corners, intr)
+        res = calibrate_rig([obj] * len(views), corners, intr, ids=ids if charuco is not None else None)
     except InputError as e:
         raise InputError(f"{folder}: {e} (sensors in order: {', '.join(names)}; skipped: "
                          f"{ {n: d for n, d in skipped.items() if d} })") from None

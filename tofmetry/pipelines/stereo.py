@@ -7,6 +7,10 @@ skipped and named. Both detections are put in the same physical order (the first
 right in the image: the two cameras look the same way, so one grid order is one board corner).
 Every 4th usable pair is held out of the fit to validate it.
 
+With a ChArUco board (``charuco=``) the corners come with their ids
+(:func:`~tofmetry.calibrate.detect_charuco`): a board partly outside either image still counts, each
+pair contributing the corners both cameras found (at least 6), with their own object points.
+
 Outputs (:func:`write_stereo_outputs`): iai_kinect2's ``calib_pose.yaml`` and ``stereo.json``
 (extrinsics, uncertainties, residuals, held-out error, pairs used and skipped).
 """
@@ -19,7 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tofmetry.calibrate import StereoResult, board_object_points, calibrate_stereo, detect_corners
+from tofmetry.calibrate import CharucoBoard, StereoResult, board_object_points, calibrate_stereo, common_corners, \
+    detect_charuco, detect_corners
 from tofmetry.errors import InputError
 from tofmetry.io import atomic_write_json
 from tofmetry.io.iai_kinect2 import write_calib_pose
@@ -66,7 +71,8 @@ def _oriented(corners: np.ndarray, board: tuple[int, int]) -> np.ndarray:
 
 
 def stereo_from_images(folder: str | os.PathLike, board: tuple[int, int], square_mm: float,
-                       ir: CameraIntrinsics, color: CameraIntrinsics, advance=None) -> StereoRun:
+                       ir: CameraIntrinsics, color: CameraIntrinsics, advance=None,
+                       charuco: CharucoBoard | None = None, min_common: int = 6) -> StereoRun:
     """Detect the board in every pair of ``folder`` and calibrate the IR -> colour extrinsics.
 
     Parameters
@@ -75,14 +81,17 @@ def stereo_from_images(folder: str | os.PathLike, board: tuple[int, int], square
     board : (cols, rows) inner corners; square_mm : square size [mm]
     ir, color : intrinsics of the two cameras (held fixed)
     advance : optional progress callable, one call per pair
+    charuco : a ChArUco board instead of a checkerboard (``board`` and ``square_mm`` are then
+        ignored): partial views allowed, each pair uses the corners both images show
+    min_common : ChArUco: fewest corners common to both images for a pair to be used
 
     Raises
     ------
     InputError
         No pairs, an image of the wrong size, or fewer than 3 usable pairs.
     """
-    obj = board_object_points(board, square_mm)
-    used, skipped, A, B = [], {}, [], []
+    obj = None if charuco is not None else board_object_points(board, square_mm)
+    used, skipped, A, B, O = [], {}, [], [], []
     for stem, pir, pcol in list_pairs(folder):
         imgs = []
         for what, path, intr, read in (("IR", pir, ir, read_gray_image), ("colour", pcol, color, read_color_image)):
@@ -91,6 +100,24 @@ def stereo_from_images(folder: str | os.PathLike, board: tuple[int, int], square
                 raise InputError(f"{path}: {what} image is {img.shape[1]}x{img.shape[0]}, the {what} intrinsics "
                                  f"are {intr.width}x{intr.height}")
             imgs.append(img)
+        if charuco is not None:
+            da, db = detect_charuco(imgs[0], charuco), detect_charuco(imgs[1], charuco)
+            if advance is not None:
+                advance()
+            if da is None or db is None:
+                skipped[stem] = "fewer than 6 ChArUco corners found in the " + ("IR" if da is None else "colour") \
+                    + " image"
+                continue
+            ids, pa, pb = common_corners(da.ids, da.corners, db.ids, db.corners)
+            if len(ids) < min_common:
+                skipped[stem] = (f"{len(ids)} ChArUco corners found in both images ({len(da.ids)} IR, "
+                                 f"{len(db.ids)} colour); need at least {min_common}")
+                continue
+            used.append(stem)
+            A.append(pa)
+            B.append(pb)
+            O.append(charuco.object_points(ids))
+            continue
         ca, cb = detect_corners(imgs[0], board), detect_corners(imgs[1], board)
         if advance is not None:
             advance()
@@ -100,11 +127,13 @@ def stereo_from_images(folder: str | os.PathLike, board: tuple[int, int], square
         used.append(stem)
         A.append(_oriented(ca, board))
         B.append(_oriented(cb, board))
+        O.append(obj)
     if len(used) < 3:
         raise InputError(f"{folder}: the board was found in both images of {len(used)} pair(s); need at least 3 "
                          f"(skipped: {skipped})")
-    res = calibrate_stereo([obj] * len(used), A, B, ir, color)
-    return StereoRun(res, used, skipped, ir, color)
+    res = calibrate_stereo(O, A, B, ir, color)
+    src = {} if charuco is None else {"charuco": charuco.to_dict(), "corners_per_pair": [len(o) for o in O]}
+    return StereoRun(res, used, skipped, ir, color, src)
 
 
 def write_stereo_outputs(run: StereoRun, out_dir: str | os.PathLike) -> list[Path]:
