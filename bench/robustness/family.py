@@ -273,7 +273,8 @@ def main(argv=None) -> int:
     jl = a.output / "family_rows.jsonl"
     try:
         for k, s in enumerate(seeds):
-            r = run_case(s, work, a.frames, a.reduced, keep=a.keep, config=config)
+            r = run_case(s, work, a.frames, a.reduced, keep=a.keep,
+                         config=None if config is None else config.model_copy(deep=True))
             rows.append(r)
             with open(jl, "a") as fh:
                 fh.write(json.dumps(r, default=float) + "\n")

@@ -7,7 +7,12 @@ import numpy as np
 import pytest
 
 from tofmetry.reconstruct import global_adjust
-from tofmetry.reconstruct._range_curve import apply_range_curve, range_basis, range_curve_m, range_curve_sigma_m
+from tofmetry.reconstruct._range_curve import (
+    apply_range_curve,
+    range_basis,
+    range_curve_m,
+    range_curve_sigma_m,
+)
 
 from .test_adjust import _errors, _look_at, _perturb, _scene
 
@@ -76,7 +81,7 @@ def test_recovers_the_range_curve_and_the_poses(ring_ranges):
     rng = np.random.default_rng(1)
     views = _views(ring_ranges, TRUE_C, rng)
     init = np.stack([ring_ranges[0]] + [_perturb(T, rng, 0.3, 2.0) for T in ring_ranges[1:]])
-    kw = dict(iters_per_radius=(2, 6), curve_half_span_m=HALF, curve_prior_m=3e-3)
+    kw = {"iters_per_radius": (2, 6), "curve_half_span_m": HALF, "curve_prior_m": 3e-3}
     with_curve = global_adjust(views, init, Z_REF, curve_degree=3, **kw)
     gain_only = global_adjust(views, init, Z_REF, curve_degree=0, **kw)
     assert with_curve.range_curve_estimated, with_curve.range_curve_note

@@ -32,7 +32,11 @@ from scipy.spatial import cKDTree
 from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.errors import EstimationError, InputError
 from tofmetry.reconstruct._adjust_sigma import curve_sigmas, gain_sigmas, pose_sigmas
-from tofmetry.reconstruct._range_curve import range_basis, range_curve_m, range_curve_sigma_m
+from tofmetry.reconstruct._range_curve import (
+    range_basis,
+    range_curve_m,
+    range_curve_sigma_m,
+)
 
 
 @dataclass
@@ -117,7 +121,7 @@ class AdjustResult:
         cov = self.range_curve_cov_m2 if self.range_curve_cov_m2 is not None else np.zeros((len(self.range_curve_m),) * 2)
         dz = range_curve_m(z, self.range_curve_m, zr, h)
         sd = range_curve_sigma_m(z, cov, zr, h) if len(cov) else np.zeros_like(z)
-        r6 = lambda a: [round(float(x) * 1e3, 4) for x in a]  # noqa: E731
+        r6 = lambda a: [round(float(x) * 1e3, 4) for x in a]
         return {"estimated": bool(self.range_curve_estimated), "note": self.range_curve_note,
                 "degree": int(len(self.range_curve_m) + 1), "half_span_mm": round(float(h) * 1e3, 2),
                 "prior_mm": round(float(self.range_curve_prior_m) * 1e3, 4),
@@ -464,7 +468,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         res.range_curve_half_span_m = float(curve_half_span_m)
         res.range_curve_prior_m = float(curve_prior_m)
         res.range_curve_estimated = bool(curve_on)
-        res.range_curve_note = (f"estimated: the views determine its coefficients to +-"
+        res.range_curve_note = ("estimated: the views determine its coefficients to +-"
                                 + ", ".join(f"{x * 1e3:.3f}" for x in curve_sd) + " mm (data alone)") \
             if curve_on else curve_note
     return res
