@@ -82,7 +82,11 @@ class AdjustResult:
     gain_note : why the gain was or was not estimated
     pose_sigma_deg, pose_sigma_mm : (V,) standard errors of each pose (rotation [deg], camera
         translation [mm]) from the normal equations, correspondences taken as independent (a lower
-        bound: the residuals of one view are correlated)
+        bound: the residuals of one view are correlated; the range curve, when estimated, held fixed)
+    range_curve_m : (D,) coefficients of the range-error curve [m] (:mod:`tofmetry.reconstruct._range_curve`;
+        None when not asked for, zeros when not observable); ``range_curve_sigma_m``, ``range_curve_cov_m2``:
+        their standard errors and covariance (noise only, times the inflation; no systematic part);
+        ``range_curve_sigma_data_m``: from the data alone, no prior; ``range_curve_note``: why it was or was not estimated
     """
 
     poses: np.ndarray
