@@ -256,7 +256,14 @@ def main(argv=None) -> int:
     ap.add_argument("--reduced", action="store_true", help="the small family of CI (6-8 views)")
     ap.add_argument("--keep", action="store_true", help="keep the simulated scans")
     ap.add_argument("-o", "--output", type=Path, default=Path("bench/results"))
+    ap.add_argument("--range-curve", type=int, default=None, metavar="DEGREE",
+                    help="registration.range_curve_degree of the reconstructions (default: the config's)")
     a = ap.parse_args(argv)
+    config = None
+    if a.range_curve is not None:
+        from tofmetry.reconstruct import ReconstructionConfig
+        config = ReconstructionConfig()
+        config.registration.range_curve_degree = a.range_curve
     seeds = [int(s) for s in a.seeds.split(",")] if a.seeds else \
         [int(s) for s in np.random.default_rng().integers(0, 2**31 - 1, a.n)]
     print("seeds:", ",".join(map(str, seeds)), flush=True)
@@ -266,7 +273,8 @@ def main(argv=None) -> int:
     jl = a.output / "family_rows.jsonl"
     try:
         for k, s in enumerate(seeds):
-            r = run_case(s, work, a.frames, a.reduced, keep=a.keep)
+            r = run_case(s, work, a.frames, a.reduced, keep=a.keep,
+                         config=None if config is None else config.model_copy(deep=True))
             rows.append(r)
             with open(jl, "a") as fh:
                 fh.write(json.dumps(r, default=float) + "\n")

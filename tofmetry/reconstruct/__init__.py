@@ -3,7 +3,7 @@
 Stages (one module each): :mod:`._preprocess` (robust mean, calibration, flying pixels,
 range, normals) -> :mod:`._segment` (support plane + object) -> :mod:`._register` (plane-yaw
 or FPFH coarse, free-space test, robust point-to-plane ICP; alternatives kept) -> :mod:`._posegraph`
-(multi-view hypothesis selection over the loops, LM global optimisation, loop gate) -> :mod:`._adjust` (joint multi-view ICP of all views + depth-gain self-calibration) -> :mod:`._fusion` (TSDF VoxelBlockGrid on undistorted depth, mesh, Poisson).
+(multi-view hypothesis selection over the loops, LM global optimisation, loop gate) -> :mod:`._adjust` (joint multi-view ICP of all views + depth-gain self-calibration, optional range-error curve :mod:`._range_curve`) -> :mod:`._fusion` (TSDF VoxelBlockGrid on undistorted depth, mesh, Poisson).
 :class:`ReconstructionPipeline` runs them; :func:`write_reconstruction` writes the outputs.
 """
 
@@ -25,7 +25,6 @@ from tofmetry.reconstruct._config import (
     RegistrationConfig,
     SegmentConfig,
 )
-from tofmetry.reconstruct._o3d import Match, estimate_normals, global_register, icp, voxel_down
 from tofmetry.reconstruct._fusion import (
     TSDFFusion,
     crop_mesh,
@@ -33,9 +32,21 @@ from tofmetry.reconstruct._fusion import (
     undistort_depth,
     undistort_maps,
 )
+from tofmetry.reconstruct._loops import (
+    connected_components,
+    loop_closures,
+    select_hypotheses,
+    spanning_tree,
+)
+from tofmetry.reconstruct._o3d import (
+    Match,
+    estimate_normals,
+    global_register,
+    icp,
+    voxel_down,
+)
 from tofmetry.reconstruct._output import poses_document, write_reconstruction
 from tofmetry.reconstruct._pipeline import ReconstructionPipeline, ReconstructionResult
-from tofmetry.reconstruct._loops import connected_components, loop_closures, select_hypotheses, spanning_tree
 from tofmetry.reconstruct._posegraph import (
     PoseGraphBuilder,
     PoseGraphResult,
@@ -43,7 +54,13 @@ from tofmetry.reconstruct._posegraph import (
     relative_pose_errors,
     rotation_angle_deg,
 )
-from tofmetry.reconstruct._preprocess import ViewData, corrected_mean_depth, image_normals, prepare_view
+from tofmetry.reconstruct._preprocess import (
+    ViewData,
+    corrected_mean_depth,
+    image_normals,
+    prepare_view,
+)
+from tofmetry.reconstruct._range_curve import apply_range_curve, range_curve_m
 from tofmetry.reconstruct._register import PairResult, plane_consistent, register_pair
 from tofmetry.reconstruct._regview import (
     RegView,
@@ -61,9 +78,9 @@ from tofmetry.reconstruct._segment import (
 __all__ = [
     "PAPER_K_MM_PER_LN",
     "AdjustResult",
-    "Match",
     "AdjustView",
     "FusionConfig",
+    "Match",
     "PairResult",
     "PoseGraphBuilder",
     "PoseGraphResult",
@@ -79,6 +96,7 @@ __all__ = [
     "ViewData",
     "amplitude_bias_mm",
     "apply_depth_gain",
+    "apply_range_curve",
     "connected_components",
     "consistency_gate",
     "corrected_mean_depth",
@@ -96,6 +114,7 @@ __all__ = [
     "poisson_mesh",
     "poses_document",
     "prepare_view",
+    "range_curve_m",
     "register_pair",
     "registration_conditioning",
     "relative_pose_errors",

@@ -31,7 +31,12 @@ from scipy.spatial import cKDTree
 
 from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.errors import EstimationError, InputError
-from tofmetry.reconstruct._adjust_sigma import gain_sigmas, pose_sigmas
+from tofmetry.reconstruct._adjust_sigma import curve_sigmas, gain_sigmas, pose_sigmas
+from tofmetry.reconstruct._range_curve import (
+    range_basis,
+    range_curve_m,
+    range_curve_sigma_m,
+)
 
 
 @dataclass
@@ -77,7 +82,11 @@ class AdjustResult:
     gain_note : why the gain was or was not estimated
     pose_sigma_deg, pose_sigma_mm : (V,) standard errors of each pose (rotation [deg], camera
         translation [mm]) from the normal equations, correspondences taken as independent (a lower
-        bound: the residuals of one view are correlated)
+        bound: the residuals of one view are correlated; the range curve, when estimated, held fixed)
+    range_curve_m : (D,) coefficients of the range-error curve [m] (:mod:`tofmetry.reconstruct._range_curve`;
+        None when not asked for, zeros when not observable); ``range_curve_sigma_m``, ``range_curve_cov_m2``:
+        their standard errors and covariance (noise only, times the inflation; no systematic part);
+        ``range_curve_sigma_data_m``: from the data alone, no prior; ``range_curve_note``: why it was or was not estimated
     """
 
     poses: np.ndarray
@@ -97,6 +106,33 @@ class AdjustResult:
     pose_sigma_deg: np.ndarray | None = None
     pose_sigma_mm: np.ndarray | None = None
     gain_sigma_systematic: float = float("nan")
+    range_curve_m: np.ndarray | None = None
+    range_curve_sigma_m: np.ndarray | None = None
+    range_curve_sigma_data_m: np.ndarray | None = None
+    range_curve_cov_m2: np.ndarray | None = None
+    range_curve_half_span_m: float = float("nan")
+    range_curve_prior_m: float = float("nan")
+    range_curve_estimated: bool = False
+    range_curve_note: str = ""
+
+    def range_curve_report(self) -> dict | None:
+        """The range curve (coefficients, standard errors, and dz with its standard error at a few
+        depths across the span, [mm]); None when not asked for."""
+        if self.range_curve_m is None:
+            return None
+        h, zr = self.range_curve_half_span_m, self.z_ref_m
+        z = zr + h * np.array([-1.0, -0.5, 0.0, 0.5, 1.0])
+        cov = self.range_curve_cov_m2 if self.range_curve_cov_m2 is not None else np.zeros((len(self.range_curve_m),) * 2)
+        dz = range_curve_m(z, self.range_curve_m, zr, h)
+        sd = range_curve_sigma_m(z, cov, zr, h) if len(cov) else np.zeros_like(z)
+        r6 = lambda a: [round(float(x) * 1e3, 4) for x in a]
+        return {"estimated": bool(self.range_curve_estimated), "note": self.range_curve_note,
+                "degree": int(len(self.range_curve_m) + 1), "half_span_mm": round(float(h) * 1e3, 2),
+                "prior_mm": round(float(self.range_curve_prior_m) * 1e3, 4),
+                "coefficients_mm": r6(self.range_curve_m),
+                "sigma_mm": None if self.range_curve_sigma_m is None else r6(self.range_curve_sigma_m),
+                "sigma_data_mm": None if self.range_curve_sigma_data_m is None else r6(self.range_curve_sigma_data_m),
+                "z_mm": [round(float(x) * 1e3, 1) for x in z], "dz_mm": r6(dz), "dz_sigma_mm": r6(sd)}
 
     def to_dict(self, names: list[str] | None = None) -> dict:
         names = names or [str(k) for k in range(len(self.poses))]
@@ -105,6 +141,7 @@ class AdjustResult:
                 "converged": bool(self.converged), "gain_estimated": bool(self.gain_estimated),
                 "gain_sigma_data": float(self.gain_sigma_data),
                 "gain_sigma_systematic": float(self.gain_sigma_systematic), "gain_note": self.gain_note,
+                "range_curve": self.range_curve_report(),
                 "rms_mm": [round(float(x), 4) for x in self.rms_mm],
                 "moved_deg": {n: round(float(x), 4) for n, x in zip(names, self.moved_deg)},
                 "moved_mm": {n: round(float(x), 3) for n, x in zip(names, self.moved_mm)},
@@ -147,23 +184,32 @@ def _exp_se3(xi: np.ndarray) -> np.ndarray:
     return T
 
 
-def _world(views: list[AdjustView], P: np.ndarray, g: float, z_ref_m: float, which: str):
-    """World points, normals and d(point)/d(gain) of every view's ``source`` or ``target`` cloud."""
-    pts, nrm, dg = [], [], []
+def _world(views: list[AdjustView], P: np.ndarray, g: float, z_ref_m: float, which: str, curve=None):
+    """World points, normals, d(point)/d(gain) and d(point)/d(curve coefficients) ((M, 3, D)) of
+    every view's ``source`` or ``target`` cloud; ``curve`` = (coefficients [m], half span [m]) or None."""
+    pts, nrm, dg, dc = [], [], [], []
     for v, T in zip(views, P):
         R, t = T[:3, :3], T[:3, 3]
         c, n = (v.source, v.source_normals) if which == "source" else (v.target, v.target_normals)
-        pts.append(apply_depth_gain(c, g, z_ref_m) @ R.T + t)
+        z = c[:, 2:3]
+        p = apply_depth_gain(c, g, z_ref_m)
+        if curve is not None and len(curve[0]):
+            B = range_basis(c[:, 2], z_ref_m, curve[1], len(curve[0]) + 1)  # (M, D)
+            p = p + c * (B @ curve[0])[:, None] / z
+            dc.append(np.einsum("mk,md->mkd", (c / z) @ R.T, B))
+        else:
+            dc.append(np.zeros((len(c), 3, 0)))
+        pts.append(p @ R.T + t)
         nrm.append(n @ R.T)
-        dg.append((c * ((c[:, 2:3] - z_ref_m) / c[:, 2:3])) @ R.T)
-    return pts, nrm, dg
+        dg.append((c * ((z - z_ref_m) / z)) @ R.T)
+    return pts, nrm, dg, dc
 
 
-def _correspondences(views, P, g, z_ref_m, r, cos_max, pairs=None) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
+def _correspondences(views, P, g, z_ref_m, r, cos_max, pairs=None, curve=None) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
     """(i, j, source indices of view i, target indices of view j): nearest target point within ``r``
     with normals agreeing within ``arccos(cos_max)``; only ``pairs`` when given."""
-    src, srcn, _ = _world(views, P, g, z_ref_m, "source")
-    tgt, tgtn, _ = _world(views, P, g, z_ref_m, "target")
+    src, srcn, _, _ = _world(views, P, g, z_ref_m, "source", curve)
+    tgt, tgtn, _, _ = _world(views, P, g, z_ref_m, "target", curve)
     trees = [cKDTree(t) for t in tgt]
     out = []
     V = len(views)
@@ -182,15 +228,17 @@ def _correspondences(views, P, g, z_ref_m, r, cos_max, pairs=None) -> list[tuple
     return out
 
 
-def _normal_equations(views, P, g, z_ref_m, corr, huber_m, estimate_gain):
-    """Gauss-Newton normal equations of all correspondences (view 0 fixed; last unknown = gain).
+def _normal_equations(views, P, g, z_ref_m, corr, huber_m, estimate_gain, curve=None):
+    """Gauss-Newton normal equations of all correspondences (view 0 fixed; unknowns: poses, then
+    the ``D`` range-curve coefficients when ``curve`` is given, last the gain).
 
     Residual: ``n . (p - q)`` with ``n`` the normalised sum of both points' normals (held fixed
     in the linearisation)."""
     V = len(views)
-    npar = 6 * (V - 1) + 1
-    src, srcn, dsrc = _world(views, P, g, z_ref_m, "source")
-    tgt, tgtn, dtgt = _world(views, P, g, z_ref_m, "target")
+    D = 0 if curve is None else len(curve[0])
+    npar = 6 * (V - 1) + D + 1
+    src, srcn, dsrc, csrc = _world(views, P, g, z_ref_m, "source", curve)
+    tgt, tgtn, dtgt, ctgt = _world(views, P, g, z_ref_m, "target", curve)
     H = np.zeros((npar, npar))
     b = np.zeros(npar)
     sw = swr2 = 0.0
@@ -207,15 +255,18 @@ def _normal_equations(views, P, g, z_ref_m, corr, huber_m, estimate_gain):
         pair_rms[i, j] = float(np.sqrt(np.mean(e ** 2))) * 1e3
         w = np.where(np.abs(e) <= huber_m, 1.0, huber_m / np.maximum(np.abs(e), 1e-15))
         # local Jacobian columns: [rot_i (3), trans_i (3), rot_j (3), trans_j (3), gain]
-        J = np.empty((len(e), 13))
+        J = np.empty((len(e), 13 + D))
         J[:, 0:3] = np.cross(p, n)
         J[:, 3:6] = n
         J[:, 6:9] = -np.cross(q, n)
         J[:, 9:12] = -n
         J[:, 12] = np.einsum("ij,ij->i", n, dsrc[i][si] - dtgt[j][qi]) if estimate_gain else 0.0
+        if D:
+            J[:, 13:] = np.einsum("mk,mkd->md", n, csrc[i][si] - ctgt[j][qi])
         Jw = J * w[:, None]
         cols = np.r_[np.arange(6 * (i - 1), 6 * i) if i > 0 else np.full(6, -1),
-                     np.arange(6 * (j - 1), 6 * j) if j > 0 else np.full(6, -1), npar - 1]
+                     np.arange(6 * (j - 1), 6 * j) if j > 0 else np.full(6, -1), npar - 1,
+                     np.arange(6 * (V - 1), 6 * (V - 1) + D)]
         keep = cols >= 0
         c = cols[keep]
         H[np.ix_(c, c)] += (Jw.T @ J)[np.ix_(keep, keep)]
@@ -230,7 +281,8 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                   estimate_gain: bool = True, gain_prior_sigma: float = 0.02, max_normal_deg: float = 45.0,
                   tol_deg: float = 1e-3, tol_m: float = 1e-5, gain_max_sigma: float | None = None,
                   sigma_inflation: float = 1.0, gain_max_abs: float | None = None,
-                  systematic_m: float = 0.0) -> AdjustResult:
+                  systematic_m: float = 0.0, curve_degree: int = 0, curve_prior_m: float = 5e-4,
+                  curve_half_span_m: float | None = None) -> AdjustResult:
     """Jointly refine all poses (view 0 fixed) and, optionally, the depth gain.
 
     Each outer iteration matches every view's ``source`` points (gain-corrected, to world) to
@@ -266,6 +318,15 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         make any gain look determined, and the gain and the poses trade along a valley whose
         bottom such an error decides (measured: -1.7 % and 1.1 deg from the true poses on a clean
         simulated sensor, where fixing the gain kept the poses within 0.1 deg)
+    curve_degree : 0 (off) or the highest Legendre degree (>= 2) of a range-error curve shared by
+        all views (:mod:`tofmetry.reconstruct._range_curve`), estimated with the poses and the gain
+    curve_prior_m : prior standard deviation of each curve coefficient [m] (the residual the depth
+        calibration can leave); the curve is estimated only when the data alone (poses and gain
+        marginalised, times ``sigma_inflation``) determine every coefficient better than this prior,
+        checked at the first iteration and at the first of the last radius; otherwise it stays 0
+        and :attr:`AdjustResult.range_curve_note` says why
+    curve_half_span_m : half the depth span of the curve [m]; None: the largest distance from
+        ``z_ref_m`` of the central 98 % of all views' ``source`` depths
 
     Returns
     -------
@@ -287,7 +348,6 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
     P = poses.copy()
     g = 0.0
     cos_max = np.cos(np.radians(max_normal_deg))
-    npar = 6 * (V - 1) + 1
     rms_hist: list[float] = []
     schedule = [r for r, n in zip(radii_m, iters_per_radius) for _ in range(n)]
     n_last = iters_per_radius[-1]
@@ -299,10 +359,32 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
     sigma_data = sigma_sys = float("nan")
     note = "not asked for" if not estimate_gain else "estimated"
     H_data = None
+    # range curve: coefficients [m], active flag, half span
+    D = max(int(curve_degree) - 1, 0)
+    c_curve = np.zeros(D)
+    if curve_half_span_m is None and D:
+        zs = np.concatenate([v.source[:, 2] for v in views])
+        lo, hi = np.percentile(zs, [1, 99])
+        curve_half_span_m = float(max(hi - z_ref_m, z_ref_m - lo, 1e-3))
+    curve_on = D > 0
+    curve_note = "estimated" if D else "not asked for"
+    curve_sd = np.full(D, np.nan)
+    curve_cov = np.zeros((D, D))
+    curve_checked = False
+
+    def cv():
+        return (c_curve, curve_half_span_m) if curve_on else None
+
+    def without_curve(H):
+        if not curve_on:
+            return H
+        keep = np.r_[np.arange(6 * (V - 1)), len(H) - 1]
+        return H[np.ix_(keep, keep)]
+
     for it, r in enumerate(schedule, start=1):
         if r != prev_r:
             pairs, prev_r = None, r
-        corr = _correspondences(views, P, g, z_ref_m, r, cos_max, pairs)
+        corr = _correspondences(views, P, g, z_ref_m, r, cos_max, pairs, cv())
         pairs = {(i, j) for i, j, _, _ in corr}
         if sum(len(c[2]) for c in corr) < 6 * V:
             raise EstimationError(f"global adjustment: too few correspondences between the views at {r * 1e3:.1f} mm "
@@ -310,10 +392,20 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         k = huber_m if huber_m is not None else r / 3.0
         P_start = P.copy()
         for _ in range(inner_iters):
-            H, b, s2, counts, pair_rms, sw = _normal_equations(views, P, g, z_ref_m, corr, k, estimate_gain)
-            H_data = H.copy()
+            H, b, s2, counts, pair_rms, sw = _normal_equations(views, P, g, z_ref_m, corr, k, estimate_gain, cv())
+            if curve_on and (it == 1 or (r == radii_m[-1] and it == len(schedule) - n_last + 1)) and not curve_checked:
+                curve_sd = curve_sigmas(H, s2, sigma_inflation, D, estimate_gain)
+                if r == radii_m[-1]:
+                    curve_checked = True
+                if not np.all(curve_sd < curve_prior_m):
+                    curve_note = ("not observable: the views determine its coefficients only to +-"
+                                  + ", ".join(f"{x * 1e3:.3f}" for x in curve_sd)
+                                  + f" mm (prior +-{curve_prior_m * 1e3:.3f} mm); kept at 0")
+                    curve_on, c_curve = False, np.zeros(D)
+                    H, b, s2, counts, pair_rms, sw = _normal_equations(views, P, g, z_ref_m, corr, k, estimate_gain)
+            H_data = without_curve(H).copy()
             if estimate_gain:
-                sigma_data, sigma_sys = gain_sigmas(H, s2, sw, sigma_inflation, systematic_m)
+                sigma_data, sigma_sys = gain_sigmas(H_data, s2, sw, sigma_inflation, systematic_m)
                 # with a systematic error, checked at the start too: a gain left free while it is not
                 # observable walks the poses along the gain-pose valley before the last radius
                 first = it == 1 and systematic_m > 0
@@ -322,17 +414,25 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                     note = (f"not observable: the views determine it only to +-{100 * sigma_data:.2f} % "
                             f"(> {100 * gain_max_sigma:.2f} %); kept at 0")
                     estimate_gain, g = False, 0.0
-                    H, b, s2, counts, pair_rms, sw = _normal_equations(views, P, g, z_ref_m, corr, k, False)
-                    H_data = H.copy()
+                    H, b, s2, counts, pair_rms, sw = _normal_equations(views, P, g, z_ref_m, corr, k, False, cv())
+                    H_data = without_curve(H).copy()
             if estimate_gain:
                 H[-1, -1] += s2 / gain_prior_sigma ** 2  # prior g ~ N(0, sigma) in residual units
                 b[-1] += s2 / gain_prior_sigma ** 2 * g
             else:
                 H[-1, -1], b[-1] = 1.0, 0.0
-            H += np.eye(npar) * 1e-12 * np.trace(H) / npar  # numerical damping only
+            if curve_on:
+                cc = np.arange(6 * (V - 1), 6 * (V - 1) + D)
+                H[cc, cc] += s2 / curve_prior_m ** 2  # prior c_k ~ N(0, curve_prior_m)
+                b[cc] += s2 / curve_prior_m ** 2 * c_curve
+            n_all = len(H)
+            H += np.eye(n_all) * 1e-12 * np.trace(H) / n_all  # numerical damping only
             dx = -np.linalg.solve(H, b)
             for v in range(1, V):
                 P[v] = _exp_se3(dx[6 * (v - 1):6 * v]) @ P[v]
+            if curve_on:
+                c_curve = c_curve + dx[cc]
+                curve_cov = np.linalg.inv(H)[np.ix_(cc, cc)] * s2 * sigma_inflation ** 2
             if estimate_gain:
                 g += float(dx[-1])
                 sigma_g = float(np.hypot(np.sqrt(max(np.linalg.inv(H)[-1, -1] * s2, 0.0)), sigma_sys))
@@ -352,7 +452,9 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         moved_mm[v] = np.linalg.norm(E[:3, 3]) * 1e3
     if estimate_gain and gain_max_abs is not None and abs(g) > gain_max_abs:
         fixed = global_adjust(views, poses, z_ref_m, radii_m, iters_per_radius, inner_iters, huber_m, False,
-                              gain_prior_sigma, max_normal_deg, tol_deg, tol_m, None, sigma_inflation)
+                              gain_prior_sigma, max_normal_deg, tol_deg, tol_m, None, sigma_inflation,
+                              curve_degree=curve_degree, curve_prior_m=curve_prior_m,
+                              curve_half_span_m=curve_half_span_m)
         fixed.gain_sigma_data, fixed.gain_sigma_systematic = sigma_data, sigma_sys
         fixed.gain_note = (f"implausible: the views ask for {100 * g:+.2f} % (+-{100 * sigma_data:.2f} %), beyond the "
                            f"+-{100 * gain_max_abs:.2f} % the depth calibration can leave; kept at 0")
@@ -360,5 +462,17 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
     sig_deg, sig_mm = pose_sigmas(H_data, s2, V, estimate_gain, sigma_inflation)
     if estimate_gain and note == "estimated":
         note = f"estimated: the views determine it to +-{100 * sigma_data:.3f} %"
-    return AdjustResult(P, g, sigma_g, z_ref_m, it, np.array(rms_hist), counts, pair_rms, moved_deg, moved_mm, converged,
-                        estimate_gain, sigma_data, note, sig_deg, sig_mm, sigma_sys)
+    res = AdjustResult(P, g, sigma_g, z_ref_m, it, np.array(rms_hist), counts, pair_rms, moved_deg, moved_mm, converged,
+                       estimate_gain, sigma_data, note, sig_deg, sig_mm, sigma_sys)
+    if D:
+        res.range_curve_m = c_curve.copy()
+        res.range_curve_cov_m2 = curve_cov if curve_on else np.zeros((D, D))
+        res.range_curve_sigma_m = np.sqrt(np.clip(np.diag(res.range_curve_cov_m2), 0, None))
+        res.range_curve_sigma_data_m = curve_sd
+        res.range_curve_half_span_m = float(curve_half_span_m)
+        res.range_curve_prior_m = float(curve_prior_m)
+        res.range_curve_estimated = bool(curve_on)
+        res.range_curve_note = ("estimated: the views determine its coefficients to +-"
+                                + ", ".join(f"{x * 1e3:.3f}" for x in curve_sd) + " mm (data alone)") \
+            if curve_on else curve_note
+    return res

@@ -61,3 +61,29 @@ def pose_sigmas(H: np.ndarray | None, s2: float, V: int, with_gain: bool, inflat
         deg[v] = np.degrees(np.linalg.norm(d[6 * (v - 1):6 * (v - 1) + 3]))
         mm[v] = np.linalg.norm(d[6 * (v - 1) + 3:6 * v]) * 1e3
     return deg, mm
+
+
+def curve_sigmas(H: np.ndarray, s2: float, inflation: float, n_curve: int, with_gain: bool) -> np.ndarray:
+    """Standard errors of the range-curve coefficients from the data alone (poses and gain
+    marginalised, no prior) [m].
+
+    Parameters
+    ----------
+    H : (P, P) data-only normal matrix: poses, then ``n_curve`` curve coefficients, gain last
+    s2 : robust residual variance [m^2]; inflation : factor on the standard errors
+    n_curve : number of curve coefficients; with_gain : whether the gain is an unknown
+
+    Returns
+    -------
+    (n_curve,) [m]; inf where the data do not determine a coefficient at all.
+    """
+    keep = np.arange(len(H)) if with_gain else np.arange(len(H) - 1)
+    Hs = H[np.ix_(keep, keep)]
+    npose = len(H) - 1 - n_curve
+    cc = np.arange(npose, npose + n_curve)
+    try:
+        C = np.linalg.inv(Hs + np.eye(len(Hs)) * 1e-12 * np.trace(Hs) / len(Hs))
+    except np.linalg.LinAlgError:
+        return np.full(n_curve, np.inf)
+    v = np.diag(C)[cc] * s2
+    return np.where(v > 0, np.sqrt(np.clip(v, 0, None)) * inflation, np.inf)

@@ -25,6 +25,7 @@ from tofmetry.reconstruct._config import ReconstructionConfig
 from tofmetry.reconstruct._fusion import TSDFFusion, crop_mesh, poisson_mesh
 from tofmetry.reconstruct._posegraph import PoseGraphBuilder
 from tofmetry.reconstruct._preprocess import ViewData, prepare_view
+from tofmetry.reconstruct._range_curve import apply_range_curve, range_curve_m
 from tofmetry.reconstruct._register import register_pair, rejection_reason
 from tofmetry.reconstruct._regview import RegView, make_reg_view
 from tofmetry.reconstruct._segment import Segmentation, segment_object
@@ -221,19 +222,36 @@ class ReconstructionPipeline:
                                     estimate_gain=rc.estimate_depth_gain, gain_prior_sigma=rc.depth_gain_prior,
                                     gain_max_sigma=rc.gain_max_sigma, sigma_inflation=rc.sigma_inflation,
                                     gain_max_abs=None if sg_cal is None else rc.gain_max_calibration_sigmas * sg_cal,
-                                    systematic_m=e_sys * 1e-3)
+                                    systematic_m=e_sys * 1e-3, curve_degree=rc.range_curve_degree,
+                                    curve_prior_m=self._curve_prior_mm() * 1e-3)
             except EstimationError as exc:  # keep the pose-graph poses; the reason goes to the diagnostics
                 self.adjust_failure = str(exc)
                 return None
-        if res.depth_gain != 0.0:
+        curve = res.range_curve_m if res.range_curve_estimated else None
+        if res.depth_gain != 0.0 or curve is not None:
             thr = self.cfg.segment.plane_threshold_mm * 1e-3
+            h = res.range_curve_half_span_m
             for v, s in zip(views, segs):
                 on_plane = None if s.plane is None else np.abs(v.points @ s.plane[:3] + s.plane[3]) < thr
-                v.points = apply_depth_gain(v.points, res.depth_gain, z_ref)
-                v.depth_mm = np.where(v.depth_mm > 0, v.depth_mm + res.depth_gain * (v.depth_mm - z_ref * 1e3), 0.0)
+                p0, d0 = v.points, v.depth_mm
+                v.points = apply_depth_gain(p0, res.depth_gain, z_ref)
+                v.depth_mm = np.where(d0 > 0, d0 + res.depth_gain * (d0 - z_ref * 1e3), 0.0)
+                if curve is not None:  # a function of the measured depth, like the gain
+                    v.points = v.points + apply_range_curve(p0, curve, z_ref, h) - p0
+                    v.depth_mm = np.where(d0 > 0, v.depth_mm + 1e3 * range_curve_m(d0.ravel() * 1e-3, curve, z_ref, h)
+                                          .reshape(d0.shape), 0.0)
                 if on_plane is not None and on_plane.sum() >= 3:  # the support plane moved with its points
                     s.plane = fit_plane_svd(v.points[on_plane], orient=s.plane[:3])
         return res
+
+    def _curve_prior_mm(self) -> float:
+        """Prior standard deviation of the range curve's coefficients [mm]: configured, or the depth
+        calibration's predicted central error between its stations (1 mm without one)."""
+        rc = self.cfg.registration
+        if rc.range_curve_prior_mm is not None:
+            return float(rc.range_curve_prior_mm)
+        e = calibration_central_mm(self.cal.prediction or {}) if self.cal is not None else None
+        return float(e) if e else 1.0
 
     def fuse(self, views, segs, poses, intr):
         fc = self.cfg.fusion
