@@ -71,3 +71,24 @@ def load_intrinsics_option(path: Path | None):
     from tofmetry.io import read_intrinsics
 
     return read_intrinsics(path)
+
+
+#: Help of the ``--board`` option of the commands that take a checkerboard or a ChArUco board.
+BOARD_HELP = "Inner corners COLSxROWS, e.g. 9x6, or 'charuco' (with --squares, --marker-mm, --dictionary)."
+SQUARES_HELP = "ChArUco: squares COLSxROWS (not inner corners)."
+MARKER_HELP = "ChArUco: marker side [mm]."
+DICTIONARY_HELP = "ChArUco: OpenCV ArUco dictionary."
+
+
+def parse_board(board: str, square_mm: float, squares: str, marker_mm: float, dictionary: str):
+    """``(BoardSpec of the inner corners, CharucoBoard or None)`` from the board options of
+    ``calibrate intrinsics``, ``calibrate stereo`` and ``calibrate rig``."""
+    from tofmetry.io.board_dataset import BoardSpec
+
+    if board.strip().lower() != "charuco":
+        return BoardSpec.parse(board, square_mm), None
+    from tofmetry.calibrate import CharucoBoard
+
+    sq = BoardSpec.parse(squares, square_mm)
+    ch = CharucoBoard(sq.size[0], sq.size[1], sq.square_mm, float(marker_mm), dictionary)
+    return BoardSpec.parse(f"{ch.inner[0]}x{ch.inner[1]}", square_mm), ch

@@ -8,7 +8,8 @@ from typing import Optional
 import typer
 
 from tofmetry.cli._common import (
-    ACCEPT_IMPLAUSIBLE_HELP, console, load_intrinsics_option, print_plausibility, progress, refuse_existing,
+    ACCEPT_IMPLAUSIBLE_HELP, BOARD_HELP, DICTIONARY_HELP, MARKER_HELP, SQUARES_HELP, console, load_intrinsics_option,
+    parse_board, print_plausibility, progress, refuse_existing,
 )
 from tofmetry.cli.stereo import rig_cmd, stereo_cmd
 
@@ -117,13 +118,12 @@ def _notes(notes) -> None:
 def intrinsics_cmd(
     images_dir: Path = typer.Argument(..., help="Folder of checkerboard images: 8- or 16-bit grey (PNG, BMP, TIFF, "
                                       "PGM, ...), greyscale stored as colour (BMP, JPEG) or .npy."),
-    board: str = typer.Option(..., "--board", help="Inner corners COLSxROWS, e.g. 9x6, or 'charuco' (with "
-                              "--squares, --marker-mm, --dictionary)."),
+    board: str = typer.Option(..., "--board", help=BOARD_HELP),
     square_mm: float = typer.Option(..., "--square-mm", help="Square size [mm]."),
     output: Path = typer.Option(..., "-o", "--output", help="intrinsics.json to write."),
-    squares: str = typer.Option("13x10", "--squares", help="ChArUco: squares COLSxROWS (not inner corners)."),
-    marker_mm: float = typer.Option(56.0, "--marker-mm", help="ChArUco: marker side [mm]."),
-    dictionary: str = typer.Option("DICT_4X4_100", "--dictionary", help="ChArUco: OpenCV ArUco dictionary."),
+    squares: str = typer.Option("13x10", "--squares", help=SQUARES_HELP),
+    marker_mm: float = typer.Option(56.0, "--marker-mm", help=MARKER_HELP),
+    dictionary: str = typer.Option("DICT_4X4_100", "--dictionary", help=DICTIONARY_HELP),
     yaml: Optional[Path] = typer.Option(None, "--yaml", help="OpenCV YAML export (default: calib_ir.yaml next to "
                                         "the output)."),
     report: Optional[Path] = typer.Option(None, "--report", help="Folder for report JSON + figures "
@@ -141,18 +141,9 @@ def intrinsics_cmd(
     from tofmetry.calibrate import PARAMS
     from tofmetry.pipelines import intrinsics_from_images, write_intrinsics_report
     from tofmetry.io import write_intrinsics
-    from tofmetry.io.board_dataset import BoardSpec
     from tofmetry.io.iai_kinect2 import write_calib_ir
 
-    charuco = None
-    if board.strip().lower() == "charuco":
-        from tofmetry.calibrate import CharucoBoard
-
-        sq = BoardSpec.parse(squares, square_mm)
-        charuco = CharucoBoard(sq.size[0], sq.size[1], sq.square_mm, float(marker_mm), dictionary)
-        spec = BoardSpec.parse(f"{charuco.inner[0]}x{charuco.inner[1]}", square_mm)
-    else:
-        spec = BoardSpec.parse(board, square_mm)
+    spec, charuco = parse_board(board, square_mm, squares, marker_mm, dictionary)
     ypath = yaml or output.with_name("calib_ir.yaml")
     rdir = report or output.with_name(f"{output.stem}_report")
     refuse_existing([output, ypath, rdir], force)

@@ -8,32 +8,19 @@ from typing import Optional
 
 import typer
 
-from tofmetry.cli._common import console, load_intrinsics_option, progress, refuse_existing
-
-_BOARD_HELP = "Inner corners COLSxROWS, e.g. 9x6, or 'charuco' (with --squares, --marker-mm, --dictionary)."
-
-
-def _parse_board(board: str, square_mm: float, squares: str, marker_mm: float, dictionary: str):
-    """``(BoardSpec, CharucoBoard or None)`` from the board options (as ``calibrate intrinsics``)."""
-    from tofmetry.io.board_dataset import BoardSpec
-
-    if board.strip().lower() != "charuco":
-        return BoardSpec.parse(board, square_mm), None
-    from tofmetry.calibrate import CharucoBoard
-
-    sq = BoardSpec.parse(squares, square_mm)
-    ch = CharucoBoard(sq.size[0], sq.size[1], sq.square_mm, float(marker_mm), dictionary)
-    return BoardSpec.parse(f"{ch.inner[0]}x{ch.inner[1]}", square_mm), ch
-
+from tofmetry.cli._common import (
+    BOARD_HELP, DICTIONARY_HELP, MARKER_HELP, SQUARES_HELP, console, load_intrinsics_option, parse_board, progress,
+    refuse_existing,
+)
 
 def stereo_cmd(
     pairs_dir: Path = typer.Argument(..., help="Folder of paired board images NNNN_ir.<ext> and NNNN_color.<ext>."),
-    board: str = typer.Option(..., "--board", help=_BOARD_HELP),
+    board: str = typer.Option(..., "--board", help=BOARD_HELP),
     square_mm: float = typer.Option(..., "--square-mm", help="Square size [mm]."),
     output: Path = typer.Option(..., "-o", "--output", help="Folder for calib_pose.yaml and stereo.json."),
-    squares: str = typer.Option("13x10", "--squares", help="ChArUco: squares COLSxROWS (not inner corners)."),
-    marker_mm: float = typer.Option(56.0, "--marker-mm", help="ChArUco: marker side [mm]."),
-    dictionary: str = typer.Option("DICT_4X4_100", "--dictionary", help="ChArUco: OpenCV ArUco dictionary."),
+    squares: str = typer.Option("13x10", "--squares", help=SQUARES_HELP),
+    marker_mm: float = typer.Option(56.0, "--marker-mm", help=MARKER_HELP),
+    dictionary: str = typer.Option("DICT_4X4_100", "--dictionary", help=DICTIONARY_HELP),
     ir_intrinsics: Optional[Path] = typer.Option(None, "--ir-intrinsics", help="IR intrinsics.json (default: the "
                                                  "sensor profile's typical values)."),
     color_intrinsics: Optional[Path] = typer.Option(None, "--color-intrinsics", help="Colour intrinsics.json "
@@ -47,7 +34,7 @@ def stereo_cmd(
     from tofmetry.pipelines.stereo import list_pairs, stereo_from_images, write_stereo_outputs
     from tofmetry.sensor import get_profile
 
-    spec, charuco = _parse_board(board, square_mm, squares, marker_mm, dictionary)
+    spec, charuco = parse_board(board, square_mm, squares, marker_mm, dictionary)
     refuse_existing([output / "calib_pose.yaml", output / "stereo.json"], force)
     prof = get_profile(sensor)
     ir = load_intrinsics_option(ir_intrinsics) or prof.depth
@@ -71,12 +58,12 @@ def rig_cmd(
     rig_dir: Path = typer.Argument(..., help="Rig folder: one sub-folder per sensor, each with intrinsics.json and "
                                    "board images; the same image name in two sub-folders = the same board pose. The "
                                    "first sub-folder (by name) is the rig frame."),
-    board: str = typer.Option(..., "--board", help=_BOARD_HELP),
+    board: str = typer.Option(..., "--board", help=BOARD_HELP),
     square_mm: float = typer.Option(..., "--square-mm", help="Square size [mm]."),
     output: Path = typer.Option(..., "-o", "--output", help="rig.json to write."),
-    squares: str = typer.Option("13x10", "--squares", help="ChArUco: squares COLSxROWS (not inner corners)."),
-    marker_mm: float = typer.Option(56.0, "--marker-mm", help="ChArUco: marker side [mm]."),
-    dictionary: str = typer.Option("DICT_4X4_100", "--dictionary", help="ChArUco: OpenCV ArUco dictionary."),
+    squares: str = typer.Option("13x10", "--squares", help=SQUARES_HELP),
+    marker_mm: float = typer.Option(56.0, "--marker-mm", help=MARKER_HELP),
+    dictionary: str = typer.Option("DICT_4X4_100", "--dictionary", help=DICTIONARY_HELP),
     force: bool = typer.Option(False, "--force", help="Overwrite the output."),
 ) -> None:
     """Estimate the extrinsics of every sensor of a rig relative to the first (intrinsics held fixed),
@@ -85,7 +72,7 @@ def rig_cmd(
 
     from tofmetry.pipelines.rig import rig_from_folders, write_rig_outputs
 
-    spec, charuco = _parse_board(board, square_mm, squares, marker_mm, dictionary)
+    spec, charuco = parse_board(board, square_mm, squares, marker_mm, dictionary)
     refuse_existing([output], force)
     with progress("detect corners in every sensor's images, calibrate", None) as adv:
         run = rig_from_folders(rig_dir, spec.size, spec.square_mm, advance=adv, charuco=charuco)
