@@ -100,5 +100,16 @@ def test_a_calibration_warning_within_the_error_limit_is_named_as_a_warning():
     e = [_edge("00", "01"), _edge("01", "02"), _edge("00", "02")]
     pred = {"interpolation": {"central_abs_mm": {"predicted": 0.5}}, "warnings": ["242 mm of the range unseen"]}
     v = assess(_names(3), e, {"reasons": [], "loops": []}, calibration_prediction=pred)
-    assert not v["reliable"] and "warns" in v["reasons"][0] and "242 mm" in v["reasons"][0]
-    assert "limit" not in v["reasons"][0]
+    assert v["reliable"] and any("warns" in w and "242 mm" in w for w in v["warnings"])
+
+
+def test_most_views_left_out_or_unchecked_make_the_run_unreliable():
+    e = [_edge("00", "01"), _edge("01", "02")]  # a chain: nothing closes
+    v = assess(_names(3), e, {"reasons": [], "loops": []}, calibration_prediction={})
+    assert not v["reliable"] and "0 of 3" in v["reasons"][0]
+    e = [_edge("00", "01"), _edge("01", "02"), _edge("00", "02")]
+    lo = {f"{k:02d}": "no accepted registration" for k in range(3, 5)}
+    v = assess(_names(3), e, {"reasons": [], "loops": []}, left_out=lo, calibration_prediction={})
+    assert not v["reliable"] and "2 of 5 views left out" in v["reasons"][0]
+    v = assess(_names(3), e, {"reasons": [], "loops": []}, left_out={"03": "x"}, calibration_prediction={})
+    assert v["reliable"] and any("left out" in w for w in v["warnings"])

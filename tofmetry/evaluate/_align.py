@@ -63,7 +63,9 @@ def align_to_reference(model_pts: np.ndarray, ref_pts: np.ndarray, ref_nrm: np.n
         radius, 5 mm voxel clouds, 15 iterations) and only the best ``screen_keep`` get the full
         first stage (measured on the simulated balustrade with the support-plane prior: 16
         candidates, ICP time 20 s -> ~7 s, same alignment within 0.1 mm); if the screened alignment
-        fails, it is retried without screening and with at least 3 RANSAC runs
+        fails, it is retried without screening and with at least 3 RANSAC runs. The candidates left
+        go through every ICP stage and are ranked at the finest: at the widest radius a bent bar
+        turned end for end matched 96 % of the model, as many as the right pose (measured)
 
     Raises
     ------
@@ -106,18 +108,17 @@ def align_to_reference(model_pts: np.ndarray, ref_pts: np.ndarray, ref_nrm: np.n
         scored.sort(key=lambda sk: sk[0], reverse=True)
         candidates = [candidates[k] for _, k in scored[:screen_keep]]
     best = None
-    for T in candidates:  # first (widest) stage on every remaining candidate, keep the best
-        m = icp(m_fine, r_fine, r_nrm, T, icp_radii_mm[0] * 1e-3, max_iter=30)
+    for T0 in candidates:  # every remaining candidate through all the stages; the best at the finest wins
+        m = icp(m_fine, r_fine, r_nrm, T0, icp_radii_mm[0] * 1e-3, max_iter=30)
+        st = [{"max_dist_mm": icp_radii_mm[0], "fitness": m.fitness, "inlier_rmse_mm": m.inlier_rmse_m * 1e3}]
+        for r in icp_radii_mm[1:]:
+            m = icp(m_fine, r_fine, r_nrm, m.transform, r * 1e-3, max_iter=30)
+            st.append({"max_dist_mm": r, "fitness": m.fitness, "inlier_rmse_mm": m.inlier_rmse_m * 1e3})
         sc = score(m)
         if best is None or sc > best[0]:
-            best = (sc, m, T)
-    _, m, T_init = best
-    stages = [{"max_dist_mm": icp_radii_mm[0], "fitness": m.fitness, "inlier_rmse_mm": m.inlier_rmse_m * 1e3}]
+            best = (sc, m, T0, st)
+    _, m, T_init, stages = best
     T = m.transform
-    for r in icp_radii_mm[1:]:
-        m = icp(m_fine, r_fine, r_nrm, T, r * 1e-3, max_iter=30)
-        T = m.transform
-        stages.append({"max_dist_mm": r, "fitness": m.fitness, "inlier_rmse_mm": m.inlier_rmse_m * 1e3})
     if coarse:
         coarse_T = T_init
     res = AlignmentResult(T, coarse_T, stages[-1]["fitness"], stages[-1]["inlier_rmse_mm"], stages)

@@ -113,6 +113,8 @@ class AdjustResult:
     range_curve_half_span_m: float = float("nan")
     range_curve_prior_m: float = float("nan")
     range_curve_estimated: bool = False
+    gain_refused: float = float("nan")
+    gain_max_abs: float = float("nan")
     range_curve_note: str = ""
 
     def range_curve_report(self) -> dict | None:
@@ -141,6 +143,7 @@ class AdjustResult:
                 "converged": bool(self.converged), "gain_estimated": bool(self.gain_estimated),
                 "gain_sigma_data": float(self.gain_sigma_data),
                 "gain_sigma_systematic": float(self.gain_sigma_systematic), "gain_note": self.gain_note,
+                "gain_refused": float(self.gain_refused), "gain_max_abs": float(self.gain_max_abs),
                 "range_curve": self.range_curve_report(),
                 "rms_mm": [round(float(x), 4) for x in self.rms_mm],
                 "moved_deg": {n: round(float(x), 4) for n, x in zip(names, self.moved_deg)},
@@ -456,6 +459,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                               curve_degree=curve_degree, curve_prior_m=curve_prior_m,
                               curve_half_span_m=curve_half_span_m)
         fixed.gain_sigma_data, fixed.gain_sigma_systematic = sigma_data, sigma_sys
+        fixed.gain_refused, fixed.gain_max_abs = float(g), float(gain_max_abs)
         fixed.gain_note = (f"implausible: the views ask for {100 * g:+.2f} % (+-{100 * sigma_data:.2f} %), beyond the "
                            f"+-{100 * gain_max_abs:.2f} % the depth calibration can leave; kept at 0")
         return fixed

@@ -83,6 +83,14 @@ class RegistrationConfig(BaseModel):
     ir_yaw: bool = Field(True, description="where the overlap of two views leaves the rotation about the vertical free "
                          "(a surface of revolution), choose it by the IR amplitude: the relative albedo of the matched "
                          "points must agree (a painted pattern); see tofmetry.reconstruct._photometric")
+    ir_icp: bool = Field(True, description="refine each accepted pairwise registration once more with the IR albedo as a "
+                         "photometric term (coloured ICP) and keep it where it matches more of the object: a painted "
+                         "pattern fixes the slide the geometry leaves free (measured on a bent bar: 1.2-2.8 deg edge "
+                         "errors down to 0.2-0.4 deg); needs IR frames")
+    ir_icp_lambda: float = Field(0.968, gt=0, le=1, description="weight of the geometric term in the photometric ICP "
+                                 "(Open3D's default; 1 = geometry only)")
+    ir_icp_min_gain: float = Field(0.002, ge=0, description="the photometric result is kept when its object fitness "
+                                   "beats the geometric one's by more than this")
     yaw_free_ratio: float = Field(0.15, gt=0, description="an edge whose yaw stiffness is below this share of its tilt "
                                   "stiffness is yaw free (registration_conditioning: 0.01-0.06 measured on a vase, "
                                   "0.9-2.7 on a bunny and a head)")
@@ -138,9 +146,14 @@ class RegistrationConfig(BaseModel):
                                    "(neighbouring points of a view share their depth error: ~25 px patches per "
                                    "independent sample)")
     max_calibration_mm: float = Field(1.5, gt=0, description="a depth calibration that predicts a larger central error "
-                                      "between its stations (or warns) makes the run unreliable [mm]")
+                                      "between its stations makes the run unreliable (a calibration that only doubts its prediction "
+                                      "is a warning) [mm]")
     pose_gate_deg: float = Field(0.5, gt=0, description="pose accuracy the verdict vouches for: rotation [deg]")
     pose_gate_mm: float = Field(3.0, gt=0, description="... and displacement of the object [mm]")
+    max_left_out: float = Field(0.25, ge=0, le=1, description="more than this share of the views left out of the "
+                                "model (no registration links them) makes the run unreliable; fewer are a warning")
+    min_verified: float = Field(0.5, ge=0, le=1, description="with 3 or more registered views, fewer than this share "
+                                "of them on a closed loop of the view graph makes the run unreliable")
     seed: int = 0
 
 

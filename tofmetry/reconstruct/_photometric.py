@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from tofmetry.reconstruct._o3d import colored_icp
 from tofmetry.sensor import CameraIntrinsics
 
 
@@ -142,3 +143,34 @@ def ir_yaw_sweep(src, tgt, T: np.ndarray, radius_m: float, min_corr: float = 0.5
     if decided:
         out["transform"] = _rot_about(axis, up, best_deg) @ T
     return out
+
+
+def albedo_intensity(log_alb: np.ndarray) -> np.ndarray:
+    """Relative log albedo (:func:`log_albedo`) -> an intensity in [0, 1] for the photometric ICP
+    (0.5 at the view's median; the two paints of a painted object, a factor 3 apart, 0.27 apart)."""
+    return np.clip(0.5 + 0.25 * np.asarray(log_alb, np.float64), 0.0, 1.0)
+
+
+def photometric_icp(src, tgt, T: np.ndarray, radii_m: tuple[float, ...], lambda_geometric: float = 0.968) -> np.ndarray:
+    """Refine a registration with the IR albedo as a photometric term (:func:`~tofmetry.reconstruct._o3d.colored_icp`).
+
+    Where the geometry leaves a slide free (a bar of constant section, a cylinder), a painted or
+    printed pattern still fixes it. The caller keeps the result only where it matches more of the
+    object (:func:`~tofmetry.reconstruct._regview.object_fitness`) than the geometric one: on a plain
+    object the intensity carries nothing but noise and reflections.
+
+    Parameters
+    ----------
+    src, tgt : RegView with ``icp_ir`` (source and target ICP clouds, target normals)
+    T : (4, 4) the geometric registration, source -> target
+    radii_m : correspondence radii, coarse to fine [m]
+
+    Returns
+    -------
+    (4, 4) refined source -> target transform
+    """
+    a, b = albedo_intensity(src.icp_ir), albedo_intensity(tgt.icp_ir)
+    for r in radii_m:
+        T = colored_icp(src.icp_points, a, tgt.icp_points, tgt.icp_normals, b, T, r, lambda_geometric).transform
+    return T
+

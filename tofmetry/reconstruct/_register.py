@@ -20,7 +20,7 @@ from scipy.spatial import cKDTree
 
 from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.reconstruct._config import RegistrationConfig
-from tofmetry.reconstruct._photometric import ir_yaw_sweep
+from tofmetry.reconstruct._photometric import ir_yaw_sweep, photometric_icp
 from tofmetry.reconstruct._o3d import (
     global_register,
     icp,
@@ -228,6 +228,19 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
         out.append(PairResult(i, j, T, fit, rmse * 1e3, info, method, ok,
                               conditioning=registration_conditioning(src, tgt, T, r_final), see_through=v))
     best = out[0]
+    if cfg.ir_icp and best.accepted and src.icp_ir is not None and tgt.icp_ir is not None:
+        # the IR albedo as a photometric term, kept where it matches more of the object
+        T = photometric_icp(src, tgt, best.transform, tuple(x * 1e-3 for x in cfg.icp_radii_mm[-2:]),
+                            cfg.ir_icp_lambda)
+        fit, rmse = object_fitness(src, tgt, T, r_final)
+        v = vis(T)
+        if (fit > best.fitness + cfg.ir_icp_min_gain and _passes(fit, rmse, cfg) and v <= cfg.max_see_through
+                and plane_consistent(src, tgt, T)):
+            best = PairResult(i, j, T, fit, rmse * 1e3, information_matrix(src.icp_points, tgt.icp_points, r_final, T,
+                                                                           tgt.icp_normals),
+                              best.method + "+ir-icp", True, conditioning=registration_conditioning(src, tgt, T, r_final),
+                              see_through=v)
+            out = [best] + out[1:]
     yr = (best.conditioning or {}).get("yaw_ratio")
     if cfg.ir_yaw and yr is not None and yr < cfg.yaw_free_ratio and src.obj_ir is not None and tgt.icp_ir is not None:
         # the geometry leaves the yaw free: let the painted pattern (IR amplitude) choose it
