@@ -205,3 +205,41 @@ def test_shifted_yaw_seeds_keep_the_support_plane():
     assert all(plane_consistent(v, v, T, 0.01, 0.01) for T in seeds)
     shifts = {round(float(np.linalg.norm(T[:3, 3] - seeds[0][:3, 3])), 6) for T in seeds[:8]}
     assert len(shifts) > 1  # the 8 seeds of one yaw differ by in-plane shifts
+
+
+def test_the_ir_albedo_decides_between_flips_the_geometry_cannot_tell_apart():
+    # as above (two indistinguishable flips), but the object is painted: the true hypotheses line
+    # the albedo pattern up (correlation 0.8), the turned-over ones do not (0.1); the selection takes
+    # the flips' alternatives only where the IR says so, and the run is no longer ambiguous
+    from dataclasses import replace
+
+    P = _circle_poses(6)
+    for flipped_primary in (False, True):
+        pg = PoseGraphBuilder(6, [f"{k:02d}" for k in range(6)])
+        for i in range(5):
+            if i in (1, 3):
+                true, flip = replace(_edge(P, i, i + 1, 0.9), ir_corr=0.8), replace(_flipped_alt(P, i, i + 1, 0.9),
+                                                                                      ir_corr=0.1)
+                a, b = (flip, true) if flipped_primary else (true, flip)
+                pg.add(replace(a, alternatives=[b]))
+            else:
+                pg.add(replace(_edge(P, i, i + 1), ir_corr=0.8))
+        pg.add(replace(_edge(P, 0, 5), ir_corr=0.8))
+        rep = pg.select_hypotheses(2.0, 10.0, 0.05)
+        assert not rep["reasons"] and rep["decided_by_ir"]["n_tied"] == 2, rep
+        res = pg.optimize(0.003)
+        for k in range(6):
+            np.testing.assert_allclose(res.poses[k], np.linalg.inv(P[0]) @ P[k], atol=1e-6)
+
+
+def test_without_albedo_contrast_the_flips_stay_ambiguous():
+    from dataclasses import replace
+
+    P = _circle_poses(6)
+    pg = PoseGraphBuilder(6, [f"{k:02d}" for k in range(6)])
+    for i in range(5):
+        alts = [replace(_flipped_alt(P, i, i + 1, 0.9), ir_corr=None)] if i in (1, 3) else []
+        pg.add(_edge(P, i, i + 1, 0.9, alts=alts))
+    pg.add(_edge(P, 0, 5))
+    rep = pg.select_hypotheses(2.0, 10.0, 0.05)
+    assert any("registration ambiguous" in r for r in rep["reasons"]) and "decided_by_ir" not in rep

@@ -133,11 +133,13 @@ def _surface_samples(g: Geometry, spacing_m: float, seed: int, what: str):
     return g.points, g.normals
 
 
-def _ground_prior(plane: np.ndarray, mod_s: np.ndarray, ref_s: np.ndarray, up: np.ndarray, yaw_step_deg: float = 30.0,
+def _ground_prior(plane: np.ndarray, mod_s: np.ndarray, ref_s: np.ndarray, up: np.ndarray, yaw_step_deg: float = 10.0,
                   max_deg: float = 10.0, max_mm: float = 15.0):
     """Coarse candidates and an acceptance test from the support plane: the model's support plane
     (poses.json, model frame, normal up) maps onto the reference ground (normal ``up``, through the
-    lowest reference point), at yaw steps about ``up``, centroids matched in the plane."""
+    lowest reference point), at yaw steps about ``up``, centroids matched in the plane. The step is
+    10 deg: at 30 deg the ends of a 0.32 m bar started up to 40 mm from the reference, beyond the
+    first ICP radius, and the alignment settled 2 deg / 20 mm off half of the runs (measured)."""
     up = up / max(np.linalg.norm(up), 1e-12)
     n, d = plane[:3] / np.linalg.norm(plane[:3]), plane[3]
     v, c = np.cross(n, up), float(n @ up)

@@ -84,13 +84,17 @@ class RegistrationConfig(BaseModel):
                          "(a surface of revolution), choose it by the IR amplitude: the relative albedo of the matched "
                          "points must agree (a painted pattern); see tofmetry.reconstruct._photometric")
     ir_icp: bool = Field(True, description="refine each accepted pairwise registration once more with the IR albedo as a "
-                         "photometric term (coloured ICP) and keep it where it matches more of the object: a painted "
-                         "pattern fixes the slide the geometry leaves free (measured on a bent bar: 1.2-2.8 deg edge "
-                         "errors down to 0.2-0.4 deg); needs IR frames")
+                         "photometric term (coloured ICP), kept where the albedo pattern lines up clearly better "
+                         "(ir_icp_min_corr, ir_icp_min_gain) and the geometry matches as well: a painted pattern fixes "
+                         "the slide the geometry leaves free (measured on a bent bar: edges 1.2-2.8 deg off came to "
+                         "0.2-0.5 deg); needs IR frames")
     ir_icp_lambda: float = Field(0.968, gt=0, le=1, description="weight of the geometric term in the photometric ICP "
                                  "(Open3D's default; 1 = geometry only)")
-    ir_icp_min_gain: float = Field(0.002, ge=0, description="the photometric result is kept when its object fitness "
-                                   "beats the geometric one's by more than this")
+    ir_icp_min_corr: float = Field(0.3, ge=-1, le=1, description="the photometric result is kept only where the matched "
+                                   "points' albedos correlate at least this much (a pattern both views see; measured: "
+                                   "0.80-0.86 on a painted bar at the true poses, below 0.06 on a plain object)")
+    ir_icp_min_gain: float = Field(0.03, ge=0, description="... and where that correlation rose by at least this "
+                                   "(measured: +0.06 to +0.33 on edges that had slid, at most +0.03 on correct ones)")
     yaw_free_ratio: float = Field(0.15, gt=0, description="an edge whose yaw stiffness is below this share of its tilt "
                                   "stiffness is yaw free (registration_conditioning: 0.01-0.06 measured on a vase, "
                                   "0.9-2.7 on a bunny and a head)")

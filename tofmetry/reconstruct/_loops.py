@@ -118,7 +118,8 @@ def _poses_differ(A: np.ndarray, B: np.ndarray, max_deg: float, max_mm: float) -
 
 
 def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg: float = 2.0, max_mm: float = 10.0,
-                      margin: float = 0.05, max_combos: int = 1024) -> tuple[list[PairResult], dict]:
+                      margin: float = 0.05, max_combos: int = 1024, ir_min_corr: float = 0.3,
+                      ir_margin: float = 0.2) -> tuple[list[PairResult], dict]:
     """Multi-view choice between the registration hypotheses of every edge.
 
     A nearly symmetric object matches itself turned over: an edge may have several hypotheses that
@@ -132,7 +133,10 @@ def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg
 
     * no selection closes every loop (the gate reports the failing loops);
     * another closing selection with different poses scores within ``margin`` (summed fitness):
-      the geometry cannot decide ("registration ambiguous");
+      the geometry cannot decide ("registration ambiguous") -- unless the IR albedo does: among the
+      tied selections, one whose edges' albedo correlation (``PairResult.ir_corr``), averaged over
+      the edges where it differs from each other tied selection, reaches ``ir_min_corr`` and beats
+      the other's by ``ir_margin`` is taken (``report["decided_by_ir"]``);
     * an edge had to be dropped and no loop is left to verify the rest;
     * an edge between non-successive views is the only link between two parts of the graph
       (no loop verifies it).
@@ -182,10 +186,17 @@ def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg
     score, combo, poses, n_loops = consistent[0]
     report["resolved"] = True
     report["n_loops"] = n_loops
-    for s2, c2, p2, _ in consistent[1:]:
-        if s2 >= score - margin and _poses_differ(poses, p2, max_deg, max_mm):
-            diff = [f"{names[pairs[acc[m]].source]}->{names[pairs[acc[m]].target]}" for m in range(len(acc)) if c2[m] != combo[m]]
-            report["ambiguous_with"].append({"score_difference": round(score - s2, 4), "edges": diff})
+    tied = [c for c in consistent[1:] if c[0] >= score - margin and _poses_differ(poses, c[2], max_deg, max_mm)]
+    if tied:  # the geometry cannot decide: the IR albedo may (a painted pattern lines up at one pose only)
+        pick = _ir_decides([consistent[0]] + tied, opts, max_deg, max_mm, ir_min_corr, ir_margin)
+        if pick is not None:
+            report["decided_by_ir"] = {"geometric_choice_changed": pick[1] != combo,
+                                       "fitness_given_up": round(score - pick[0], 4), "n_tied": len(tied) + 1}
+            score, combo, poses, n_loops = pick
+            tied = []
+    for s2, c2, p2, _ in tied:
+        diff = [f"{names[pairs[acc[m]].source]}->{names[pairs[acc[m]].target]}" for m in range(len(acc)) if c2[m] != combo[m]]
+        report["ambiguous_with"].append({"score_difference": round(score - s2, 4), "edges": diff})
     out = list(pairs)
     for m, c in enumerate(combo):
         p = pairs[acc[m]]
@@ -218,3 +229,33 @@ def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg
         report["reasons"].append(f"edge(s) {', '.join(report['dropped'])} contradict the chain of successive views and "
                                  "were dropped; no closed loop is left to verify the registration")
     return out, report
+
+
+def _ir_decides(tied: list, opts: list, max_deg: float, max_mm: float, min_corr: float, margin: float):
+    """The one selection of ``tied`` [(score, combo, poses, n_loops)] that the IR albedo prefers to
+    every other with different poses (see :func:`select_hypotheses`), or None."""
+    def corr(m, c):
+        h = opts[m][c]
+        return None if h is None else h.ir_corr
+
+    winners = []
+    for a in tied:
+        ok = True
+        for b in tied:
+            if b is a or not _poses_differ(a[2], b[2], max_deg, max_mm):
+                continue
+            diff = [m for m in range(len(opts)) if a[1][m] != b[1][m]]
+            ca = [corr(m, a[1][m]) for m in diff]
+            cb = [corr(m, b[1][m]) for m in diff]
+            if not diff or any(x is None for x in ca):  # a dropped edge or no albedo contrast: no evidence
+                ok = False
+                break
+            ma = float(np.mean(ca))
+            mb = float(np.mean([0.0 if x is None else x for x in cb]))
+            if ma < min_corr or ma - mb < margin:
+                ok = False
+                break
+        if ok:
+            winners.append(a)
+    return winners[0] if len(winners) == 1 else None
+

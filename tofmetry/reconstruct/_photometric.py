@@ -174,3 +174,21 @@ def photometric_icp(src, tgt, T: np.ndarray, radii_m: tuple[float, ...], lambda_
         T = colored_icp(src.icp_points, a, tgt.icp_points, tgt.icp_normals, b, T, r, lambda_geometric).transform
     return T
 
+
+def ir_agreement(src, tgt, T: np.ndarray, radius_m: float, min_points: int = 200) -> float | None:
+    """Correlation of the relative log IR albedo of the source object points and the target points
+    they match under ``T`` (within ``radius_m``): near 1 where a painted pattern lines up, near 0
+    on a plain object or a wrong pose. None without IR, with fewer than ``min_points`` matches or
+    with no albedo contrast (nothing to compare)."""
+    if src.obj_ir is None or tgt.icp_ir is None:
+        return None
+    p = src.obj_points @ T[:3, :3].T + T[:3, 3]
+    d, idx = tgt.tree.query(p, distance_upper_bound=radius_m, workers=-1)
+    ok = np.isfinite(d)
+    if ok.sum() < min_points:
+        return None
+    a, b = src.obj_ir[ok], tgt.icp_ir[idx[ok]]
+    if a.std() < 1e-6 or b.std() < 1e-6:
+        return None
+    return float(np.corrcoef(a, b)[0, 1])
+

@@ -20,7 +20,7 @@ from scipy.spatial import cKDTree
 
 from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.reconstruct._config import RegistrationConfig
-from tofmetry.reconstruct._photometric import ir_yaw_sweep, photometric_icp
+from tofmetry.reconstruct._photometric import ir_agreement, ir_yaw_sweep, photometric_icp
 from tofmetry.reconstruct._o3d import (
     global_register,
     icp,
@@ -106,6 +106,8 @@ class PairResult:
     see_through : :func:`visibility_violation` of the transform (share of points seen through)
     ir_yaw : the photometric yaw search of a yaw-free edge (:func:`~tofmetry.reconstruct._photometric.ir_yaw_sweep`:
         correlation of the best yaw, its margin over the next, whether it decided) or None
+    ir_corr : correlation of the matched points' IR albedos under ``transform``
+        (:func:`~tofmetry.reconstruct._photometric.ir_agreement`), or None without IR or contrast
     """
 
     source: int
@@ -120,6 +122,7 @@ class PairResult:
     conditioning: dict | None = None
     see_through: float = 0.0
     ir_yaw: dict | None = None
+    ir_corr: float | None = None
 
     def to_dict(self, names: list[str]) -> dict:
         d = {"source": names[self.source], "target": names[self.target], "fitness": round(self.fitness, 4),
@@ -131,6 +134,8 @@ class PairResult:
             d["conditioning"] = self.conditioning
         if self.ir_yaw is not None:
             d["ir_yaw"] = self.ir_yaw
+        if self.ir_corr is not None:
+            d["ir_corr"] = round(self.ir_corr, 4)
         return d
 
     def with_hypothesis(self, alt: PairResult) -> PairResult:
@@ -138,9 +143,10 @@ class PairResult:
         rest = [a for a in self.alternatives if a is not alt]
         old = PairResult(self.source, self.target, self.transform, self.fitness, self.inlier_rmse_mm, self.information,
                          self.method, self.accepted, conditioning=self.conditioning, see_through=self.see_through,
-                         ir_yaw=self.ir_yaw)
+                         ir_yaw=self.ir_yaw, ir_corr=self.ir_corr)
         return PairResult(self.source, self.target, alt.transform, alt.fitness, alt.inlier_rmse_mm, alt.information,
-                          alt.method, alt.accepted, [old] + rest, alt.conditioning, alt.see_through, alt.ir_yaw)
+                          alt.method, alt.accepted, [old] + rest, alt.conditioning, alt.see_through, alt.ir_yaw,
+                          alt.ir_corr)
 
 
 def _refine_mid(src: RegView, tgt: RegView, init: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:
@@ -228,13 +234,17 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
         out.append(PairResult(i, j, T, fit, rmse * 1e3, info, method, ok,
                               conditioning=registration_conditioning(src, tgt, T, r_final), see_through=v))
     best = out[0]
-    if cfg.ir_icp and best.accepted and src.icp_ir is not None and tgt.icp_ir is not None:
-        # the IR albedo as a photometric term, kept where it matches more of the object
+    c0 = ir_agreement(src, tgt, best.transform, r_final) if cfg.ir_icp and best.accepted else None
+    if c0 is not None and c0 >= 0.5 * cfg.ir_icp_min_corr:  # no pattern at all (a plain object): not tried
+        # the IR albedo as a photometric term, kept where the pattern lines up clearly better and the
+        # geometry matches as well (the object fitness within its noise, 0.005)
         T = photometric_icp(src, tgt, best.transform, tuple(x * 1e-3 for x in cfg.icp_radii_mm[-2:]),
                             cfg.ir_icp_lambda)
         fit, rmse = object_fitness(src, tgt, T, r_final)
+        c1 = ir_agreement(src, tgt, T, r_final)
         v = vis(T)
-        if (fit > best.fitness + cfg.ir_icp_min_gain and _passes(fit, rmse, cfg) and v <= cfg.max_see_through
+        if (c1 is not None and c1 >= cfg.ir_icp_min_corr and c1 - c0 >= cfg.ir_icp_min_gain
+                and fit >= best.fitness - 0.005 and _passes(fit, rmse, cfg) and v <= cfg.max_see_through
                 and plane_consistent(src, tgt, T)):
             best = PairResult(i, j, T, fit, rmse * 1e3, information_matrix(src.icp_points, tgt.icp_points, r_final, T,
                                                                            tgt.icp_normals),
@@ -253,10 +263,18 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
             best = PairResult(i, j, T, fit, rmse * 1e3, information_matrix(src.icp_points, tgt.icp_points, r_final, T, tgt.icp_normals),
                               best.method + "+ir-yaw", ok, conditioning=registration_conditioning(src, tgt, T, r_final),
                               see_through=v, ir_yaw=sw)
-            return replace(best, alternatives=[a for a in out if not _same_pose(a.transform, T)])
+            return _with_ir(replace(best, alternatives=[a for a in out if not _same_pose(a.transform, T)]), src, tgt,
+                            r_final)
         sw.pop("transform", None)
         best = replace(best, ir_yaw=sw)
-    return replace(best, alternatives=out[1:])
+    return _with_ir(replace(best, alternatives=out[1:]), src, tgt, r_final)
+
+
+def _with_ir(p: PairResult, src: RegView, tgt: RegView, radius_m: float) -> PairResult:
+    """``p`` and its alternatives with their IR agreement (:func:`ir_agreement`)."""
+    return replace(p, ir_corr=ir_agreement(src, tgt, p.transform, radius_m),
+                   alternatives=[replace(a, ir_corr=ir_agreement(src, tgt, a.transform, radius_m))
+                                 for a in p.alternatives])
 
 
 def _search(src: RegView, tgt: RegView, cfg: RegistrationConfig, coarse: list, cands: list, key, vis) -> None:

@@ -154,6 +154,10 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
         reasons.append(f"the loops close only to {2 * b_deg:.2f} deg / {2 * b_mm:.1f} mm at the object; spread over "
                        f"their edges this leaves up to ~{b_deg:.2f} deg / {b_mm:.1f} mm on a view (limit "
                        f"{pose_gate_deg:g} deg / {pose_gate_mm:g} mm): the views disagree (depth-calibration residual?)")
+    if sel.get("decided_by_ir"):
+        warnings.append("the geometry alone left the registration ambiguous (the object looks alike from different "
+                        f"sides: {sel['decided_by_ir']['n_tied']} choices closed every loop); the IR albedo pattern "
+                        "decided between them")
     if adjustment is not None and "failed" in adjustment:
         reasons.append(f"the global adjustment failed ({adjustment['failed']}); the pose-graph poses are not refined")
     implausible = adjustment is not None and (adjustment.get("gain_note") or "").startswith("implausible")
