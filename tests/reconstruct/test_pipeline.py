@@ -55,6 +55,8 @@ def test_registration_ideal_sensor(ideal_scan, tmp_path):
     assert all(v["verdict"]["verdict"] == "verified" for v in d["views"])
     p = read_ply(tmp_path / "rec" / "points.ply")
     assert "normals" in p and len(p["points"]) > 1000
+    # no colour frames: no colour, no colour flag, nothing reported (as before colour existed)
+    assert "colors" not in p and "colored" not in p and d["color"] is None and res.colours is None
     m = read_ply(tmp_path / "rec" / "mesh.ply")
     assert len(m["faces"]) > 1000
     with pytest.raises(InputError, match="already exists"):

@@ -142,3 +142,34 @@ def test_checkerboard_images_detectable(tmp_path):
         # anti-aliased rendering: the detector lands within a fraction of a pixel of the truth
         assert err < 0.3
     assert found >= 3
+
+
+def test_scan_with_colour_from_the_cli(tmp_path):
+    """``simulate scan --color``: one colour frame per view, rendered from the colour camera's own
+    viewpoint, with its calibration beside the frames and in the truth; without it, no colour."""
+    from typer.testing import CliRunner
+
+    from tofmetry.cli import app
+    from tofmetry.io.colour_calibration import capture_colour_calibration
+    from tofmetry.simulate import ColourCamera
+
+    r = CliRunner().invoke(app, ["simulate", "scan", "-o", str(tmp_path / "c"), "--views", "2", "--frames", "2",
+                                 "--color", "--no-errors"])
+    assert r.exit_code == 0, r.output
+    ds = ScanDataset(tmp_path / "c")
+    truth = json.loads((tmp_path / "c" / "truth.json").read_text())
+    cam = ColourCamera.from_dict(truth["color_camera"])
+    default = ColourCamera(noise_dn=2.0)
+    assert cam.intrinsics == default.intrinsics and cam.noise_dn == 2.0 and cam.exposure == default.exposure
+    np.testing.assert_allclose(cam.ir_to_color.matrix, default.ir_to_color.matrix)
+    for k in range(2):
+        cap = ds[k]
+        assert cap.has_color and len(cap.color_files) == 1 and len(cap) == 2
+        img = cap.color(1)  # every frame reads the view's colour frame
+        assert img.shape == (1080, 1920, 3) and img[..., 0].mean() > img[..., 2].mean()  # a red object on grey ground
+        intr, ext, src = capture_colour_calibration(cap)
+        assert src == "capture" and intr == cam.intrinsics
+        np.testing.assert_allclose(ext.matrix, cam.ir_to_color.matrix)
+    with pytest.raises(InputError, match="ColourCamera"):
+        datasets.scan(tmp_path / "bad", n_views=1, n_frames=1, color="yes")
+    assert not Capture(datasets.scan(tmp_path / "plain", n_views=1, n_frames=1) / "views" / "00").has_color

@@ -1,4 +1,5 @@
-"""CLI commands: ``reconstruct`` (scan folder -> mesh) and ``evaluate`` (model vs reference)."""
+"""CLI commands: ``reconstruct`` (scan folder -> mesh; ``--rig``: one capture per sensor of a rig, fused in
+the rig frame), ``evaluate`` (model vs reference) and ``plan``."""
 
 from __future__ import annotations
 
@@ -34,6 +35,15 @@ def reconstruct(
     depth_gain: bool = typer.Option(True, "--depth-gain/--no-depth-gain",
                                     help="Let the global adjustment estimate a depth gain g (z -> z + g (z - z_ref)): the "
                                     "range-dependent residual a few-station depth calibration leaves over the object's depth."),
+    rig: Path | None = typer.Option(None, "--rig", help="rig.json (tofmetry calibrate rig): the scan holds one capture per "
+                                    "sensor, views/<sensor name>/; they are fused at the rig's poses (no registration) "
+                                    "into a model in the rig frame (sensor 0's camera frame)."),
+    sensor_calibration: list[str] | None = typer.Option(
+        None, "--sensor-calibration", help="With --rig: NAME=FILE, the depth calibration of sensor NAME (repeatable; "
+        "sensors without one use raw depth)."),
+    color: bool = typer.Option(True, "--color/--no-color", help="Colour the model from the views' colour frames when "
+                               "they have them (occlusion-aware: points no colour camera sees get no colour, flagged "
+                               "'colored' 0 in the PLYs)."),
     force: bool = typer.Option(False, "--force", help="Replace an existing output folder."),
     allow_unreliable: bool = typer.Option(
         False, "--allow-unreliable", help="Exit 0 even when the pose-graph consistency gate flags the registration "
@@ -44,7 +54,16 @@ def reconstruct(
     from tofmetry.pipelines.reconstruct import reconstruct_scan
     from tofmetry.reconstruct import ReconstructionConfig
 
-    if (calibration is None) == (not no_calibration):
+    if rig is not None:
+        if calibration is not None or amplitude_reference is not None:
+            raise InputError("--rig: pass the depth calibrations per sensor (--sensor-calibration NAME=FILE), not "
+                             "--calibration; --amplitude-reference is not available with --rig")
+        if no_calibration == bool(sensor_calibration):
+            raise InputError("--rig: pass either --sensor-calibration NAME=FILE (repeatable) or --no-calibration (raw "
+                             "depth), not both / not neither")
+    elif sensor_calibration:
+        raise InputError("--sensor-calibration needs --rig (a single sensor's scan takes --calibration FILE)")
+    elif (calibration is None) == (not no_calibration):
         raise InputError("pass either --calibration FILE or --no-calibration (raw depth), not both / not neither")
     refuse_existing(output, force)
     cfg = ReconstructionConfig()
@@ -55,6 +74,10 @@ def reconstruct(
     cfg.preprocess.amplitude_k_mm_per_ln = amplitude_k
     cfg.registration.global_adjust = global_adjust
     cfg.registration.estimate_depth_gain = depth_gain
+    cfg.color = color
+    if rig is not None:
+        _reconstruct_rig(scan_dir, rig, sensor_calibration or [], output, cfg, force, allow_unreliable)
+        return
     console.print(f"scan {scan_dir}; calibration: {calibration or 'none (raw depth)'}")
     res = reconstruct_scan(scan_dir, calibration, output, config=cfg, amplitude_wall=amplitude_reference,
                            amplitude_max_mm=amplitude_max_mm, force=force, progress=progress)
@@ -83,6 +106,7 @@ def reconstruct(
     f = res.diagnostics["fusion"]
     console.print(f"TSDF voxel {f['voxel_mm']:.2f} mm, truncation {f['trunc_mm']:.2f} mm; mesh {len(res.mesh_vertices)} "
                   f"vertices / {len(res.mesh_triangles)} triangles; cloud {len(res.points)} points")
+    _print_colour(res.diagnostics.get("color"))
     adj = res.diagnostics.get("adjustment")
     if adj and "failed" in adj:
         console.print(f"[yellow]global adjustment failed ({adj['failed']}); the pose-graph poses are used[/yellow]")
@@ -97,7 +121,8 @@ def reconstruct(
     console.print(f"world frame: {(res.diagnostics.get('world') or {}).get('frame', '')}")
     tm = res.diagnostics["timings_s"]
     console.print(f"wrote {output} in {tm['total_s']:.1f} s (views {tm['views_s']:.1f}, registration "
-                  f"{tm['registration_s']:.1f}, adjustment {tm['adjustment_s']:.1f}, fusion {tm['fusion_s']:.1f}, meshing {tm['meshing_s']:.1f})")
+                  f"{tm['registration_s']:.1f}, adjustment {tm['adjustment_s']:.1f}, fusion {tm['fusion_s']:.1f}, meshing {tm['meshing_s']:.1f}"
+                  + (f", colour {tm['color_s']:.1f})" if res.diagnostics.get("color") else ")"))
     cons = res.diagnostics.get("consistency") or {}
     if cons.get("cycle_closure_mm") is not None:
         console.print(f"consistency: view circle closes to {cons['cycle_closure_deg']:.2f} deg / {cons['cycle_closure_mm']:.1f} mm "
@@ -115,6 +140,68 @@ def reconstruct(
                       "warns about its own error.")
         if not allow_unreliable:
             raise typer.Exit(3)
+
+
+def _reconstruct_rig(scan_dir: Path, rig: Path, sensor_calibration: list[str], output: Path, cfg, force: bool,
+                     allow_unreliable: bool) -> None:
+    """``reconstruct --rig``: one capture per sensor fused in the rig frame."""
+    from tofmetry.pipelines.reconstruct import reconstruct_rig
+
+    cals = {}
+    for item in sensor_calibration:
+        name, sep, path = item.partition("=")
+        if not sep or not name or not path:
+            raise InputError(f"--sensor-calibration: expected NAME=FILE, found {item!r}")
+        cals[name] = Path(path)
+    console.print(f"rig scan {scan_dir}; rig {rig}; depth calibration: "
+                  + (", ".join(f"{n} {p}" for n, p in cals.items()) or "none (raw depth)"))
+    res = reconstruct_rig(scan_dir, rig, output, calibrations=cals, config=cfg, force=force, progress=progress)
+    r = res.diagnostics["rig"]
+    t = Table(title=f"sensors placed by the rig (rig frame: {r['rig_frame']})")
+    for col in ("sensor", "depth calibration", "rig std [mm]", "rig std [deg]", "predicted at the object [mm]"):
+        t.add_column(col, justify="right")
+    for s in r["sensors"]:
+        t.add_row(s["name"], "yes" if s["calibrated"] else "raw", f"{max(s['translation_std_mm']):.2f}",
+                  f"{max(s['rotation_std_deg']):.4f}", f"{s['predicted_displacement_mm']:.2f}")
+    console.print(t)
+    t = Table(title="rig check: how far ICP moves one view onto the other where they overlap")
+    for col in ("views", "overlap", "correction [mm]", "correction [deg]", "median |d| at the rig poses [mm]", "verdict"):
+        t.add_column(col, justify="right")
+    for e in res.edges:
+        med = e["overlap"]["median_abs_mm"]
+        t.add_row(f"{e['source']}-{e['target']}", f"{e['fitness']:.0%}", f"{e['correction_mm']:.2f}",
+                  f"{e['correction_deg']:.3f}", "-" if med is None else f"{med:.2f}", e["verdict"])
+    console.print(t)
+    for w in res.diagnostics["reliability"]["warnings"]:
+        console.print(f"[yellow]warning:[/yellow] {w}")
+    f = res.diagnostics["fusion"]
+    console.print(f"TSDF voxel {f['voxel_mm']:.2f} mm, truncation {f['trunc_mm']:.2f} mm; mesh {len(res.mesh_vertices)} "
+                  f"vertices / {len(res.mesh_triangles)} triangles; cloud {len(res.points)} points")
+    _print_colour(res.diagnostics.get("color"))
+    console.print(f"world frame: {res.diagnostics['world']['frame']}")
+    console.print(f"wrote {output} in {res.diagnostics['timings_s']['total_s']:.1f} s")
+    if not res.diagnostics["reliable"]:
+        console.print("[bold red]WARNING: the rig's calibration does not fit these captures[/bold red] (flagged in "
+                      "poses.json): " + "; ".join(res.diagnostics["reliability"]["reasons"]))
+        if not allow_unreliable:
+            raise typer.Exit(3)
+
+
+def _print_colour(col: dict | None) -> None:
+    """The share of the model coloured (nothing without colour frames)."""
+    if not col:
+        return
+    if "skipped" in col:
+        console.print(f"[yellow]colour: not applied ({col['skipped']})[/yellow]")
+        return
+    for key, what in (("points", "cloud"), ("mesh", "mesh"), ("poisson", "Poisson mesh")):
+        if key in col:
+            c = col[key]
+            console.print(f"colour ({what}): {c['share_colored']:.1%} coloured ({c['colored']} of {c['points']}; "
+                          f"{c['uncolored']} seen by no colour camera get no colour), median "
+                          f"{c['views_per_colored_point_median']:.0f} views per point")
+    console.print(f"colour from {col['views_with_color']} views: " + ", ".join(
+        f"{n} {v['share_colored']:.0%}" if "share_colored" in v else f"{n} ({v['skipped']})" for n, v in col["views"].items()))
 
 
 def _parse_floats(text: str, what: str, n: int | None = None) -> tuple[float, ...]:

@@ -129,6 +129,8 @@ def scan(output: Path = _OUT, views: int = typer.Option(8, "--views", help="Numb
          frames: int = typer.Option(10, "--frames", help="Frames per view."),
          mesh: Optional[Path] = typer.Option(None, "--mesh", help="Object mesh PLY (metres); default: a balustrade."),
          elevation: float = typer.Option(30.0, "--elevation-deg", help="Camera elevation above horizontal [deg]."),
+         color: bool = typer.Option(False, "--color", help="Also a colour frame per view from the virtual colour camera "
+                                    "(Kinect v2 1920x1080, 2 DN noise; its own viewpoint; calibration beside the frames)."),
          seed: int = _SEED, no_errors: bool = _NOERR, without: Optional[List[str]] = _WITHOUT,
          sensor: str = _SENSOR, force: bool = _FORCE) -> None:
     """Scan dataset: views/NN captures around an object, reference.ply, true poses in truth.json."""
@@ -137,8 +139,8 @@ def scan(output: Path = _OUT, views: int = typer.Option(8, "--views", help="Numb
     draw = _sensor(sensor, seed, no_errors, without)
     with progress(f"simulating {views} views", views * frames) as adv:
         p = datasets.scan(output, views, radius_m, frames, mesh, None, seed, elevation,
-                          force=force, progress=adv, sensor=draw)
-    _done(p, f"scan dataset ({views} views)")
+                          force=force, progress=adv, sensor=draw, color=color)
+    _done(p, f"scan dataset ({views} views{', with colour' if color else ''})")
 
 
 @sim_app.command("warmup")

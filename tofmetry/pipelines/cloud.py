@@ -25,9 +25,9 @@ from tofmetry.pipelines.calibration_files import load_calibration
 from tofmetry.pipelines.frame_path import FramePath
 from tofmetry.pipelines.frame_stream import stream_frames
 from tofmetry.pipelines.plausibility import check_support, enforce
-from tofmetry.io.azure_kinect import load_capture_calibration
+from tofmetry.io.colour_calibration import capture_colour_calibration
 from tofmetry.pointcloud import amplitude_colors, colour_points, robust_mean_depth
-from tofmetry.sensor import CameraIntrinsics, get_profile
+from tofmetry.sensor import CameraIntrinsics
 
 
 @dataclass
@@ -158,7 +158,7 @@ def capture_cloud(capture: str | os.PathLike | Capture, output: str | os.PathLik
         outside = path.outside_range(depth)
     cols, colored, csum, scalars = None, None, {}, None
     if color and cap.has_color:
-        cintr, ext, csrc = _colour_calibration(cap)
+        cintr, ext, csrc = capture_colour_calibration(cap)
         res = colour_points(pts, cap.color(frame), cintr, ext, depth_focal_px=0.5 * (intr.fx + intr.fy))
         cols, colored = res.colors, res.colored
         csum = {**res.summary(), "calibration": csrc}
@@ -177,12 +177,3 @@ def capture_cloud(capture: str | os.PathLike | Capture, output: str | os.PathLik
                     seconds=time.perf_counter() - t0, outside_support=outside, plausibility=gate,
                     colored=colored, color_summary=csum)
 
-
-def _colour_calibration(cap: Capture):
-    """Colour intrinsics, depth -> colour extrinsics and their source: the capture's own (an
-    imported device calibration beside the frames) or the sensor profile's typical values."""
-    if (cap.path / "color_intrinsics.json").is_file() and (cap.path / "extrinsics.json").is_file():
-        cintr, ext = load_capture_calibration(cap.path)
-        return cintr, ext, "capture"
-    prof = get_profile(cap.sensor)
-    return prof.color, prof.ir_to_color, f"profile {prof.name} (typical values)"

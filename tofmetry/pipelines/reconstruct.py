@@ -4,7 +4,8 @@ Opens the dataset and the calibration, measures the white-wall amplitude referen
 (:func:`white_map_from_wall`),
 runs :class:`~tofmetry.reconstruct.ReconstructionPipeline` and writes the model folder
 (``points.ply``, ``mesh.ply``, ``poses.json``): the one composition that ``tofmetry reconstruct``,
-the study and :func:`tofmetry.reconstruct` share.
+the study and :func:`tofmetry.reconstruct` share. :func:`reconstruct_rig` does the same for one
+capture per sensor of a calibrated rig (``rig.json``), fused in the rig frame.
 """
 
 from __future__ import annotations
@@ -19,10 +20,11 @@ import numpy as np
 from tofmetry.calibrate import DepthCalibration
 from tofmetry.errors import InputError
 from tofmetry.io import ScanDataset, WallDataset
+from tofmetry.io.rig_json import read_rig
 from tofmetry.pipelines.calibration_files import load_calibration
 from tofmetry.reconstruct import (
-    ReconstructionConfig, ReconstructionPipeline, ReconstructionResult, corrected_mean_depth, white_amplitude_map,
-    write_reconstruction,
+    ReconstructionConfig, ReconstructionPipeline, ReconstructionResult, RigReconstruction, corrected_mean_depth,
+    white_amplitude_map, write_reconstruction,
 )
 from tofmetry.sensor import CameraIntrinsics
 
@@ -129,6 +131,34 @@ def reconstruct_scan(scan_dir: str | os.PathLike, calibration: str | os.PathLike
     if white_map is None and amplitude_wall is not None:
         white_map = amplitude_reference(amplitude_wall, cal, ds, amplitude_max_mm, progress)
     res = ReconstructionPipeline(ds, cal, config or ReconstructionConfig(), progress=progress, white_map=white_map).run()
+    if output is not None:
+        write_reconstruction(Path(output), res, force=force)
+    return res
+
+
+def reconstruct_rig(scan_dir: str | os.PathLike, rig: str | os.PathLike | list, output: str | os.PathLike | None = None,
+                    *, calibrations: dict | None = None, config: ReconstructionConfig | None = None,
+                    force: bool = False, progress: Progress | None = None) -> ReconstructionResult:
+    """Fuse one capture per sensor of a calibrated rig into a model in the rig frame.
+
+    Parameters
+    ----------
+    scan_dir : scan dataset with one view per sensor, named after it (``views/<sensor>/``)
+    rig : ``rig.json`` (``tofmetry calibrate rig``) or its sensors (:func:`tofmetry.io.rig_json.read_rig`)
+    output : model folder to write atomically (``points.ply``, ``mesh.ply``, ``poses.json``), or None
+    calibrations : sensor name -> depth calibration file or DepthCalibration (others: raw depth)
+    config : ReconstructionConfig (default settings when None)
+    force : replace an existing output folder
+    progress : optional ``progress(description, total)`` context-manager factory
+
+    Returns
+    -------
+    ReconstructionResult in the rig frame (``diagnostics["rig"]``: the sensors' uncertainties;
+    ``edges``: the overlap residuals that check the rig against the data)
+    """
+    sensors = read_rig(rig) if isinstance(rig, (str, os.PathLike)) else list(rig)
+    cals = {n: c if isinstance(c, DepthCalibration) else load_calibration(c) for n, c in (calibrations or {}).items()}
+    res = RigReconstruction(ScanDataset(scan_dir), sensors, cals, config or ReconstructionConfig(), progress=progress).run()
     if output is not None:
         write_reconstruction(Path(output), res, force=force)
     return res

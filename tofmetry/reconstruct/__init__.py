@@ -3,8 +3,9 @@
 Stages (one module each): :mod:`._preprocess` (robust mean, calibration, flying pixels,
 range, normals) -> :mod:`._segment` (support plane + object) -> :mod:`._register` (plane-yaw
 or FPFH coarse, free-space test, robust point-to-plane ICP; alternatives kept) -> :mod:`._posegraph`
-(multi-view hypothesis selection over the loops, LM global optimisation, loop gate) -> :mod:`._adjust` (joint multi-view ICP of all views + depth-gain self-calibration, optional range-error curve :mod:`._range_curve`) -> :mod:`._fusion` (TSDF VoxelBlockGrid on undistorted depth, mesh, Poisson).
+(multi-view hypothesis selection over the loops, LM global optimisation, loop gate) -> :mod:`._adjust` (joint multi-view ICP of all views + depth-gain self-calibration, optional range-error curve :mod:`._range_curve`) -> :mod:`._fusion` (TSDF VoxelBlockGrid on undistorted depth, mesh, Poisson) -> :mod:`._colour` (occlusion-aware colour from the views' colour frames).
 :class:`ReconstructionPipeline` runs them; :func:`write_reconstruction` writes the outputs.
+:class:`RigReconstruction` (:mod:`._rig`) fuses one capture per sensor of a calibrated rig in the rig frame.
 """
 
 from tofmetry.reconstruct._adjust import (
@@ -17,6 +18,14 @@ from tofmetry.reconstruct._amplitude import (
     PAPER_K_MM_PER_LN,
     amplitude_bias_mm,
     white_amplitude_map,
+)
+from tofmetry.reconstruct._colour import (
+    ModelColours,
+    colour_model,
+    combine_view_colours,
+    incidence_cosine,
+    model_colours_in_view,
+    weighted_median,
 )
 from tofmetry.reconstruct._config import (
     FusionConfig,
@@ -69,6 +78,7 @@ from tofmetry.reconstruct._regview import (
     registration_conditioning,
     visibility_violation,
 )
+from tofmetry.reconstruct._rig import RigReconstruction, overlap_residuals, rig_correction
 from tofmetry.reconstruct._segment import (
     Segmentation,
     fit_support_plane,
@@ -81,6 +91,7 @@ __all__ = [
     "AdjustView",
     "FusionConfig",
     "Match",
+    "ModelColours",
     "PairResult",
     "PoseGraphBuilder",
     "PoseGraphResult",
@@ -90,6 +101,7 @@ __all__ = [
     "ReconstructionResult",
     "RegView",
     "RegistrationConfig",
+    "RigReconstruction",
     "SegmentConfig",
     "Segmentation",
     "TSDFFusion",
@@ -97,6 +109,8 @@ __all__ = [
     "amplitude_bias_mm",
     "apply_depth_gain",
     "apply_range_curve",
+    "colour_model",
+    "combine_view_colours",
     "connected_components",
     "consistency_gate",
     "corrected_mean_depth",
@@ -108,14 +122,18 @@ __all__ = [
     "global_register",
     "icp",
     "image_normals",
+    "incidence_cosine",
     "loop_closures",
     "make_reg_view",
+    "model_colours_in_view",
+    "overlap_residuals",
     "plane_consistent",
     "poisson_mesh",
     "poses_document",
     "prepare_view",
     "range_curve_m",
     "register_pair",
+    "rig_correction",
     "registration_conditioning",
     "relative_pose_errors",
     "rotation_angle_deg",
@@ -126,6 +144,7 @@ __all__ = [
     "undistort_maps",
     "visibility_violation",
     "voxel_down",
+    "weighted_median",
     "white_amplitude_map",
     "write_reconstruction",
 ]

@@ -195,6 +195,8 @@ class ReconstructionConfig(BaseModel):
 
     world_frame: str = Field("support", description="frame of the outputs: 'support' = support plane z = 0, origin "
                              "under the object, x along the first view's direction; 'camera' = the first camera's frame")
+    color: bool = Field(True, description="colour the model from the views' colour frames when they have them "
+                        "(occlusion-aware; points no colour camera sees get no colour)")
 
     preprocess: PreprocessConfig = PreprocessConfig()
     segment: SegmentConfig = SegmentConfig()

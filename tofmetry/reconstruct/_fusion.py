@@ -92,22 +92,25 @@ class TSDFFusion:
             device=o3c.Device("CPU:0"))
         self.n_integrated = 0
 
-    def integrate(self, depth_mm: np.ndarray, pose: np.ndarray) -> None:
+    def integrate(self, depth_mm: np.ndarray, pose: np.ndarray, intr: CameraIntrinsics | None = None) -> None:
         """Integrate one depth map.
 
         Parameters
         ----------
         depth_mm : (H, W) float [mm] Z with the distortion of ``intr`` (0 = skip pixel)
         pose : (4, 4) camera-to-world [m]
+        intr : the depth map's intrinsics when they are not the volume's (another sensor of a rig)
         """
         import open3d as o3d
         import open3d.core as o3c
 
-        d = undistort_depth(depth_mm, self.intr)
+        intr = self.intr if intr is None else intr
+        K = self._K if intr is self.intr else o3c.Tensor(intr.K, dtype=o3c.float64)
+        d = undistort_depth(depth_mm, intr)
         img = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(d)))
         ext = o3c.Tensor(np.linalg.inv(pose), dtype=o3c.float64)
-        coords = self.vbg.compute_unique_block_coordinates(img, self._K, ext, 1000.0, self.depth_max_m, self.trunc_mult)
-        self.vbg.integrate(coords, img, self._K, ext, 1000.0, self.depth_max_m, self.trunc_mult)
+        coords = self.vbg.compute_unique_block_coordinates(img, K, ext, 1000.0, self.depth_max_m, self.trunc_mult)
+        self.vbg.integrate(coords, img, K, ext, 1000.0, self.depth_max_m, self.trunc_mult)
         self.n_integrated += 1
 
     def extract(self, min_weight: float = 1.0) -> tuple:

@@ -1,4 +1,8 @@
-"""Write a reconstruction: points.ply, mesh.ply (+ mesh_poisson.ply), poses.json."""
+"""Write a reconstruction: points.ply, mesh.ply (+ mesh_poisson.ply), poses.json.
+
+A coloured model (the views had colour frames) carries RGB and a ``colored`` vertex property (1 =
+a colour camera saw the point, 0 = no colour: RGB 0 there means *no colour*, not black) in each PLY,
+and the share coloured under ``"color"`` in poses.json."""
 
 from __future__ import annotations
 
@@ -35,16 +39,24 @@ def poses_document(res: ReconstructionResult) -> dict:
         "intrinsics": res.diagnostics.get("intrinsics"),
         "working_range_mm": res.diagnostics.get("working_range_mm"),
         "support_plane_world": None if res.support_plane is None else res.support_plane.tolist(),
+        "color": res.diagnostics.get("color"),
         "diagnostics": res.diagnostics,
     }
 
 
 def write_reconstruction(out: str | os.PathLike, res: ReconstructionResult, force: bool = False) -> Path:
     """Write the outputs into the folder ``out`` atomically (refuses to overwrite unless ``force``)."""
+    col = res.colours or {}
+
+    def colour_args(key: str) -> dict:
+        c = col.get(key)
+        return {} if c is None else {"colors": c.colors, "scalars": {"colored": c.colored.astype("float32")}}
+
     with atomic_dir(out, force=force) as tmp:
-        write_ply(tmp / "points.ply", res.points, normals=res.normals)
-        write_ply(tmp / "mesh.ply", res.mesh_vertices, normals=res.mesh_normals, faces=res.mesh_triangles)
+        write_ply(tmp / "points.ply", res.points, normals=res.normals, **colour_args("points"))
+        write_ply(tmp / "mesh.ply", res.mesh_vertices, normals=res.mesh_normals, faces=res.mesh_triangles,
+                  **colour_args("mesh"))
         if res.poisson is not None:
-            write_ply(tmp / "mesh_poisson.ply", res.poisson[0], faces=res.poisson[1])
+            write_ply(tmp / "mesh_poisson.ply", res.poisson[0], faces=res.poisson[1], **colour_args("poisson"))
         atomic_write_json(tmp / "poses.json", poses_document(res))
     return Path(out)

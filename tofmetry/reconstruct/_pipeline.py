@@ -21,6 +21,7 @@ from tofmetry.reconstruct._adjust import (
     apply_depth_gain,
     global_adjust,
 )
+from tofmetry.reconstruct._colour import colour_model
 from tofmetry.reconstruct._config import ReconstructionConfig
 from tofmetry.reconstruct._fusion import TSDFFusion, crop_mesh, poisson_mesh
 from tofmetry.reconstruct._posegraph import PoseGraphBuilder
@@ -61,7 +62,10 @@ class ReconstructionResult:
     diagnostics : per-view stats, fusion parameters, timings [s], "reliable" (bool), "reliability"
         (:func:`~tofmetry.reconstruct.assess`: reasons, warnings, per-view verdicts; edges carry theirs),
         "consistency" (the pose-graph consistency gate), "scale" (predicted scale uncertainty),
-        "world" (the output frame and its transform from the first camera's frame), "left_out"
+        "world" (the output frame and its transform from the first camera's frame), "left_out",
+        "color" (share coloured per output and per view; None without colour frames)
+    colours : output name ("points", "mesh", "poisson") -> :class:`~tofmetry.reconstruct.ModelColours`,
+        or None (no colour frames, or ``config.color`` off)
     """
 
     names: list
@@ -75,6 +79,7 @@ class ReconstructionResult:
     poisson: tuple | None
     support_plane: np.ndarray | None
     diagnostics: dict = field(default_factory=dict)
+    colours: dict | None = None
 
 
 class ReconstructionPipeline:
@@ -336,8 +341,14 @@ class ReconstructionPipeline:
                 poisson = (transform_points(poisson[0], W), poisson[1])
             plane_w = transform_plane(plane_w, W)
         t4 = time.perf_counter()
+        colours, colour_diag = None, None
+        if self.cfg.color:
+            sets = {"points": (P, PN), "mesh": (V, N), **({"poisson": (poisson[0], None)} if poisson is not None else {})}
+            colours, colour_diag = colour_model(self.ds, self.kept, views, poses, sets, [intr] * len(views),
+                                                self.progress)
+        t5 = time.perf_counter()
         self.timings = {"views_s": t1 - t0, "registration_s": t2a - t1, "adjustment_s": t2 - t2a, "fusion_s": t3 - t2,
-                        "meshing_s": t4 - t3, "total_s": t4 - t0}
+                        "meshing_s": t4 - t3, "color_s": t5 - t4, "total_s": t5 - t0}
         adj_d = ({"failed": self.adjust_failure} if self.adjust_failure else None) if adj is None else adj.to_dict(names)
         rc = self.cfg.registration
         edges = graph.edges + self.other_edges
@@ -351,7 +362,7 @@ class ReconstructionPipeline:
         diag = {"consistency": graph.consistency, "reliable": bool(verdict["reliable"]), "reliability": verdict,
                 "scale": scale_report(adj_d, pred, _median_object_depth_m(views, segs) * 1e3), "world": world,
                 "views": {v.name: v.stats for v in views}, "fusion": fusion_info, "timings_s": self.timings,
-                "adjustment": adj_d, "left_out": self.left_out,
+                "adjustment": adj_d, "left_out": self.left_out, "color": colour_diag,
                 "calibrated": self.cal is not None, "amplitude_corrected": self.white_map is not None, "intrinsics": intr.to_dict(),
                 "working_range_mm": self.working_range_mm(), "config": self.cfg.model_dump()}
-        return ReconstructionResult(names, poses, edges, V, F, N, P, PN, poisson, plane_w, diag)
+        return ReconstructionResult(names, poses, edges, V, F, N, P, PN, poisson, plane_w, diag, colours)

@@ -68,6 +68,18 @@ class ColourCamera:
         if not (np.isfinite(self.noise_dn) and self.noise_dn >= 0):
             raise InputError(f"ColourCamera: noise_dn must be >= 0, found {self.noise_dn}")
 
+    def to_dict(self) -> dict:
+        """JSON-able description (for ``truth.json``); the texture by its function name."""
+        return {"intrinsics": self.intrinsics.to_dict(), "ir_to_color": self.ir_to_color.to_dict(),
+                "exposure": float(self.exposure), "noise_dn": float(self.noise_dn),
+                "texture": getattr(self.texture, "__name__", str(self.texture))}
+
+    @classmethod
+    def from_dict(cls, d: dict, texture: ColourTexture = default_texture) -> "ColourCamera":
+        """Inverse of :meth:`to_dict` (the texture is passed, not read)."""
+        return cls(CameraIntrinsics.from_dict(d["intrinsics"]), Extrinsics.from_dict(d["ir_to_color"]),
+                   float(d["exposure"]), float(d["noise_dn"]), texture)
+
     def pose(self, ir_pose: np.ndarray) -> np.ndarray:
         """(4, 4) colour camera-to-world pose from the IR camera-to-world pose."""
         return np.asarray(ir_pose, np.float64) @ self.ir_to_color.inverse().matrix

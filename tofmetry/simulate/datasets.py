@@ -60,12 +60,20 @@ def _sensor(errors: ErrorModel | None, sensor: SensorDraw | None, quantize: bool
 
 
 def write_frames(path: Path, frames_iter, meta: CaptureMeta, force: bool = False, progress: Progress = None,
-                 with_ir: bool = True) -> tuple[Path, list]:
-    """Stream simulated frames into a capture folder; returns (path, per-frame flying masks)."""
+                 with_ir: bool = True, colour: tuple | None = None) -> tuple[Path, list]:
+    """Stream simulated frames into a capture folder; returns (path, per-frame flying masks).
+
+    ``colour``: ``(image (Hc, Wc, 3) uint8, ColourCamera)``: the colour frame of frame 0 and, beside
+    the frames, the colour camera's calibration (``color_intrinsics.json``, ``extrinsics.json``), as
+    a device's factory calibration."""
+    from tofmetry.io.colour_calibration import write_colour_calibration
+
     flying = []
     with CaptureWriter(path, meta, force=force) as w:
+        if colour is not None:
+            write_colour_calibration(w.staging, colour[1].intrinsics, colour[1].ir_to_color, source="simulated colour camera")
         for fr in frames_iter:
-            w.add(fr.depth, ir=fr.ir if with_ir else None)
+            w.add(fr.depth, ir=fr.ir if with_ir else None, color=colour[0] if colour is not None and w.n == 0 else None)
             flying.append(fr.flying)
             if progress is not None:
                 progress(1)
@@ -286,7 +294,7 @@ def scan(out: str | os.PathLike, n_views: int = 8, radius_m: float = 1.0, n_fram
          errors: ErrorModel | None = None, seed: int = 0, elevation_deg: float = 30.0,
          force: bool = False, progress: Progress = None,
          sensor: SensorDraw | None = None, poses: Sequence[np.ndarray] | None = None,
-         info: dict | None = None) -> Path:
+         info: dict | None = None, color=None) -> Path:
     """Scan dataset of an object on the ground (paper §5): ``n_views`` views on a circle.
 
     Cameras ``radius_m`` (slant range) from the object centre, ``elevation_deg`` above the
@@ -299,10 +307,14 @@ def scan(out: str | os.PathLike, n_views: int = 8, radius_m: float = 1.0, n_fram
     vertices, which are already placed); they replace the circle (``n_views``, ``radius_m``,
     ``elevation_deg`` are then unused). ``info``: JSON-able description recorded in ``truth.json``
     (e.g. the object and path draws).
-    Writes ``out/views/00 ...`` captures (depth + IR), ``out/reference.ply`` (the placed mesh,
+    ``color``: a :class:`~tofmetry.simulate.color.ColourCamera` (``True``: the Kinect v2's, 2 DN
+    noise): each view also gets one colour frame, ray cast from the colour camera's own viewpoint
+    (:func:`~tofmetry.simulate.color.render_colour`), and its calibration beside the frames.
+    Writes ``out/views/00 ...`` captures (depth + IR [+ colour]), ``out/reference.ply`` (the placed mesh,
     world frame, metres) and ``out/truth.json`` (camera-to-world poses). Returns ``out``.
     """
     from tofmetry.io import write_ply
+    from tofmetry.simulate.color import ColourCamera, render_colour
     from tofmetry.simulate.objects import textured_scene
     from tofmetry.simulate.poses import orbit_poses
 
@@ -320,7 +332,11 @@ def scan(out: str | os.PathLike, n_views: int = 8, radius_m: float = 1.0, n_fram
         poses = [np.asarray(T, np.float64) for T in poses]
         if len(poses) < 1 or any(T.shape != (4, 4) or not np.isfinite(T).all() for T in poses):
             raise InputError("scan: poses must be a non-empty list of finite (4, 4) camera-to-world matrices")
+    cam = ColourCamera(noise_dn=2.0) if color is True else (color or None)
+    if cam is not None and not isinstance(cam, ColourCamera):
+        raise InputError(f"scan: color must be True, False/None or a ColourCamera, found {type(color).__name__}")
     vk = sensor.camera(seed)
+    rng_c = np.random.default_rng([seed, 7])
     out = Path(out)
     with atomic_dir(out, force=force) as tmp:
         views = []
@@ -328,13 +344,16 @@ def scan(out: str | os.PathLike, n_views: int = 8, radius_m: float = 1.0, n_fram
             name = f"{k:02d}"
             ts = 3600.0 + 60.0 * k + np.arange(n_frames, dtype=float)
             meta = CaptureMeta(sensor="kinect_v2", timestamps_s=ts.tolist())
+            colour = None if cam is None else (render_colour(scene, cam, T, rng=rng_c).image, cam)
             write_frames(tmp / "views" / name, vk.iter_frames(scene, n_frames, T, timestamps_s=ts), meta,
-                         progress=progress)
+                         progress=progress, colour=colour)
             views.append({"name": name, "camera_to_world": T})
         write_ply(tmp / "reference.ply", vw, faces=scene.info["mesh_triangles"])
         truth = _truth_common(vk, seed, sensor) | {
             "dataset": "scan", "world": "z up, ground plane z = 0, object centred on the z axis",
             "radius_m": radius_m, "elevation_deg": elevation_deg, "target_m": target, "views": views}
+        if cam is not None:
+            truth["color_camera"] = cam.to_dict()
         if info:
             truth["info"] = info
         atomic_write_json(tmp / "truth.json", truth)

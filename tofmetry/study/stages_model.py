@@ -94,6 +94,18 @@ def stage_model(ctx: StudyContext, out: StageOutcome) -> None:
                  "mesh_vertices": int(len(res.mesh_vertices)), "points": int(len(res.points)),
                  "fusion": res.diagnostics.get("fusion", {}), "timings_s": tm}
         out.data[label] = entry
+        col = res.diagnostics.get("color")
+        if col:
+            entry["color"] = col
+            if "skipped" in col:
+                out.paragraphs.append(f"{label}: the views have colour frames but the model was not coloured ({col['skipped']}).")
+            else:
+                m, p = col["mesh"], col["points"]
+                out.paragraphs.append(
+                    f"{label}: colour from {col['views_with_color']} views' colour frames, occlusion-aware: "
+                    f"{100 * m['share_colored']:.1f} % of the mesh vertices and {100 * p['share_colored']:.1f} % of the "
+                    f"cloud's points coloured; the {m['uncolored']} vertices no colour camera sees have no colour "
+                    f"(not black). Median {m['views_per_colored_point_median']:.0f} views per coloured vertex.")
         if not entry["reliable"]:
             reasons = "; ".join(cons.get("reasons", [])) or "see poses.json"
             out.paragraphs.append(f"{label}: the registration is flagged UNRELIABLE by the pose-graph consistency gate "
