@@ -103,10 +103,10 @@ def test_a_calibration_warning_within_the_error_limit_is_named_as_a_warning():
     assert v["reliable"] and any("warns" in w and "242 mm" in w for w in v["warnings"])
 
 
-def test_most_views_left_out_or_unchecked_make_the_run_unreliable():
-    e = [_edge("00", "01"), _edge("01", "02")]  # a chain: nothing closes
+def test_most_views_left_out_make_the_run_unreliable():
+    e = [_edge("00", "01"), _edge("01", "02")]  # a chain: nothing closes, a warning
     v = assess(_names(3), e, {"reasons": [], "loops": []}, calibration_prediction={})
-    assert not v["reliable"] and "0 of 3" in v["reasons"][0]
+    assert v["reliable"] and any("no closed loop" in w for w in v["warnings"])
     e = [_edge("00", "01"), _edge("01", "02"), _edge("00", "02")]
     lo = {f"{k:02d}": "no accepted registration" for k in range(3, 5)}
     v = assess(_names(3), e, {"reasons": [], "loops": []}, left_out=lo, calibration_prediction={})

@@ -156,8 +156,6 @@ class RegistrationConfig(BaseModel):
     pose_gate_mm: float = Field(3.0, gt=0, description="... and displacement of the object [mm]")
     max_left_out: float = Field(0.25, ge=0, le=1, description="more than this share of the views left out of the "
                                 "model (no registration links them) makes the run unreliable; fewer are a warning")
-    min_verified: float = Field(0.5, ge=0, le=1, description="with 3 or more registered views, fewer than this share "
-                                "of them on a closed loop of the view graph makes the run unreliable")
     seed: int = 0
 
 

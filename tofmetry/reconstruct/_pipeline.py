@@ -354,7 +354,7 @@ class ReconstructionPipeline:
         edges = graph.edges + self.other_edges
         pred = None if self.cal is None else (self.cal.prediction or {})
         verdict = assess(names, edges, graph.consistency, self.left_out, adj_d, pred, rc.max_calibration_mm,
-                         rc.pose_gate_deg, rc.pose_gate_mm, rc.yaw_free_ratio, rc.max_left_out, rc.min_verified)
+                         rc.pose_gate_deg, rc.pose_gate_mm, rc.yaw_free_ratio, rc.max_left_out)
         world = ({"frame": "support plane z = 0 (normal up), origin under the object's footprint centre, x along the "
                            "first view's viewing direction projected on the plane", "from_first_camera": W.tolist()}
                  if not np.allclose(W, np.eye(4)) else {"frame": "camera frame of the first view (x right, y down, z "
