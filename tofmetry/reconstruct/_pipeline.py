@@ -30,7 +30,12 @@ from tofmetry.reconstruct._range_curve import apply_range_curve, range_curve_m
 from tofmetry.reconstruct._register import register_pair, rejection_reason
 from tofmetry.reconstruct._regview import RegView, make_reg_view
 from tofmetry.reconstruct._segment import Segmentation, segment_object
-from tofmetry.reconstruct._verdict import assess, calibration_central_mm, calibration_gain_sigma, scale_report
+from tofmetry.reconstruct._verdict import (
+    assess,
+    calibration_central_mm,
+    calibration_gain_sigma,
+    scale_report,
+)
 from tofmetry.reconstruct._world import support_plane_frame, transform_plane
 
 
@@ -289,6 +294,22 @@ class ReconstructionPipeline:
             keep &= pts @ plane_w[:3] + plane_w[3] > 0.5 * self.cfg.segment.min_height_mm * 1e-3
         return keep
 
+    def crop_model(self, V, F, N, P, PN, world_obj: np.ndarray, plane_w: np.ndarray | None) -> tuple:
+        """The fused mesh (V, F, N) and cloud (P, PN) cropped to the object (:meth:`crop`), and the
+        Poisson mesh of the cropped cloud (cropped as well; None when switched off)."""
+        V, F, used = crop_mesh(V, F, self.crop(V, world_obj, plane_w))
+        N = N[used]
+        keep_p = self.crop(P, world_obj, plane_w)
+        P, PN = P[keep_p], PN[keep_p]
+        if len(F) == 0 or len(P) == 0:
+            raise EstimationError("fusion produced an empty model after cropping to the object")
+        poisson = None
+        if self.cfg.fusion.poisson:
+            pv, pf = poisson_mesh(P, PN, self.cfg.fusion.poisson_depth, self.cfg.fusion.poisson_trim_quantile)
+            pv, pf, _ = crop_mesh(pv, pf, self.crop(pv, world_obj, plane_w))
+            poisson = (pv, pf)
+        return V, F, N, P, PN, poisson
+
     def working_range_mm(self) -> list[float]:
         """Depth range [mm] kept by the preprocessing (working range within the calibrated span)."""
         lo, hi = self.cfg.preprocess.min_mm, self.cfg.preprocess.max_mm
@@ -318,19 +339,7 @@ class ReconstructionPipeline:
             R, t = poses[0][:3, :3], poses[0][:3, 3]
             n = R @ segs[0].plane[:3]
             plane_w = np.r_[n, segs[0].plane[3] - n @ t]
-        keep_v = self.crop(V, world_obj, plane_w)
-        V, F, used = crop_mesh(V, F, keep_v)
-        N = N[used]
-        keep_p = self.crop(P, world_obj, plane_w)
-        P, PN = P[keep_p], PN[keep_p]
-        if len(F) == 0 or len(P) == 0:
-            raise EstimationError("fusion produced an empty model after cropping to the object")
-        poisson = None
-        if self.cfg.fusion.poisson:
-            pv, pf = poisson_mesh(P, PN, self.cfg.fusion.poisson_depth, self.cfg.fusion.poisson_trim_quantile)
-            pv_keep = self.crop(pv, world_obj, plane_w)
-            pv, pf, _ = crop_mesh(pv, pf, pv_keep)
-            poisson = (pv, pf)
+        V, F, N, P, PN, poisson = self.crop_model(V, F, N, P, PN, world_obj, plane_w)
         W = np.eye(4)
         if self.cfg.world_frame == "support" and plane_w is not None:
             W = support_plane_frame(plane_w, world_obj, poses[0])

@@ -28,8 +28,12 @@ from scipy.spatial import cKDTree
 
 from tofmetry.errors import EstimationError, InputError, SensorMismatchError
 from tofmetry.reconstruct._colour import colour_model
-from tofmetry.reconstruct._fusion import TSDFFusion, crop_mesh, poisson_mesh
-from tofmetry.reconstruct._pipeline import ReconstructionPipeline, ReconstructionResult, _median_object_depth_m
+from tofmetry.reconstruct._fusion import TSDFFusion
+from tofmetry.reconstruct._pipeline import (
+    ReconstructionPipeline,
+    ReconstructionResult,
+    _median_object_depth_m,
+)
 from tofmetry.reconstruct._preprocess import prepare_view
 from tofmetry.reconstruct._segment import segment_object
 from tofmetry.reconstruct._world import transform_plane
@@ -232,17 +236,7 @@ class RigReconstruction(ReconstructionPipeline):
                                     for v, s, T in zip(views, segs, poses)])
         k = next((k for k, s in enumerate(segs) if s.plane is not None), None)
         plane_w = None if k is None else transform_plane(segs[k].plane, poses[k])
-        V, F, used = crop_mesh(V, F, self.crop(V, world_obj, plane_w))
-        N = N[used]
-        keep_p = self.crop(P, world_obj, plane_w)
-        P, PN = P[keep_p], PN[keep_p]
-        if len(F) == 0 or len(P) == 0:
-            raise EstimationError("fusion produced an empty model after cropping to the object")
-        poisson = None
-        if self.cfg.fusion.poisson:
-            pv, pf = poisson_mesh(P, PN, self.cfg.fusion.poisson_depth, self.cfg.fusion.poisson_trim_quantile)
-            pv, pf, _ = crop_mesh(pv, pf, self.crop(pv, world_obj, plane_w))
-            poisson = (pv, pf)
+        V, F, N, P, PN, poisson = self.crop_model(V, F, N, P, PN, world_obj, plane_w)
         t4 = time.perf_counter()
         colours, colour_diag = None, None
         if self.cfg.color:
