@@ -59,7 +59,8 @@ def test_calibrate_stereo_cli_on_rendered_pairs(tmp_path):
     dt_mm = np.linalg.norm(pose.translation - truth.translation) * 1e3
     dr = rotation_error_deg(pose.rotation, truth.rotation)
     rep = json.loads((out / "stereo.json").read_text())
-    print(f"stereo checkerboard: {dt_mm:.3f} mm, {dr:.4f} deg, held-out {rep['heldout_rms_px']:.3f} px RMS")
+    print(f"stereo checkerboard: {dt_mm:.3f} mm, {dr:.4f} deg, held-out {rep['heldout_rms_px']:.3f} px RMS "
+          f"(max {rep['heldout_max_px']:.3f})")
     assert dt_mm < 1.0 and dr < 0.1, (dt_mm, dr)
     assert rep["n_heldout"] == 3 and rep["heldout_rms_px"] < 0.5, rep["heldout_rms_px"]
     assert len(rep["translation_std_mm"]) == 3 and not rep["skipped"]

@@ -13,9 +13,11 @@ the rows, millimetres):
   through the local board-to-image scale, so that no pixel mixes the two reflectances (a pixel's
   half width plus three standard deviations of the lens blur: 0.5 + 3 x 0.29 px on the Kinect v2).
 * **The detected area**: the squares touching a detected corner. A partial view's pose comes from
-  the corners it saw; the plane is used where it was measured, and what lies beyond them (the part
-  of the board outside the image is not there anyway; a part hidden by something in front of it
-  would be) is left out. A view that sees the whole board uses all of it.
+  the corners it saw, so the plane is used where it was measured, not extrapolated over squares
+  whose corners were not found (outside the image, or hidden by something in front of the board;
+  a square touching a found corner is used even if part of it is hidden: the gross-outlier gate
+  of :func:`._board_samples.board_samples` is what removes such pixels). A view that sees the
+  whole board uses all of it.
 
 The white margin is ``(square - marker) / 2`` wide (12 mm on the default 80 / 56 mm board: 4.4 px
 at 1 m on the Kinect v2), so far views keep few white pixels: they enter the depth calibration
