@@ -1,8 +1,8 @@
 """``calibrate stereo`` and ``calibrate rig`` with ``--board charuco`` on rendered views, partial views included.
 
 Stereo: a random virtual sensor's IR amplitude image and its colour image ray cast from the colour
-camera's own pose (the 1920x1080 lens at 960x540; rendered at 2x2 rays per pixel and averaged,
-as a sensor's pixel integrates its area) of a 13x10 ChArUco board placed so that it often
+camera's own pose (the 1920x1080 lens at 960x540; its edge pixels integrate their area, as
+``render_colour`` does by default) of a 13x10 ChArUco board placed so that it often
 overhangs one image or the other. Each pair contributes the corners both cameras identified. Rig:
 3 virtual Kinect v2 sensors 0.4 m apart see common board poses.
 
@@ -60,8 +60,7 @@ def test_calibrate_stereo_charuco_on_rendered_pairs(tmp_path):
 
     ir, color, truth = random_colour_sensor(4)
     color = color.scaled(960, 540)
-    ss = 2
-    cam = ColourCamera(color.scaled(960 * ss, 540 * ss), truth, texture=_grey, noise_dn=ss * 1.0)
+    cam = ColourCamera(color, truth, texture=_grey, noise_dn=1.0)
     em = ErrorModel().without(*ErrorModel().enabled)
     rng = np.random.default_rng(4)
     pairs = tmp_path / "pairs"
@@ -73,7 +72,7 @@ def test_calibrate_stereo_charuco_on_rendered_pairs(tmp_path):
         T[:3, 3] = np.array([rng.uniform(-0.3, 0.3) * z, rng.uniform(-0.2, 0.2) * z, z]) - T[:3, :3] @ CENTRE
         amp = render(_scene(T), ir, np.eye(4), em, supersample=3).amplitude
         cv2.imwrite(str(pairs / f"{k:04d}_ir.png"), np.clip(amp / amp.max() * 60000, 0, 65535).astype(np.uint16))
-        img = cv2.resize(render_colour(_scene(T), cam, rng=rng).image, (960, 540), interpolation=cv2.INTER_AREA)
+        img = render_colour(_scene(T), cam, rng=rng).image
         cv2.imwrite(str(pairs / f"{k:04d}_color.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
     write_intrinsics(tmp_path / "ir.json", ir)
     write_intrinsics(tmp_path / "color.json", color)

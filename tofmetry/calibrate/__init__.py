@@ -56,9 +56,11 @@ from tofmetry.calibrate._corners import (
     refine_corners_subpix,
 )
 from tofmetry.calibrate._charuco import CharucoBoard, CharucoDetection, detect_charuco
+from tofmetry.calibrate._coverage import (
+    corner_coverage, corner_region_corners, corner_region_coverage, coverage_mask, uncovered_corner_regions,
+)
 from tofmetry.calibrate._lens_fit import (
-    IntrinsicsResult, calibrate_intrinsics, corner_coverage, corner_region_coverage, coverage_mask,
-    cross_validate_intrinsics, intrinsic_covariance,
+    IntrinsicsResult, calibrate_intrinsics, cross_validate_intrinsics, intrinsic_covariance,
 )
 from tofmetry.calibrate._ray_error import PARAMS, RayError, predicted_ray_error_px, ray_difference_px, ray_error_px
 # IR-colour extrinsics
@@ -78,7 +80,7 @@ __all__ = [
     "board_object_points", "check_corners", "reprojection_rms_with", "solve_board_pose", "CornerRefinement",
     "CornerDetection", "detect_board", "detect_corners", "find_grid", "grid_consistency_px", "normalize_ir",
     "refine_corners", "refine_corners_subpix", "CharucoBoard", "CharucoDetection", "detect_charuco", "IntrinsicsResult", "calibrate_intrinsics", "corner_coverage",
-    "corner_region_coverage", "coverage_mask", "cross_validate_intrinsics", "intrinsic_covariance",
+    "corner_region_corners", "corner_region_coverage", "coverage_mask", "uncovered_corner_regions", "cross_validate_intrinsics", "intrinsic_covariance",
     "PARAMS", "RayError", "predicted_ray_error_px", "ray_difference_px", "ray_error_px",
     "StereoResult", "calibrate_stereo", "common_corners", "heldout_reprojection", "RigResult", "calibrate_rig",
 ]

@@ -15,8 +15,21 @@ from tofmetry.calibrate._board_model import ModelSpec
 from tofmetry.calibrate._board_result import BoardCalibrationResult
 from tofmetry.calibrate._board_samples import BoardSamples, board_samples, collect_grids, find_boards, screen_grids
 from tofmetry.calibrate._board_support import error_stats, fit_dark_bias, support_counts
+from tofmetry.calibrate._board_pose import board_inner, is_charuco, seen_corners
 from tofmetry.calibrate._lens_fit import calibrate_intrinsics
 from tofmetry.errors import EstimationError, InputError
+
+
+def calibrate_intrinsics_on_grids(grids: list, names: list | None, board, square_mm: float,
+                                  image_size: tuple[int, int], **kwargs):
+    """:func:`~tofmetry.calibrate._lens_fit.calibrate_intrinsics` on board grids (a ChArUco grid: its
+    seen corners with their own object points), without the leave-one-out refits."""
+    kwargs.setdefault("leave_one_out", False)
+    if not is_charuco(board):
+        return calibrate_intrinsics(grids, names, board, square_mm, image_size, **kwargs)
+    so = [seen_corners(c, board, square_mm) for c in grids]
+    return calibrate_intrinsics([c for _, c in so], names, board_inner(board), board.square_mm, image_size,
+                                object_points=[o for o, _ in so], **kwargs)
 
 
 def _calibrate(poses, board, square_mm, intrinsics, names, seed, sensor, min_samples, candidates, use_dark_views,
@@ -44,8 +57,8 @@ def _calibrate(poses, board, square_mm, intrinsics, names, seed, sensor, min_sam
         if len(flat) < 3:
             raise EstimationError(f"no intrinsics given and only {len(flat)} board grid(s) to fit them on (need >= 3): "
                                   "pass the device's intrinsics")
-        ifit = calibrate_intrinsics([c for _, c in flat], [f"{names[i]}#{j}" for j, (i, _) in enumerate(flat)], board,
-                                    square_mm, (shape[1], shape[0]), leave_one_out=False)
+        ifit = calibrate_intrinsics_on_grids([c for _, c in flat], [f"{names[i]}#{j}" for j, (i, _) in enumerate(flat)],
+                                             board, square_mm, (shape[1], shape[0]))
         intr = ifit.intrinsics
         isrc = (f"fitted on the board corners of {len(ifit.used)} grids (RMS {ifit.rms_px:.3f} px; "
                 f"{len(ifit.rejected_views)} rejected)")
@@ -79,7 +92,7 @@ def _calibrate(poses, board, square_mm, intrinsics, names, seed, sensor, min_sam
                                  f"image used instead (RMS {max(rms_i):.2f} px)")
         per_view.append(acc)
         rows.append({"index": i, "name": names[i], "n_grids": len(acc), "grid_rms_px": float(max(rms_i)) if rms_i
-                     else float("nan")})
+                     else float("nan"), "n_corners": int(sum(np.isfinite(c).all(axis=1).sum() for c in acc))})
     grid_info = {"corner_noise_px": sigma, "threshold_px": scr.threshold_px, "rejected": rejected,
                  "n_grids": len(allg), "n_accepted": int(sum(len(a) for a in per_view))}
     if rejected:
@@ -110,8 +123,9 @@ def _calibrate(poses, board, square_mm, intrinsics, names, seed, sensor, min_sam
         if nw >= min_samples:
             r.update(status="white", reason="", n_used=nw)
         elif nd >= min_samples:
-            r.update(status="dark-only", reason=f"white squares saturated ({s.n_saturated} px lost): dark squares used",
-                     n_used=nd)
+            why = (f"white squares saturated ({s.n_saturated} px lost)" if s.n_saturated >= nw else
+                   f"only {nw} white pixels (a ChArUco board's white margins are narrow at this range)")
+            r.update(status="dark-only", reason=f"{why}: dark squares used", n_used=nd)
         else:
             r.update(status="skipped", reason=f"only {nw} white and {nd} dark usable pixels (< {min_samples})", n_used=0)
         adv()
@@ -123,8 +137,8 @@ def _calibrate(poses, board, square_mm, intrinsics, names, seed, sensor, min_sam
     if any(r["status"] == "dark-only" for r in rows) and not dark.known:
         for r in rows:
             if r["status"] == "dark-only":
-                r.update(status="skipped", reason="white squares saturated and the dark-square bias could not be "
-                         "measured (no view with both parities)", n_used=0)
+                r.update(status="skipped", reason=r["reason"].split(":")[0] + " and the dark-square bias could not "
+                         "be measured (no view with both parities)", n_used=0)
     # ---- pool
     used = [i for i, r in enumerate(rows) if r["status"] in ("white", "dark-only")]
     vidx = {i: j for j, i in enumerate(used)}
@@ -300,7 +314,9 @@ def _calibrate(poses, board, square_mm, intrinsics, names, seed, sensor, min_sam
         notes.append(f"the blocked validation supports only '{spec.name}' with {nwv} view(s) holding white squares")
     if has_dark_views:
         nd = int((~white_views).sum())
-        notes.append(f"{nd} view(s) with saturated white squares: " + (
+        what = "too few white pixels (saturated white squares, or a ChArUco board's narrow white margins)" \
+            if is_charuco(board) else "saturated white squares"
+        notes.append(f"{nd} view(s) with {what}: " + (
             "used through their dark squares (dark-square bias measured vs amplitude on "
             f"{len(dark.contrast_mm)} views, residual {dark.residual_mm:.1f} mm)" if use_dark else
             "left out of the fit (on the blocked folds they made the held-out error worse by more than one "

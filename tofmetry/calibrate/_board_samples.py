@@ -2,6 +2,10 @@
 (:class:`BoardSamples`, :func:`board_samples`), every board of an IR image (:func:`find_boards`,
 :func:`collect_grids`) and the grid test from the measured corner noise (:func:`corner_noise_px`,
 :func:`grid_threshold_px`, :func:`screen_grids`). Part of :mod:`tofmetry.calibrate.board`.
+
+A board is a checkerboard ``(cols, rows)`` or a :class:`~tofmetry.calibrate._charuco.CharucoBoard`
+(partial views: a grid holds NaN for the corners not seen, :mod:`._board_pose`; which of its pixels
+are white and dark: :mod:`._board_charuco`).
 """
 
 from __future__ import annotations
@@ -12,7 +16,9 @@ import cv2
 import numpy as np
 from scipy.special import gammaincinv
 
-from tofmetry.calibrate._board_pose import board_object_points, check_corners, solve_board_pose
+from tofmetry.calibrate._board_charuco import CHARUCO_EDGE_MARGIN_PX, charuco_square_masks
+from tofmetry.calibrate._board_pose import board_object_points, check_corners, is_charuco, solve_board_pose
+from tofmetry.calibrate._charuco import detect_charuco
 from tofmetry.calibrate._corners import detect_corners, normalize_ir
 from tofmetry.errors import EstimationError, InputError
 from tofmetry.sensor.intrinsics import CameraIntrinsics
@@ -81,20 +87,26 @@ class BoardSamples:
                             sum(p.n_rejected for p in parts), sum(p.n_saturated for p in parts), cat("amplitude"))
 
 
-def board_samples(depth: np.ndarray, ir: np.ndarray, corners: np.ndarray, board: tuple[int, int], square_mm: float,
+def board_samples(depth: np.ndarray, ir: np.ndarray, corners: np.ndarray, board, square_mm: float,
                   intr: CameraIntrinsics, edge_margin: float = 0.2, board_margin: float = 0.25,
-                  max_abs_dev_mm: float = 100.0, saturation: float = IR_SATURATION) -> BoardSamples:
+                  max_abs_dev_mm: float = 100.0, saturation: float = IR_SATURATION,
+                  edge_margin_px: float = CHARUCO_EDGE_MARGIN_PX) -> BoardSamples:
     """Reference depth from the board plane for every board pixel of one board.
 
     Parameters
     ----------
     depth : (H, W) uint16 [mm], Z; 0 = invalid.
-    ir : (H, W) IR amplitude (decides which square parity is white; saturated pixels are dropped).
-    corners : (cols*rows, 2) inner corners [px].
-    board : (cols, rows) inner corners; square_mm : square size [mm].
+    ir : (H, W) IR amplitude (checkerboard: decides which square parity is white; saturated
+        pixels are dropped).
+    corners : (cols*rows, 2) inner corners [px] (ChArUco: by corner id, NaN where not seen).
+    board : (cols, rows) inner corners of a checkerboard, or a ChArUco board; square_mm : square
+        size [mm].
     intr : IR/depth intrinsics.
-    edge_margin : fraction of a square kept away from square boundaries (mixed pixels).
-    board_margin : fraction of a square kept away from the outer edge of the outer squares.
+    edge_margin : checkerboard: fraction of a square kept away from square boundaries (mixed pixels).
+    board_margin : checkerboard: fraction of a square kept away from the outer edge of the outer squares.
+    edge_margin_px : ChArUco: distance [px] kept from every black/white edge (squares, markers, the
+        board's outline); only the squares touching a detected corner are used
+        (:func:`~tofmetry.calibrate._board_charuco.charuco_square_masks`).
     max_abs_dev_mm : gross-outlier gate on ``measured - reference`` around its median over the
         board (holes, flying pixels, another object in front) [mm].
     saturation : IR value of a saturated pixel.
@@ -116,13 +128,22 @@ def board_samples(depth: np.ndarray, ir: np.ndarray, corners: np.ndarray, board:
     n = R[:, 2]
     d = float(n @ t)
     rays = intr.ray_table()
-    cols, rows = board
-    s = float(square_mm)
-    outline = np.array([[-s, -s, 0], [cols * s, -s, 0], [cols * s, rows * s, 0], [-s, rows * s, 0]], float)
-    uv = intr.project(outline @ R.T + t)
+    charuco = is_charuco(board)
+    if charuco:
+        s, (sx, sy) = float(board.square_mm), (board.squares_x, board.squares_y)
+        outline = np.array([[0, 0, 0], [sx * s, 0, 0], [sx * s, sy * s, 0], [0, sy * s, 0]], float)
+    else:
+        cols, rows = board
+        s = float(square_mm)
+        outline = np.array([[-s, -s, 0], [cols * s, -s, 0], [cols * s, rows * s, 0], [-s, rows * s, 0]], float)
+    p_out = outline @ R.T + t
     H, W = intr.shape
-    u0, v0 = np.clip(np.floor(np.nanmin(uv, 0)).astype(int) - 2, 0, [W - 1, H - 1])
-    u1, v1 = np.clip(np.ceil(np.nanmax(uv, 0)).astype(int) + 2, 0, [W - 1, H - 1])
+    if charuco and not np.all(p_out[:, 2] > 0):
+        u0, v0, u1, v1 = 0, 0, W - 1, H - 1          # the board plane reaches behind the camera: whole image
+    else:
+        uv = intr.project(p_out)
+        u0, v0 = np.clip(np.floor(np.nanmin(uv, 0)).astype(int) - 2, 0, [W - 1, H - 1])
+        u1, v1 = np.clip(np.ceil(np.nanmax(uv, 0)).astype(int) + 2, 0, [W - 1, H - 1])
     vv, uu = np.mgrid[v0:v1 + 1, u0:u1 + 1]
     r = rays[v0:v1 + 1, u0:u1 + 1]
     denom = n[0] * r[..., 0] + n[1] * r[..., 1] + n[2]
@@ -130,18 +151,27 @@ def board_samples(depth: np.ndarray, ir: np.ndarray, corners: np.ndarray, board:
         zref = d / denom
     X = np.stack([r[..., 0] * zref, r[..., 1] * zref, zref], -1)
     pb = (X - t) @ R            # board coordinates [mm]
-    bx, by = pb[..., 0] / s, pb[..., 1] / s   # in squares; inner corners at integers 0..cols-1
-    inside = (bx > -1 + board_margin) & (bx < cols - board_margin) & (by > -1 + board_margin) & (by < rows - board_margin)
-    fx, fy = bx - np.floor(bx), by - np.floor(by)
-    away = (fx > edge_margin) & (fx < 1 - edge_margin) & (fy > edge_margin) & (fy < 1 - edge_margin)
-    parity = (np.floor(np.nan_to_num(bx)).astype(int) + np.floor(np.nan_to_num(by)).astype(int)) & 1
     meas = depth[v0:v1 + 1, u0:u1 + 1].astype(np.float64)
     irs = ir[v0:v1 + 1, u0:u1 + 1].astype(np.float64)
-    area = inside & away & (zref > 0)
-    # which parity is white: brighter IR over the whole board area (valid depth or not: white
-    # squares saturate and lose their depth at close range)
-    m0, m1 = area & (parity == 0), area & (parity == 1)
-    white_par = 0 if (np.median(irs[m0]) if m0.any() else 0) >= (np.median(irs[m1]) if m1.any() else 0) else 1
+    if charuco:
+        seen = np.isfinite(check_corners(corners, board, "board_samples")).all(axis=1)
+        with np.errstate(invalid="ignore"):
+            wm, dm = charuco_square_masks(pb[..., 0], pb[..., 1], board, seen, edge_margin_px)
+        wm &= zref > 0
+        dm &= zref > 0
+    else:
+        bx, by = pb[..., 0] / s, pb[..., 1] / s   # in squares; inner corners at integers 0..cols-1
+        inside = (bx > -1 + board_margin) & (bx < cols - board_margin) & (by > -1 + board_margin) & (by < rows - board_margin)
+        fx, fy = bx - np.floor(bx), by - np.floor(by)
+        away = (fx > edge_margin) & (fx < 1 - edge_margin) & (fy > edge_margin) & (fy < 1 - edge_margin)
+        parity = (np.floor(np.nan_to_num(bx)).astype(int) + np.floor(np.nan_to_num(by)).astype(int)) & 1
+        area = inside & away & (zref > 0)
+        # which parity is white: brighter IR over the whole board area (valid depth or not: white
+        # squares saturate and lose their depth at close range)
+        m0, m1 = area & (parity == 0), area & (parity == 1)
+        white_par = 0 if (np.median(irs[m0]) if m0.any() else 0) >= (np.median(irs[m1]) if m1.any() else 0) else 1
+        wm, dm = area & (parity == white_par), area & (parity != white_par)
+    area = wm | dm
     ok = area & (meas > 0) & (irs < saturation)
     dev = meas - zref
     med = float(np.median(dev[ok])) if ok.any() else 0.0
@@ -149,9 +179,9 @@ def board_samples(depth: np.ndarray, ir: np.ndarray, corners: np.ndarray, board:
     keep = ok & ~gross
     if keep.sum() < 20:
         raise EstimationError(f"fewer than 20 valid board pixels in this view ({int(keep.sum())})")
-    white = keep & (parity == white_par)
-    dark = keep & (parity != white_par)
-    n_sat = int(np.sum(area & (parity == white_par) & ~ok))
+    white = keep & wm
+    dark = keep & dm
+    n_sat = int(np.sum(wm & ~ok))
     dmw = float(np.median(dev[dark]) - np.median(dev[white])) if dark.sum() >= 10 and white.sum() >= 10 else float("nan")
     k = keep.ravel()
     return BoardSamples(uu.ravel()[k], vv.ravel()[k], meas.ravel()[k], zref.ravel()[k], white.ravel()[k],
@@ -164,15 +194,25 @@ def _chi2_ppf(q: float, dof: int) -> float:
     return float(2.0 * gammaincinv(0.5 * dof, q))
 
 
-def corner_noise_px(rms_px: np.ndarray, n_corners: int) -> float:
+def corner_noise_px(rms_px: np.ndarray, n_corners) -> float:
     """Corner noise sigma [px] (per axis) from per-grid PnP reprojection RMS values.
 
     Under isotropic Gaussian corner noise, ``RMS^2 * 2N / sigma^2`` follows a chi-square law with
     ``2N - 6`` degrees of freedom (6 pose parameters); the median grid gives
     ``sigma = median(RMS) sqrt(2N / chi2_median(2N - 6))`` (robust to a few wrong grids).
+    ``n_corners`` is one count for all grids, or (M,) counts (partial ChArUco views): then each
+    grid's RMS is turned into a sigma so, and their median is taken.
     Floored at :data:`MIN_CORNER_NOISE_PX`.
     """
     r = np.asarray(rms_px, float)
+    n_arr = np.asarray(n_corners)
+    if n_arr.ndim:
+        fin = np.isfinite(r)
+        if not fin.any():
+            return float("nan")
+        n2 = 2 * n_arr[fin].astype(int)
+        sig = [x * np.sqrt(k / _chi2_ppf(0.5, max(k - 6, 1))) for x, k in zip(r[fin], n2)]
+        return max(MIN_CORNER_NOISE_PX, float(np.median(sig)))
     r = r[np.isfinite(r)]
     if r.size == 0:
         return float("nan")
@@ -197,27 +237,34 @@ class GridScreen:
     rms_px : (M,) PnP reprojection RMS of each grid [px] (inf where the pose failed).
     accepted : (M,) bool.
     sigma_px : corner noise used [px] (measured, or given).
-    threshold_px : rejection threshold [px].
+    threshold_px : rejection threshold [px] (partial ChArUco views: of a grid with the median
+        number of corners).
+    thresholds_px : (M,) each grid's threshold [px] (it depends on the grid's number of corners).
     """
 
     rms_px: np.ndarray
     accepted: np.ndarray
     sigma_px: float
     threshold_px: float
+    thresholds_px: np.ndarray | None = None
 
 
-def screen_grids(grids: list[np.ndarray], board: tuple[int, int], square_mm: float, intr: CameraIntrinsics,
+def screen_grids(grids: list[np.ndarray], board, square_mm: float, intr: CameraIntrinsics,
                  sigma_px: float | None = None, allowance: float = GRID_ALLOWANCE) -> GridScreen:
     """Accept or reject corner grids by their reprojection error with the board pose.
 
     Parameters
     ----------
-    grids : list of (cols*rows, 2) corner arrays [px].
+    grids : list of (cols*rows, 2) corner arrays [px] (ChArUco: NaN where a corner was not seen).
+    board : (cols, rows) inner corners, or a ChArUco board.
     sigma_px : corner noise [px]; None = measured from these grids (:func:`corner_noise_px`;
         with fewer than 3 grids the noise cannot be measured and 0.1 px is assumed, said in
         ``sigma_px``'s provenance by the caller).
     """
-    n = board[0] * board[1]
+    if is_charuco(board):
+        ns = np.array([int(np.isfinite(np.asarray(c, float).reshape(-1, 2)).all(axis=1).sum()) for c in grids], int)
+    else:
+        ns = np.full(len(grids), board[0] * board[1], int)
     rms = np.full(len(grids), np.inf)
     for j, c in enumerate(grids):
         try:
@@ -225,23 +272,38 @@ def screen_grids(grids: list[np.ndarray], board: tuple[int, int], square_mm: flo
         except EstimationError:
             pass
     if sigma_px is None:
-        fin = rms[np.isfinite(rms)]
-        sigma_px = corner_noise_px(fin, n) if fin.size >= 3 else 0.1
-    thr = grid_threshold_px(sigma_px, n, allowance=allowance)
-    return GridScreen(rms, np.isfinite(rms) & (rms <= thr), float(sigma_px), thr)
+        fin = np.isfinite(rms)
+        if fin.sum() >= 3:
+            sigma_px = corner_noise_px(rms[fin], ns[fin] if is_charuco(board) else int(ns[0]))
+        else:
+            sigma_px = 0.1
+    thr = np.array([grid_threshold_px(sigma_px, k, allowance=allowance) for k in ns])
+    n_typ = int(np.median(ns)) if len(ns) else (board.n_corners if is_charuco(board) else board[0] * board[1])
+    return GridScreen(rms, np.isfinite(rms) & (rms <= thr), float(sigma_px),
+                      grid_threshold_px(sigma_px, n_typ, allowance=allowance), thr)
 
 
-def find_boards(ir: np.ndarray, board: tuple[int, int], max_boards: int = 4) -> list[np.ndarray]:
+def find_boards(ir: np.ndarray, board, max_boards: int = 4) -> list[np.ndarray]:
     """Every ``cols x rows`` board of an IR (or grey) image.
 
     The detector (:func:`detect_corners`) finds one board; its area (the grid extended by one
     square and a half on every side, through the board-to-image homography) is then filled with
-    the image's median grey and the detector runs again, until it finds nothing.
+    the image's median grey and the detector runs again, until it finds nothing. A ChArUco board
+    (its corners identified by its markers: one per image) is found by
+    :func:`~tofmetry.calibrate._charuco.detect_charuco`, partial views included.
 
     Returns
     -------
-    list of (cols*rows, 2) float64 corner arrays [px] (possibly empty).
+    list of (cols*rows, 2) float64 corner arrays [px] (possibly empty; ChArUco: by corner id, NaN
+    where a corner was not found).
     """
+    if is_charuco(board):
+        det = detect_charuco(ir, board)
+        if det is None:
+            return []
+        g = np.full((board.n_corners, 2), np.nan)
+        g[det.ids] = det.corners
+        return [g]
     a = np.asarray(ir)
     img = (a if (a.dtype == np.uint8 and a.ndim == 2) else normalize_ir(a)).copy()
     cols, rows = board
@@ -270,7 +332,7 @@ def _as_grid_list(corners) -> list[np.ndarray] | None:
     return [np.asarray(corners, float)]
 
 
-def collect_grids(poses: list, board: tuple[int, int], max_boards: int = 4) -> tuple[list[list[np.ndarray]], list[str]]:
+def collect_grids(poses: list, board, max_boards: int = 4) -> tuple[list[list[np.ndarray]], list[str]]:
     """Corner grids per view: the given ones, else every board found in the IR (:func:`find_boards`)."""
     grids, source = [], []
     for depth, ir, corners in poses:

@@ -5,7 +5,7 @@
 covariance** (the Gauss-Newton normal equations OpenCV's standard deviations come from; its
 diagonal equals them) and from it the **predicted ray-error map** over the whole image
 (:func:`tofmetry.calibrate._ray_error.predicted_ray_error_px`), the board coverage of the image
-and of its four corner regions (warnings where no board reached them).
+and of its four corner regions (:mod:`._coverage`; warnings where no board reached them).
 :func:`cross_validate_intrinsics` gives the k-fold pose-wise held-out reprojection error.
 """
 
@@ -17,54 +17,15 @@ import cv2
 import numpy as np
 
 from tofmetry.calibrate._board_pose import board_object_points, check_corners, reprojection_rms_with
+from tofmetry.calibrate._coverage import (  # noqa: F401  (CORNER_COVERED_FRAC re-exported: _lens_fit.X as before)
+    CORNER_COVERED_FRAC, corner_coverage, corner_region_corners, corner_region_coverage, coverage_mask,
+    uncovered_corner_regions,
+)
 from tofmetry.calibrate._ray_error import (
-    CORNER_FRAC, PARAMS, RayError, corner_regions, predicted_ray_error_px,
+    CORNER_FRAC, PARAMS, RayError, predicted_ray_error_px,
 )
 from tofmetry.errors import EstimationError, InputError
 from tofmetry.sensor import CameraIntrinsics
-
-#: A corner region counts as covered when this fraction of it lies inside some board's corner hull.
-CORNER_COVERED_FRAC = 0.1
-
-
-def coverage_mask(corners: list[np.ndarray], shape: tuple[int, int]) -> np.ndarray:
-    """(H, W) bool: union of the convex hulls of each image's detected corners (the covered area)."""
-    h, w = shape
-    m = np.zeros((h, w), np.uint8)
-    for c in corners:
-        hull = cv2.convexHull(np.asarray(c, np.float32).reshape(-1, 1, 2))
-        cv2.fillConvexPoly(m, np.round(hull).astype(np.int32), 1)
-    return m.astype(bool)
-
-
-def corner_coverage(corners: list[np.ndarray], shape: tuple[int, int], cells: int = 8) -> float:
-    """Fraction of a ``cells x cells`` grid over the image holding at least one corner."""
-    h, w = shape
-    occ = np.zeros((cells, cells), bool)
-    for c in corners:
-        c = np.asarray(c).reshape(-1, 2)
-        iu = np.clip((c[:, 0] * cells / w).astype(int), 0, cells - 1)
-        iv = np.clip((c[:, 1] * cells / h).astype(int), 0, cells - 1)
-        occ[iv, iu] = True
-    return float(occ.mean())
-
-
-def corner_region_coverage(mask: np.ndarray, frac: float = CORNER_FRAC) -> dict:
-    """Fraction of each image-corner region (``frac`` of width and height) inside ``mask``.
-
-    Parameters
-    ----------
-    mask : (H, W) bool, e.g. :func:`coverage_mask`
-
-    Returns
-    -------
-    dict region name -> covered fraction in [0, 1].
-    """
-    m = np.asarray(mask, bool)
-    h, w = m.shape
-    v, u = np.mgrid[0:h, 0:w]
-    return {k: float(m[r].mean()) for k, r in corner_regions(u, v, w, h, frac).items()}
-
 
 # ----------------------------------------------------------------------------- calibration
 
@@ -93,7 +54,10 @@ class IntrinsicsResult:
     cell_coverage : float, fraction of 8x8 image cells holding a detected corner
     corner_regions_coverage : dict region -> fraction of that image-corner region
         (:data:`CORNER_FRAC` of width and height) inside the boards' corner hulls
-    uncovered_corners : list of corner regions covered below :data:`CORNER_COVERED_FRAC`
+    corner_regions_corners : dict region -> detected corners in that region (all views)
+    uncovered_corners : list of corner regions no board reached (:func:`uncovered_corner_regions`:
+        covered below :data:`CORNER_COVERED_FRAC` by the hulls and without a detected corner; a
+        partial view's detected corners count where its hull, cut by the image border, does not)
     warnings : list of str
     used : list of image names used
     rejected_views : list of image names rejected as outliers (RMS > threshold in the first fit)
@@ -121,6 +85,7 @@ class IntrinsicsResult:
     predicted_ray: RayError | None = None
     corner_regions_coverage: dict = field(default_factory=dict)
     uncovered_corners: list = field(default_factory=list)
+    corner_regions_corners: dict = field(default_factory=dict)
 
     @property
     def per_view_rms_px(self) -> np.ndarray:
@@ -137,7 +102,7 @@ class IntrinsicsResult:
             "images_used": self.used, "rejected_views": self.rejected_views, "rejected_rms_px": self.rejected_rms_px,
             "reject_threshold_px": self.reject_threshold_px,
             "corner_regions": {"fraction_of_size": CORNER_FRAC, "covered_fraction": self.corner_regions_coverage,
-                               "uncovered": self.uncovered_corners},
+                               "detected_corners": self.corner_regions_corners, "uncovered": self.uncovered_corners},
             "covariance": {"params": list(PARAMS), "matrix": None if self.cov is None else self.cov.tolist(),
                            "diagonal_matches_opencv_std": self.cov_matches_opencv},
         }
@@ -305,7 +270,8 @@ def calibrate_intrinsics(corners: list[np.ndarray], names: list[str] | None, boa
     res.cell_coverage = corner_coverage(corners, (h, w))
     res.coverage = float(mask.mean())
     res.corner_regions_coverage = corner_region_coverage(mask)
-    res.uncovered_corners = [k for k, v in res.corner_regions_coverage.items() if v < CORNER_COVERED_FRAC]
+    res.corner_regions_corners = corner_region_corners(corners, (h, w))
+    res.uncovered_corners = uncovered_corner_regions(res.corner_regions_coverage, res.corner_regions_corners)
     if res.coverage < min_coverage:
         res.warnings.append(
             f"the boards cover only {100 * res.coverage:.0f} % of the image area ({100 * res.cell_coverage:.0f} % of "

@@ -1,9 +1,13 @@
-"""Board-based depth calibration: a printed chessboard as the depth reference.
+"""Board-based depth calibration: a printed chessboard or ChArUco board as the depth reference.
 
 Method
 ------
 1. **Grids.** Per view, the chessboard corners (given, or found in the IR image; every board
-   of a view: :func:`find_boards` detects again with the found boards masked out). Each grid's
+   of a view: :func:`find_boards` detects again with the found boards masked out). A ChArUco
+   board (``board`` a :class:`~tofmetry.calibrate.CharucoBoard`) may be seen in part: its grid
+   holds the corners detected (NaN for the others), its pose comes from them, and its samples
+   come from the squares touching them (:mod:`._board_charuco`: black squares and the white
+   margins around the markers, a pixel margin from every edge). Each grid's
    pose is solved with the IR/depth intrinsics (``cv2.solvePnP``) and the grid is **rejected
    when its reprojection RMS exceeds a threshold derived from the measured corner noise**
    (:func:`corner_noise_px`, :func:`grid_threshold_px`): a grid spanning two boards or a
@@ -47,11 +51,13 @@ from __future__ import annotations
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from tofmetry.calibrate._board_calibrate import _calibrate
+from tofmetry.calibrate._board_calibrate import _calibrate, calibrate_intrinsics_on_grids
 from tofmetry.calibrate._board_folds import blocked_folds, candidate_ladder, predict_error, region_folds
 from tofmetry.calibrate._board_model import BoardDepthModel, ModelSpec, fit_board_model, to_depth_calibration
 from tofmetry.calibrate._board_model import RANGE_VARIABLES  # noqa: F401  (re-exported: board.X as before the split)
-from tofmetry.calibrate._board_pose import board_object_points, check_corners, reprojection_rms_with, solve_board_pose
+from tofmetry.calibrate._board_pose import (
+    board_inner, board_object_points, check_corners, is_charuco, reprojection_rms_with, seen_corners, solve_board_pose,
+)
 from tofmetry.calibrate._board_result import BoardCalibrationResult
 from tofmetry.calibrate._board_samples import (
     BoardSamples, GridScreen, board_samples, collect_grids, corner_noise_px, find_boards, grid_threshold_px,
@@ -72,7 +78,8 @@ from tofmetry.sensor.intrinsics import CameraIntrinsics
 # intrinsics helpers live in tofmetry.calibrate and are re-exported here for convenience.
 __all__ = [
     "BoardCalibrationResult", "BoardDepthModel", "BoardSamples", "DarkBias", "GridScreen", "ModelSpec",
-    "blocked_folds", "board_object_points", "board_samples", "calibrate_depth_from_board", "calibrate_intrinsics",
+    "blocked_folds", "board_inner", "board_object_points", "board_samples", "calibrate_intrinsics_on_grids",
+    "is_charuco", "seen_corners", "calibrate_depth_from_board", "calibrate_intrinsics",
     "candidate_ladder", "check_corners", "collect_grids", "constant_shift_calibration", "core_correction",
     "corner_noise_px", "cross_validate_intrinsics", "detect_corners", "error_stats", "evaluate_views", "find_boards",
     "fit_board_model", "fit_dark_bias", "grid_threshold_px", "normalize_ir", "outside_support", "predict_error",
@@ -81,7 +88,7 @@ __all__ = [
 ]
 
 
-def calibrate_depth_from_board(poses: list, board: tuple[int, int], square_mm: float,
+def calibrate_depth_from_board(poses: list, board, square_mm: float,
                                intrinsics: CameraIntrinsics | None = None, *, names: list[str] | None = None,
                                seed: int = 0, sensor: str = "kinect_v2", min_samples: int = 200,
                                candidates: list[ModelSpec] | None = None, use_dark_views: bool | str = "auto",
@@ -93,8 +100,9 @@ def calibrate_depth_from_board(poses: list, board: tuple[int, int], square_mm: f
     ----------
     poses : list of ``(depth (H,W) uint16 mm, ir (H,W), corners)`` in recording order; corners:
         (cols*rows, 2) [px], a list of such grids (several boards), or None (every board found
-        in the IR image).
-    board : (cols, rows) inner corners; square_mm : square size [mm].
+        in the IR image). ChArUco: one grid by corner id, NaN where a corner was not seen.
+    board : (cols, rows) inner corners of a checkerboard, or a ChArUco board (partial views);
+        square_mm : square size [mm].
     intrinsics : IR/depth intrinsics, **used as given**. None: fitted on the corners of these
         views (said in ``intrinsics_source``); needs at least 3 grids.
     names : view names (default ``view000`` ...).
@@ -123,7 +131,7 @@ def calibrate_depth_from_board(poses: list, board: tuple[int, int], square_mm: f
                           use_dark_views, max_boards, max_samples_per_view, k_folds, sample_kwargs, advance)
 
 # ----------------------------------------------------------------------------- judging
-def evaluate_views(poses: list, board: tuple[int, int], square_mm: float, intr: CameraIntrinsics,
+def evaluate_views(poses: list, board, square_mm: float, intr: CameraIntrinsics,
                    corrections: dict, *, names: list[str] | None = None, sigma_px: float | None = None,
                    support: dict | None = None, model: BoardDepthModel | None = None,
                    valid_range_mm: tuple[float, float] | None = None, sample_kwargs: dict | None = None) -> dict:

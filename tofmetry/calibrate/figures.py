@@ -120,7 +120,8 @@ def fig_validation(reports) -> "Figure":
 
 
 def fig_coverage(corners_px: list, shape: tuple[int, int], title: str = "Checkerboard corner coverage", *,
-                 corner_regions: dict | None = None, predicted_ray=None, corner_frac: float = 0.1):
+                 corner_regions: dict | None = None, predicted_ray=None, corner_frac: float = 0.1,
+                 uncovered: list | None = None, region_corners: dict | None = None):
     """Coverage map of detected corners over the image (count per cell) with the corners.
 
     Parameters
@@ -128,7 +129,9 @@ def fig_coverage(corners_px: list, shape: tuple[int, int], title: str = "Checker
     corners_px : list of (N, 2) [px]; shape : (H, W)
     corner_regions : optional dict region name (``top-left`` ...) -> covered fraction: the four
         image-corner regions (``corner_frac`` of width and height) are outlined, red where no
-        board reached them (fraction < 0.1), green otherwise
+        board reached them (the regions in ``uncovered``; without it, fraction < 0.1), green otherwise
+    uncovered : optional list of the regions no board reached (``IntrinsicsResult.uncovered_corners``)
+    region_corners : optional dict region -> detected corners in it, written in the region
     predicted_ray : optional ``RayError`` (``IntrinsicsResult.predicted_ray``): adds a panel with
         the predicted ray-error map [px] from the parameter covariance
     """
@@ -158,9 +161,11 @@ def fig_coverage(corners_px: list, shape: tuple[int, int], title: str = "Checker
     def outline(a, label_values=None):
         for name, frac in (corner_regions or {}).items():
             x0, y0 = origins[name]
-            bad = frac < 0.1
+            bad = name in uncovered if uncovered is not None else frac < 0.1
             a.add_patch(Rectangle((x0, y0), rw, rh, fill=False, lw=2, ec="red" if bad else "lime"))
             txt = "no board" if bad else f"{100 * frac:.0f} % covered"
+            if region_corners is not None and not bad:
+                txt += f"\n{region_corners.get(name, 0)} corners"
             if label_values is not None:
                 txt += f"\n{label_values[name]:.2f} px"
             a.text(x0 + rw / 2, y0 + rh / 2, txt, color="red" if bad else "green", ha="center", va="center",

@@ -11,6 +11,7 @@ from tofmetry.cli._common import (
     ACCEPT_IMPLAUSIBLE_HELP, BOARD_HELP, DICTIONARY_HELP, MARKER_HELP, SQUARES_HELP, console, load_intrinsics_option,
     parse_board, print_plausibility, progress, refuse_existing,
 )
+from tofmetry.cli._board import _print_board_run, _validate_board
 from tofmetry.cli.stereo import rig_cmd, stereo_cmd
 
 calibrate_app = typer.Typer(help="Calibrate the camera: IR intrinsics (checkerboard) and ToF depth (wall).",
@@ -212,12 +213,21 @@ def depth(
                                               "(names or numbers, ranges, commas; default: all but the judged)."),
     judge_poses: Optional[str] = typer.Option(None, "--judge-poses", help="Board: poses held out of every fit "
                                               "(intrinsics included) and judged with the written calibration, e.g. 50-69."),
+    board: Optional[str] = typer.Option(None, "--board", help="Board: the board instead of the dataset's board.json: "
+                                        "inner corners COLSxROWS, e.g. 9x6, or 'charuco' (with --charuco-squares, "
+                                        "--marker-mm, --dictionary); with --square-mm."),
+    square_mm: Optional[float] = typer.Option(None, "--square-mm", help="Board, with --board: square size [mm]."),
+    charuco_squares: str = typer.Option("13x10", "--charuco-squares", help="Board, --board charuco: squares "
+                                        "COLSxROWS (not inner corners; --squares is the square choice above)."),
+    marker_mm: float = typer.Option(56.0, "--marker-mm", help="Board, --board charuco: " + MARKER_HELP),
+    dictionary: str = typer.Option("DICT_4X4_100", "--dictionary", help="Board, --board charuco: " + DICTIONARY_HELP),
     report: Optional[Path] = typer.Option(None, "--report", help="Folder for the fit report (JSON + figures)."),
     force: bool = typer.Option(False, "--force", help="Overwrite the output (and the report's files)."),
     accept_implausible: bool = typer.Option(False, "--accept-implausible", help=ACCEPT_IMPLAUSIBLE_HELP),
 ) -> None:
     """Fit a depth calibration on a wall dataset (range B-spline + per-pixel surfaces) or, when the
-    folder holds board.json, on a board dataset (board planes as reference, cross-validated over poses)."""
+    folder holds board.json, on a board dataset (board planes as reference, cross-validated over poses;
+    a checkerboard or a ChArUco board, whose views may show part of it)."""
     import sys
 
     from rich.table import Table
@@ -228,15 +238,19 @@ def depth(
 
     refuse_existing([output, report], force)
     cfg = _fit_config(method, surface, poly_degree, fallback)
+    board_arg = None
+    if board is not None:
+        spec, charuco = parse_board(board, square_mm, charuco_squares, marker_mm, dictionary)
+        board_arg = charuco if charuco is not None else spec
     with progress(f"calibrating depth on {dataset.name}", None) as adv:
         if (dataset / "board.json").is_file():
             from tofmetry.pipelines.board import calibrate_board
 
             run = calibrate_board(dataset, load_intrinsics_option(intrinsics), squares, folds, adv,
                                   {"command": " ".join(sys.argv)}, train_poses=train_poses, judge_poses=judge_poses,
-                                  accept_implausible=accept_implausible)
-        elif train_poses is not None or judge_poses is not None:
-            raise InputError("--train-poses / --judge-poses apply to board datasets (board.json) only")
+                                  accept_implausible=accept_implausible, board=board_arg)
+        elif train_poses is not None or judge_poses is not None or board is not None:
+            raise InputError("--train-poses / --judge-poses / --board apply to board datasets (board.json) only")
         else:
             run = calibrate_depth_dataset(dataset, intrinsics=load_intrinsics_option(intrinsics), config=cfg,
                                           tilted=tilted, reference_offset_mm=reference_offset_mm, advance=adv,
@@ -267,91 +281,6 @@ def depth(
         write_depth_report(run, report)
         console.print(f"report written to {report}")
     console.print(f"wrote {output} in {run.seconds:.1f} s")
-
-
-def _print_board_run(run) -> None:
-    """Board mode: model selection, blocked validation, prediction and judged poses (board-specific)."""
-    from rich.table import Table
-
-    from tofmetry.pipelines.board import judged_table
-
-    fit = run.fit
-    console.print(f"board {fit['board']['cols']}x{fit['board']['rows']} inner corners, {fit['board']['square_mm']} mm; "
-                  f"{fit['n_poses']} poses used; {fit['n_dark_only_views']} with saturated white squares "
-                  f"({'used through their dark squares' if fit['use_dark_views'] else 'not used'}); "
-                  f"intrinsics: {run.intrinsics_source}")
-    ifit = fit["intrinsics_fit"]
-    if "cv_rms_px" in ifit:
-        console.print(f"intrinsics held-out reprojection ({ifit['k']}-fold): {ifit['cv_rms_px']:.3f} px")
-    console.print(f"corner grids: noise {ifit['corner_noise_px']:.3f} px, rejected above {ifit['grid_threshold_px']:.2f} px")
-    designs = [d for d in ("time", "range", "region") if d in fit["validation"]]
-    t = Table(title="model selection on blocked folds: held-out RMS [mm] (time: blocks of poses in recording order, "
-                    "range: bins of range, region: image regions left out)")
-    for col in ("candidate", *designs, "score", "chosen"):
-        t.add_column(col, justify="right")
-    for r in fit["selection"]:
-        t.add_row(r["name"] + (" + dark-square views" if r["use_dark_views"] else ""),
-                  *[f"{r[f'{d}_rms_mm']:.2f}" for d in designs], f"{r.get('score_mm', float('nan')):.2f}",
-                  "*" if r.get("chosen") else "")
-    console.print(t)
-    console.print(f"model: {fit['model_description']}")
-    t = Table(title="held-out board-plane error of the chosen model, white squares [mm]")
-    for col in ("validation", "mean", "RMS", "P95 |e|", "n"):
-        t.add_column(col, justify="right")
-    for d, st in fit["validation"].items():
-        t.add_row(st.get("label", f"{d} (blocked)"), f"{st['mean_mm']:+.2f}", f"{st['rms_mm']:.2f}",
-                  f"{st['p95_abs_mm']:.2f}", str(st["n"]))
-    console.print(t)
-    p = fit.get("prediction") or {}
-    if p:
-        console.print(f"predicted error on {p['n_new_views']} new poses (time blocks, 90 % interval): RMS "
-                      f"{p['rms_mm']:.2f} [{p['rms_mm_interval'][0]:.2f}, {p['rms_mm_interval'][1]:.2f}], P95 |e| "
-                      f"{p['p95_abs_mm']:.2f} [{p['p95_abs_mm_interval'][0]:.2f}, {p['p95_abs_mm_interval'][1]:.2f}], "
-                      f"mean {p['mean_mm']:+.2f} [{p['mean_mm_interval'][0]:+.2f}, {p['mean_mm_interval'][1]:+.2f}] mm")
-    j = fit.get("judged")
-    if j:
-        t = Table(title=f"judged poses {j['poses'][0]}..{j['poses'][-1]} ({j['n_views']} poses, never fitted), "
-                        "white squares [mm]")
-        for col in ("case", "mean", "RMS", "P95 |e|", "n"):
-            t.add_column(col, justify="right")
-        for label, st in judged_table(fit):
-            t.add_row(label, f"{st['mean_mm']:+.2f}", f"{st['rms_mm']:.2f}", f"{st['p95_abs_mm']:.2f}", str(st["n"]))
-        console.print(t)
-        jp, m = j.get("prediction") or {}, j["cases"].get("tofmetry", {})
-        if jp:
-            console.print(f"tofmetry predicted for {jp['n_new_views']} new poses vs measured: RMS "
-                          f"[{jp['rms_mm_interval'][0]:.2f}, {jp['rms_mm_interval'][1]:.2f}] vs {m['rms_mm']:.2f}, P95 "
-                          f"[{jp['p95_abs_mm_interval'][0]:.2f}, {jp['p95_abs_mm_interval'][1]:.2f}] vs "
-                          f"{m['p95_abs_mm']:.2f}, mean [{jp['mean_mm_interval'][0]:+.2f}, "
-                          f"{jp['mean_mm_interval'][1]:+.2f}] vs {m['mean_mm']:+.2f} mm")
-        o = j["outside"]
-        console.print(f"judged pixels outside the training support: {o['range']} beyond the range fitted (clamped), "
-                      f"{o['image_cell']} in image cells never covered, {o['cell_and_range_bin']} in cell/100 mm "
-                      f"bins without a sample, {o['uncorrected']} outside the calibration's valid range "
-                      f"(left uncorrected), of {j['n_samples']}")
-
-
-def _validate_board(path: Path, cal, poses, intrinsics, output) -> None:
-    """``calibrate validate`` on a board dataset (board-specific)."""
-    from rich.table import Table
-
-    from tofmetry.io import atomic_write_json
-    from tofmetry.pipelines.board import validate_board
-
-    v = validate_board(path, cal, poses=poses, intrinsics=intrinsics)
-    for n, why in v["skipped"]:
-        console.print(f"[yellow]note:[/] pose {n} not judged: {why}")
-    t = Table(title=f"board poses {v['poses'][0]}..{v['poses'][-1]} ({v['n_views']} judged), white squares [mm]")
-    for col in ("case", "mean", "RMS", "P95 |e|", "n"):
-        t.add_column(col, justify="right")
-    for k, st in v["cases"].items():
-        t.add_row(k, f"{st['mean_mm']:+.2f}", f"{st['rms_mm']:.2f}", f"{st['p95_abs_mm']:.2f}", str(st["n"]))
-    console.print(t)
-    if "measured_within_prediction" in v:
-        console.print(f"measured within the calibration's predicted 90 % intervals: {v['measured_within_prediction']}")
-    if output is not None:
-        atomic_write_json(output / "validation.json", v)
-        console.print(f"validation written to {output}")
 
 
 # ------------------------------------------------------------------ validate

@@ -1,4 +1,4 @@
-"""CLI commands: ``tofmetry simulate {wall,wall-dataset,checkerboard,charuco,scan,warmup,noise,materials,outdoor}``.
+"""CLI commands: ``tofmetry simulate {wall,wall-dataset,checkerboard,charuco,board-dataset,scan,warmup,noise,materials,outdoor}``.
 
 Every command writes a simulated dataset folder (contract captures + truth files at the
 root) and refuses to overwrite an existing folder without ``--force``. ``--sensor random``
@@ -121,6 +121,27 @@ def charuco(output: Path = _OUT, images: int = typer.Option(10, "--images", help
     with progress("rendering ChArUco images", images) as adv:
         p = datasets.charuco_images(output, images, None, seed, force=force, progress=adv, sensor=draw)
     _done(p, f"{images} ChArUco IR images")
+
+
+@sim_app.command("board-dataset")
+def board_dataset(output: Path = _OUT, board: str = typer.Option("charuco", "--board", help="charuco (13x10 squares "
+                                                                 "of 80 mm, 56 mm DICT_4X4_100 markers; partial views) "
+                                                                 "or checkerboard (9x6 inner corners of 50 mm)."),
+                  poses: int = typer.Option(20, "--poses", help="Number of board poses (one capture each)."),
+                  min_distance_m: float = typer.Option(0.6, "--min-distance-m", help="Nearest board distance [m]."),
+                  max_distance_m: float = typer.Option(1.3, "--max-distance-m", help="Farthest board distance [m]."),
+                  frames: int = typer.Option(1, "--frames", help="Frames per pose."),
+                  seed: int = _SEED, no_errors: bool = _NOERR, without: Optional[List[str]] = _WITHOUT,
+                  sensor: str = _SENSOR, force: bool = _FORCE) -> None:
+    """Board dataset for 'calibrate depth': board.json + poses/NNNN captures (depth + IR) of a ChArUco board or
+    a checkerboard; truth.npz holds each pixel's noise-free depth error."""
+    from tofmetry.simulate.board_datasets import board_dataset as write
+
+    draw = _sensor(sensor, seed, no_errors, without)
+    with progress(f"rendering {poses} board poses", poses) as adv:
+        p = write(output, poses, board, seed, sensor=draw, dist_range_m=(min_distance_m, max_distance_m),
+                  n_frames=frames, force=force, progress=adv)
+    _done(p, f"{board} board dataset ({poses} poses)")
 
 
 @sim_app.command("scan")

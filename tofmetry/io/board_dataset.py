@@ -1,9 +1,11 @@
-"""Board dataset: chessboard poses for board-based calibration (and the iai_kinect2 importer).
+"""Board dataset: chessboard or ChArUco poses for board-based calibration (and the iai_kinect2 importer).
 
 ::
 
     dataset/
       board.json            {"cols": 5, "rows": 7, "square_mm": 30.0, "sensor": "kinect_v2", "source": ...}
+                            or a ChArUco board: {"type": "charuco", "squares_x": 13, "squares_y": 10,
+                            "square_mm": 80.0, "marker_mm": 56.0, "dictionary": "DICT_4X4_100", ...}
       intrinsics.json       IR/depth intrinsics (optional; e.g. from iai_kinect2 calib_ir.yaml)
       color_intrinsics.json colour intrinsics (optional)
       extrinsics.json       IR -> colour extrinsics [m] (optional)
@@ -12,7 +14,9 @@
                             written by the pipeline's importer, :mod:`tofmetry.pipelines.iai_import`)
       poses/NNNN/           one capture per board pose (capture.json, depth/, ir/, color/)
       poses/NNNN/corners.json  {"board": [cols, rows], "corners_px": [[u, v], ...] (or a list of such grids: several
-                            boards in one view), "source": ...}; without it the boards are found in the IR image
+                            boards in one view), "source": ...}; without it the boards are found in the IR image.
+                            ChArUco: {"board": [cols, rows], "ids": [k, ...], "corners_px": [[u, v], ...]}, the
+                            corners seen (inner corners cols x rows, id k = column k % cols, row k // cols)
 
 ``tofmetry calibrate depth`` dispatches here when the folder holds ``board.json``.
 """
@@ -61,8 +65,20 @@ class BoardSpec:
         return cls(cols, rows, float(square_mm))
 
 
-def write_corners(path: str | os.PathLike, corners, board: BoardSpec, source: str = "") -> Path:
-    """Write ``corners.json``: one grid (cols*rows, 2) [px] or a list of grids (several boards in one view)."""
+#: Keys of a ChArUco ``board.json`` (``"type": "charuco"``; ``dictionary`` optional, default DICT_4X4_50).
+CHARUCO_KEYS = ("squares_x", "squares_y", "square_mm", "marker_mm", "dictionary")
+
+
+def write_corners(path: str | os.PathLike, corners, board: BoardSpec, source: str = "", ids=None) -> Path:
+    """Write ``corners.json``: one grid (cols*rows, 2) [px] or a list of grids (several boards in one view);
+    with ``ids`` (ChArUco), the (N, 2) corners seen and their ids."""
+    if ids is not None:
+        k = np.asarray(ids, np.int64).ravel()
+        c = np.asarray(corners, float).reshape(-1, 2)
+        if len(k) != len(c) or (k.size and (k.min() < 0 or k.max() >= board.cols * board.rows)):
+            raise InputError(f"{path}: {len(c)} corners with {len(k)} ids in 0..{board.cols * board.rows - 1} expected")
+        return atomic_write_json(path, {"board": [board.cols, board.rows], "ids": k.tolist(), "corners_px": c,
+                                        "source": source})
     grids = corners if isinstance(corners, (list, tuple)) else [corners]
     out = []
     for c in grids:
@@ -76,13 +92,26 @@ def write_corners(path: str | os.PathLike, corners, board: BoardSpec, source: st
 
 def read_corners(path: str | os.PathLike, board: BoardSpec):
     """(cols*rows, 2) float64 corner pixels, or a list of such grids when the file holds several
-    boards (``corners_px`` of shape (M, cols*rows, 2)); FormatError naming the file on mismatch."""
+    boards (``corners_px`` of shape (M, cols*rows, 2)); FormatError naming the file on mismatch.
+    A file with ``ids`` (ChArUco) gives one (cols*rows, 2) grid, NaN where a corner was not seen."""
     d = read_json(path, "corners file")
     try:
         c = np.asarray(d["corners_px"], float)
     except (KeyError, TypeError, ValueError, OverflowError):
         raise FormatError(f"{path}: expected {{'corners_px': [[u, v], ...]}} (or a list of such grids)") from None
     n = board.cols * board.rows
+    if "ids" in d:
+        try:
+            k = np.asarray(d["ids"], np.int64).ravel()
+        except (TypeError, ValueError, OverflowError):
+            raise FormatError(f"{path}: 'ids' must be a list of corner ids") from None
+        if c.ndim != 2 or c.shape[1] != 2 or len(c) != len(k) or (k.size and (k.min() < 0 or k.max() >= n)) \
+                or len(np.unique(k)) != len(k):
+            raise FormatError(f"{path}: expected one [u, v] per id and distinct ids in 0..{n - 1} (board "
+                              f"{board.cols}x{board.rows} inner corners), found {c.shape} corners and {len(k)} ids")
+        g = np.full((n, 2), np.nan)
+        g[k] = c
+        return g
     if c.ndim == 3 and c.shape[1:] == (n, 2) and c.shape[0] >= 1:
         return [g for g in c]
     if c.ndim != 2 or c.shape[1] != 2 or len(c) != n:
@@ -93,16 +122,47 @@ def read_corners(path: str | os.PathLike, board: BoardSpec):
     return c
 
 
+def charuco_spec(meta: dict, where: str) -> dict:
+    """The ChArUco board of a ``board.json`` (``"type": "charuco"``) as a plain dict of :data:`CHARUCO_KEYS`
+    (checked for types and sizes; the dictionary name is checked where the board is built)."""
+    try:
+        spec = {"squares_x": int(meta["squares_x"]), "squares_y": int(meta["squares_y"]),
+                "square_mm": float(meta["square_mm"]), "marker_mm": float(meta["marker_mm"]),
+                "dictionary": str(meta.get("dictionary", "DICT_4X4_50"))}
+    except (KeyError, TypeError, ValueError, OverflowError):
+        raise FormatError(f"{where}: a ChArUco board needs squares_x, squares_y (squares), square_mm, marker_mm "
+                          "[, dictionary]") from None
+    if spec["squares_x"] < 3 or spec["squares_y"] < 3 or not 0 < spec["marker_mm"] < spec["square_mm"]:
+        raise FormatError(f"{where}: ChArUco board needs >= 3x3 squares and 0 < marker_mm < square_mm, found {spec}")
+    return spec
+
+
 class BoardDataset:
-    """A board dataset opened for reading (see the module docstring)."""
+    """A board dataset opened for reading (see the module docstring).
+
+    Attributes
+    ----------
+    board : BoardSpec, the inner corners and square size (ChArUco: ``squares - 1`` each way)
+    charuco : the ChArUco board (:func:`charuco_spec` dict) when ``board.json`` says ``"type": "charuco"``,
+        else None (a checkerboard)
+    """
 
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
         meta = read_json(self.path / "board.json", "board.json")
-        try:
-            self.board = BoardSpec(int(meta["cols"]), int(meta["rows"]), float(meta["square_mm"]))
-        except (KeyError, TypeError, ValueError, OverflowError):
-            raise FormatError(f"{self.path / 'board.json'}: expected cols, rows (inner corners) and square_mm") from None
+        if not isinstance(meta, dict):
+            raise FormatError(f"{self.path / 'board.json'}: expected a JSON object (cols, rows, square_mm, or a "
+                              f"ChArUco board), found {type(meta).__name__}")
+        self.charuco = None
+        if str(meta.get("type", "checkerboard")).lower() == "charuco":
+            self.charuco = charuco_spec(meta, str(self.path / "board.json"))
+            self.board = BoardSpec(self.charuco["squares_x"] - 1, self.charuco["squares_y"] - 1, self.charuco["square_mm"])
+        else:
+            try:
+                self.board = BoardSpec(int(meta["cols"]), int(meta["rows"]), float(meta["square_mm"]))
+            except (KeyError, TypeError, ValueError, OverflowError):
+                raise FormatError(f"{self.path / 'board.json'}: expected cols, rows (inner corners) and square_mm, "
+                                  "or \"type\": \"charuco\" with squares_x, squares_y, square_mm, marker_mm") from None
         self.meta = meta
         self.sensor = str(meta.get("sensor", "unknown"))
         pdir = self.path / "poses"

@@ -16,12 +16,13 @@ from pathlib import Path
 
 import numpy as np
 
-from tofmetry.calibrate import cross_validate_intrinsics
+from tofmetry.calibrate import CharucoBoard, cross_validate_intrinsics
 from tofmetry.calibrate.board import (
-    collect_grids, calibrate_depth_from_board, core_correction, error_stats, evaluate_views,
+    board_inner, collect_grids, calibrate_depth_from_board, core_correction, error_stats, evaluate_views, is_charuco,
+    seen_corners,
 )
 from tofmetry.errors import EstimationError, InputError
-from tofmetry.io.board_dataset import BoardDataset
+from tofmetry.io.board_dataset import BoardDataset, BoardSpec
 from tofmetry.pipelines._common import _adv, _provenance
 from tofmetry.pipelines.depth_run import DepthRun
 from tofmetry.pipelines.plausibility import check_correction, check_intrinsics, enforce
@@ -67,14 +68,47 @@ def parse_pose_selection(spec: str | None, names: list[str], what: str = "--trai
     return sorted(set(out))
 
 
+def resolve_board(ds: BoardDataset, board=None) -> tuple:
+    """The board of a dataset: ``(board, square_mm, description)`` with ``board`` as
+    :mod:`tofmetry.calibrate.board` takes it (``(cols, rows)`` inner corners, or a
+    :class:`~tofmetry.calibrate.CharucoBoard`) and a JSON-able ``description`` (``cols``, ``rows``
+    inner corners and ``square_mm``; a ChArUco board's own fields and ``"type": "charuco"`` besides).
+
+    Parameters
+    ----------
+    ds : the dataset (its ``board.json``)
+    board : None (the dataset's board), a ``BoardSpec`` (checkerboard) or a ``CharucoBoard``: given,
+        it replaces the dataset's
+    """
+    if board is None:
+        board = CharucoBoard.from_dict(ds.charuco) if ds.charuco is not None else ds.board
+    if isinstance(board, CharucoBoard):
+        cols, rows = board.inner
+        return board, float(board.square_mm), {**board.to_dict(), "cols": cols, "rows": rows}
+    if isinstance(board, BoardSpec):
+        return board.size, float(board.square_mm), {"cols": board.cols, "rows": board.rows, "square_mm": board.square_mm}
+    raise InputError(f"board: expected a BoardSpec or a CharucoBoard, found {type(board).__name__}")
+
+
+def _cv_intrinsics(grids: list, board, square_mm: float, size: tuple[int, int], k: int) -> dict:
+    """k-fold held-out reprojection of intrinsics fitted on board grids (ChArUco: seen corners)."""
+    if not is_charuco(board):
+        return cross_validate_intrinsics(grids, board, square_mm, size, k=k)
+    so = [seen_corners(c, board, square_mm) for c in grids]
+    return cross_validate_intrinsics([c for _, c in so], board_inner(board), square_mm, size, k=k,
+                                     object_points=[o for o, _ in so])
+
+
 def calibrate_board(path: Path, intrinsics, squares: str = "auto", k_folds: int = 5, advance=None, provenance=None,
                     *, train_poses: str | None = None, judge_poses: str | None = None,
-                   accept_implausible: bool = False) -> DepthRun:
+                   accept_implausible: bool = False, board=None) -> DepthRun:
     """Board-based depth calibration of a board dataset.
 
     Parameters
     ----------
-    path : board dataset folder (``board.json`` + ``poses/``).
+    path : board dataset folder (``board.json`` + ``poses/``): a checkerboard, or a ChArUco board
+        (``"type": "charuco"``; views that see part of the board count).
+    board : None (``board.json``'s), or a ``BoardSpec`` / ``CharucoBoard`` used instead (:func:`resolve_board`).
     intrinsics : IR/depth intrinsics, used as given; None: fitted on the training poses' corners
         (said in the run's ``intrinsics_source``), or, with too few corner grids, the dataset's
         ``intrinsics.json``.
@@ -109,7 +143,7 @@ def calibrate_board(path: Path, intrinsics, squares: str = "auto", k_folds: int 
     notes: list[str] = []
     poses = ds.load_poses(train)
     adv()
-    board, sq = ds.board.size, ds.board.square_mm
+    board, sq, board_desc = resolve_board(ds, board)
     ds_intr = ds.intrinsics()
     intr, src = intrinsics, "given"
     if intr is None:
@@ -136,7 +170,7 @@ def calibrate_board(path: Path, intrinsics, squares: str = "auto", k_folds: int 
                      "rejected_views": res.intrinsics_fit["rejected_views"]})
         grids = [c for g in res.grids for c in g]     # the grids that passed the reprojection test
         if len(grids) >= 2 * k_folds:
-            cv = cross_validate_intrinsics(grids, board, sq, (intr.width, intr.height), k=k_folds)
+            cv = _cv_intrinsics(grids, board, sq, (intr.width, intr.height), k_folds)
             ifit.update({"cv_rms_px": cv["rms_px"], "cv_max_px": cv["max_px"], "k": cv["k"]})
         else:
             notes.append(f"only {len(grids)} corner grids: no cross-validation of the fitted intrinsics")
@@ -195,7 +229,8 @@ def calibrate_board(path: Path, intrinsics, squares: str = "auto", k_folds: int 
     rows = []
     for r in res.views:
         row = {"pose": r["name"], "status": r["status"], "n_white": r.get("n_white", 0), "n_dark": r.get("n_dark", 0),
-               "n_used": r.get("n_used", 0), "n_grids": r["n_grids"], "pose_rms_px": r["grid_rms_px"],
+               "n_used": r.get("n_used", 0), "n_grids": r["n_grids"], "n_corners": r.get("n_corners", 0),
+               "pose_rms_px": r["grid_rms_px"],
                "z_median_mm": r.get("z_median_mm", float("nan")),
                "dark_minus_white_mm": r.get("dark_minus_white_mm", float("nan"))}
         for c, v in r.get("held_out_rms_mm", {}).items():
@@ -203,7 +238,7 @@ def calibrate_board(path: Path, intrinsics, squares: str = "auto", k_folds: int 
         if r.get("reason"):
             row["reason"] = r["reason"]
         rows.append(row)
-    fitd = {"board": {"cols": ds.board.cols, "rows": ds.board.rows, "square_mm": ds.board.square_mm},
+    fitd = {"board": board_desc,
             "squares": squares, "iai_shift_mm": shift, "intrinsics_fit": ifit, **res.summary(),
             "iai_on_training_poses": iai_train, "judged": judged,
             "train_poses": [names[i] for i in train], "judge_poses": [names[i] for i in judge], "plausibility": gate,
@@ -231,7 +266,7 @@ def judged_table(fit: dict) -> list[tuple[str, dict]]:
 
 
 
-def validate_board(path: Path, calibration, *, poses: str | None = None, intrinsics=None) -> dict:
+def validate_board(path: Path, calibration, *, poses: str | None = None, intrinsics=None, board=None) -> dict:
     """Judge a saved depth calibration on the poses of a board dataset (none of which it should
     have seen): white squares, against the board plane of the calibration's intrinsics.
 
@@ -241,6 +276,7 @@ def validate_board(path: Path, calibration, *, poses: str | None = None, intrins
     calibration : DepthCalibration (e.g. ``load_calibration(cal.npz)``).
     poses : pose selection (:func:`parse_pose_selection`), default all.
     intrinsics : intrinsics of the board planes (default: the calibration's).
+    board : None (``board.json``'s board) or one used instead (:func:`resolve_board`).
 
     Returns
     -------
@@ -253,7 +289,8 @@ def validate_board(path: Path, calibration, *, poses: str | None = None, intrins
     names = list(ds.names)
     idx = parse_pose_selection(poses, names, "--poses") or list(range(len(names)))
     intr = intrinsics or calibration.intrinsics
-    ev = evaluate_views(ds.load_poses(idx), ds.board.size, ds.board.square_mm, intr,
+    bd, sq, _ = resolve_board(ds, board)
+    ev = evaluate_views(ds.load_poses(idx), bd, sq, intr,
                         {"none": None, "calibration": lambda u, v, z: core_correction(calibration, u, v, z)},
                         names=[names[i] for i in idx], valid_range_mm=tuple(calibration.valid_range_mm))
     out = {"dataset": str(path), "poses": [names[i] for i in idx], "cases": ev["cases"], "per_view": ev["per_view"],

@@ -200,6 +200,7 @@ def write_intrinsics_report(run: IntrinsicsRun, folder: Path) -> list[Path]:
     title = (f"Corner coverage: {len(kept)} images, {100 * res.coverage:.0f} % of the area, "
              f"{100 * res.cell_coverage:.0f} % of 8x8 cells")
     out.append(save_png(F.fig_coverage(kept, (h, w), title, corner_regions=res.corner_regions_coverage,
-                                        predicted_ray=res.predicted_ray), folder / "coverage.png"))
+                                        predicted_ray=res.predicted_ray, uncovered=res.uncovered_corners,
+                                        region_corners=res.corner_regions_corners), folder / "coverage.png"))
     out.append(save_png(F.fig_intrinsics_per_image(run), folder / "per_image.png"))
     return out
