@@ -113,7 +113,7 @@ def pose_errors(poses, true_poses, object_points: np.ndarray, max_points: int = 
 
 
 def scale_from_reference(points: np.ndarray, reference, inlier_mm: float = 3.0, iterations: int = 4,
-                         max_points: int = 60_000) -> dict:
+                         max_points: int = 60_000, max_correlation: float = 0.98) -> dict:
     """Uniform scale of a model relative to a reference mesh (module docstring).
 
     Parameters
@@ -121,13 +121,16 @@ def scale_from_reference(points: np.ndarray, reference, inlier_mm: float = 3.0, 
     points : (N, 3) [m] model surface samples, already rigidly aligned to the reference
     reference : Geometry (mesh) in metres
     inlier_mm : correspondences farther than this from the reference are left out [mm]
+    max_correlation : above this correlation of the scale and offset estimates the shape cannot
+        separate them (a box: every face moves alike under both) and both are reported as NaN
 
     Returns
     -------
     dict: ``scale_error`` (the model's scale relative to the reference minus 1, dimensionless: +0.002
     = the model is 0.2 % too large), ``sigma`` (its standard error), ``offset_mm`` (the model's surface
     offset along the reference's outward normals [mm]), ``offset_sigma_mm``, ``correlation`` (of the
-    two estimates), ``n`` (inliers), ``rms_mm`` (point-to-plane RMS of the last iteration)
+    two estimates), ``n`` (inliers), ``rms_mm`` (point-to-plane RMS of the last iteration), and
+    ``note`` when the two are not separable
     """
     from tofmetry.evaluate._distance import distances_to_mesh
 
@@ -155,8 +158,8 @@ def scale_from_reference(points: np.ndarray, reference, inlier_mm: float = 3.0, 
         k = 0.5e-3
         w = np.where(np.abs(e) <= k, 1.0, k / np.abs(e))
         H = (J * w[:, None]).T @ J
-        x = -np.linalg.solve(H, (J * w[:, None]).T @ e)
-        w_rot, dt, ds, offset = x[:3] / L, x[3:6], x[6], -x[7]
+        x = -np.linalg.lstsq(H, (J * w[:, None]).T @ e, rcond=1e-12)[0]
+        w_rot, dt, ds, offset = x[:3] / L, x[3:6], float(np.clip(x[6], -0.05, 0.05)), -x[7]
         th = np.linalg.norm(w_rot)
         K = np.array([[0, -w_rot[2], w_rot[1]], [w_rot[2], 0, -w_rot[0]], [-w_rot[1], w_rot[0], 0]])
         dR = np.eye(3) + (np.sin(th) / th * K + (1 - np.cos(th)) / th ** 2 * K @ K if th > 1e-12 else K)
@@ -169,5 +172,11 @@ def scale_from_reference(points: np.ndarray, reference, inlier_mm: float = 3.0, 
         corr = float(Hi[6, 7] / np.sqrt(max(Hi[6, 6] * Hi[7, 7], 1e-300)))
         n_in, rms = int(ok.sum()), float(np.sqrt(np.mean(e ** 2))) * 1e3
     # s_tot maps the model onto the reference: the model's own scale is its inverse
+    if not np.isfinite(corr) or abs(corr) > max_correlation or not np.isfinite(s_tot) or s_tot <= 0:
+        # a box-like shape: scaling about the centroid moves its faces as an offset does; the two
+        # cannot be told apart, and the solve runs away along that valley (measured: a "scale" of 1e-7)
+        return {"scale_error": float("nan"), "sigma": float("nan"), "offset_mm": float("nan"),
+                "offset_sigma_mm": float("nan"), "correlation": corr, "n": n_in, "rms_mm": rms,
+                "note": f"scale and surface offset not separable on this shape (correlation {corr:+.3f})"}
     return {"scale_error": 1.0 / s_tot - 1.0, "sigma": sigma, "offset_mm": float(offset) * 1e3, "offset_sigma_mm": sigma_off * 1e3,
             "correlation": corr, "n": n_in, "rms_mm": rms}
