@@ -121,6 +121,18 @@ class ReconstructionPipeline:
             return self.cal.intrinsics
         return cap.intrinsics()[0]
 
+    def prepare_segmented(self, cap, intr, cal, name: str, ir: np.ndarray | None,
+                          white_map: np.ndarray | None = None) -> tuple[ViewData, Segmentation]:
+        """One capture's view (:func:`prepare_view`) and its object segmentation; a failed
+        segmentation names the view."""
+        v = prepare_view(cap.depth_stack(), intr, cal, self.cfg.preprocess, name=name, ir=ir, white_map=white_map)
+        try:
+            s = segment_object(v.points, self.cfg.segment, seed=self.cfg.registration.seed)
+        except EstimationError as exc:
+            raise EstimationError(f"view {name}: {exc}") from None
+        v.stats["object_points"] = int(s.object_mask.sum())
+        return v, s
+
     def load_views(self) -> tuple[list[ViewData], list[Segmentation], list[RegView], object]:
         views, segs, regs = [], [], []
         intr0 = None
@@ -141,13 +153,7 @@ class ReconstructionPipeline:
                     raise InputError(f"view {name}: the amplitude correction needs IR frames, {cap.path} has none")
                 if self.white_map is not None and self.white_map.shape != intr.shape:
                     raise SensorMismatchError(f"amplitude reference is {self.white_map.shape}, view {name} is {intr.shape}")
-                v = prepare_view(cap.depth_stack(), intr, self.cal, self.cfg.preprocess, name=name, ir=ir,
-                                 white_map=self.white_map)
-                try:
-                    s = segment_object(v.points, self.cfg.segment, seed=self.cfg.registration.seed)
-                except EstimationError as exc:
-                    raise EstimationError(f"view {name}: {exc}") from None
-                v.stats["object_points"] = int(s.object_mask.sum())
+                v, s = self.prepare_segmented(cap, intr, self.cal, name, ir, self.white_map)
                 views.append(v)
                 segs.append(s)
                 regs.append(make_reg_view(v, s, self.cfg.registration, intr, self.white_map))

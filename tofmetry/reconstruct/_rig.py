@@ -26,7 +26,7 @@ import time
 import numpy as np
 from scipy.spatial import cKDTree
 
-from tofmetry.errors import EstimationError, InputError, SensorMismatchError
+from tofmetry.errors import InputError, SensorMismatchError
 from tofmetry.reconstruct._colour import colour_model
 from tofmetry.reconstruct._fusion import TSDFFusion
 from tofmetry.reconstruct._pipeline import (
@@ -34,8 +34,6 @@ from tofmetry.reconstruct._pipeline import (
     ReconstructionResult,
     _median_object_depth_m,
 )
-from tofmetry.reconstruct._preprocess import prepare_view
-from tofmetry.reconstruct._segment import segment_object
 from tofmetry.reconstruct._world import transform_plane
 
 
@@ -149,13 +147,7 @@ class RigReconstruction(ReconstructionPipeline):
                         cal.check_compatible(sensor=cap.sensor, shape=cap.shape)
                     except SensorMismatchError as exc:
                         raise SensorMismatchError(f"view {s.name} ({cap.path}): {exc}") from None
-                v = prepare_view(cap.depth_stack(), s.intrinsics, cal, self.cfg.preprocess, name=s.name,
-                                 ir=cap.ir_mean() if cap.has_ir else None)
-                try:
-                    seg = segment_object(v.points, self.cfg.segment, seed=self.cfg.registration.seed)
-                except EstimationError as exc:
-                    raise EstimationError(f"view {s.name}: {exc}") from None
-                v.stats["object_points"] = int(seg.object_mask.sum())
+                v, seg = self.prepare_segmented(cap, s.intrinsics, cal, s.name, cap.ir_mean() if cap.has_ir else None)
                 views.append(v)
                 segs.append(seg)
                 adv()
