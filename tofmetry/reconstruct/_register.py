@@ -230,11 +230,10 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
         ok = _passes(fit, rmse, cfg) and v <= cfg.max_see_through
         if out and not (ok and plane_consistent(src, tgt, T)):
             continue
-        info = information_matrix(src.icp_points, tgt.icp_points, r_final, T, tgt.icp_normals)
-        out.append(PairResult(i, j, T, fit, rmse * 1e3, info, method, ok,
-                              conditioning=registration_conditioning(src, tgt, T, r_final), see_through=v))
+        out.append(_pair_result(src, tgt, i, j, T, fit, rmse, v, method, ok, r_final))
     best = out[0]
     c0 = ir_agreement(src, tgt, best.transform, r_final) if cfg.ir_icp and best.accepted else None
+    best = replace(best, ir_corr=c0)
     if c0 is not None and c0 >= 0.5 * cfg.ir_icp_min_corr:  # no pattern at all (a plain object): not tried
         # the IR albedo as a photometric term, kept where the pattern lines up clearly better and the
         # geometry matches as well (the object fitness within its noise, 0.005)
@@ -246,10 +245,7 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
         if (c1 is not None and c1 >= cfg.ir_icp_min_corr and c1 - c0 >= cfg.ir_icp_min_gain
                 and fit >= best.fitness - 0.005 and _passes(fit, rmse, cfg) and v <= cfg.max_see_through
                 and plane_consistent(src, tgt, T)):
-            best = PairResult(i, j, T, fit, rmse * 1e3, information_matrix(src.icp_points, tgt.icp_points, r_final, T,
-                                                                           tgt.icp_normals),
-                              best.method + "+ir-icp", True, conditioning=registration_conditioning(src, tgt, T, r_final),
-                              see_through=v)
+            best = _pair_result(src, tgt, i, j, T, fit, rmse, v, best.method + "+ir-icp", True, r_final, ir_corr=c1)
             out = [best] + out[1:]
     yr = (best.conditioning or {}).get("yaw_ratio")
     if cfg.ir_yaw and yr is not None and yr < cfg.yaw_free_ratio and src.obj_ir is not None and tgt.icp_ir is not None:
@@ -260,9 +256,7 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
             fit, rmse = object_fitness(src, tgt, T, r_final)
             v = vis(T)
             ok = _passes(fit, rmse, cfg) and v <= cfg.max_see_through
-            best = PairResult(i, j, T, fit, rmse * 1e3, information_matrix(src.icp_points, tgt.icp_points, r_final, T, tgt.icp_normals),
-                              best.method + "+ir-yaw", ok, conditioning=registration_conditioning(src, tgt, T, r_final),
-                              see_through=v, ir_yaw=sw)
+            best = _pair_result(src, tgt, i, j, T, fit, rmse, v, best.method + "+ir-yaw", ok, r_final, ir_yaw=sw)
             return _with_ir(replace(best, alternatives=[a for a in out if not _same_pose(a.transform, T)]), src, tgt,
                             r_final)
         sw.pop("transform", None)
@@ -270,9 +264,19 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
     return _with_ir(replace(best, alternatives=out[1:]), src, tgt, r_final)
 
 
+def _pair_result(src: RegView, tgt: RegView, i: int, j: int, T: np.ndarray, fit: float, rmse_m: float, v: float,
+                 method: str, ok: bool, radius_m: float, **extra) -> PairResult:
+    """A scored hypothesis (fitness, RMSE [m], see-through share ``v``) with its information matrix and
+    conditioning at the final ICP radius ``radius_m``."""
+    return PairResult(i, j, T, fit, rmse_m * 1e3,
+                      information_matrix(src.icp_points, tgt.icp_points, radius_m, T, tgt.icp_normals), method, ok,
+                      conditioning=registration_conditioning(src, tgt, T, radius_m), see_through=v, **extra)
+
+
 def _with_ir(p: PairResult, src: RegView, tgt: RegView, radius_m: float) -> PairResult:
-    """``p`` and its alternatives with their IR agreement (:func:`ir_agreement`)."""
-    return replace(p, ir_corr=ir_agreement(src, tgt, p.transform, radius_m),
+    """``p`` and its alternatives with their IR agreement (:func:`ir_agreement`; ``p``'s only where
+    it is not known yet)."""
+    return replace(p, ir_corr=p.ir_corr if p.ir_corr is not None else ir_agreement(src, tgt, p.transform, radius_m),
                    alternatives=[replace(a, ir_corr=ir_agreement(src, tgt, a.transform, radius_m))
                                  for a in p.alternatives])
 
