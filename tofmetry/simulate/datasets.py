@@ -180,7 +180,6 @@ def checkerboard_images(out: str | os.PathLike, n_images: int = 20, board: tuple
     board-to-camera poses; board frame: origin at the first inner corner, x along the
     columns, y along the rows, object point (i, j) = (i s, j s, 0)). Returns ``out``.
     """
-    from tofmetry.io.images import write_png16
     from tofmetry.simulate.poses import board_poses
 
     cols, rows = int(board[0]), int(board[1])
@@ -193,15 +192,7 @@ def checkerboard_images(out: str | os.PathLike, n_images: int = 20, board: tuple
     poses = board_poses(n_images, vk.intrinsics, cols, rows, sq, rng)
     out = Path(out)
     with atomic_dir(out, force=force) as tmp:
-        names = []
-        for k, T in enumerate(poses):
-            scene = scenes.checkerboard(cols, rows, sq, T)
-            fr = next(vk.iter_frames(scene, 1))
-            name = f"ir_{k:03d}.png"
-            write_png16(tmp / name, fr.ir)
-            names.append(name)
-            if progress is not None:
-                progress(1)
+        names = _write_board_images(tmp, vk, (scenes.checkerboard(cols, rows, sq, T) for T in poses), progress)
         atomic_write_json(tmp / "board.json", {"cols": cols, "rows": rows, "square_mm": float(square_mm)})
         truth = _truth_common(vk, seed, sensor) | {
             "dataset": "checkerboard_images", "board": {"cols": cols, "rows": rows, "square_mm": float(square_mm)},
@@ -245,7 +236,6 @@ def charuco_images(out: str | os.PathLike, n_images: int = 10, board: dict | Non
     ``out/truth.json`` (true intrinsics, board-to-camera poses; OpenCV's ChArUco board frame:
     origin at the outer top-left corner of the squares). Returns ``out``.
     """
-    from tofmetry.io.images import write_png16
 
     b = dict(CHARUCO_DEFAULT if board is None else board)
     if n_images < 1:
@@ -255,16 +245,9 @@ def charuco_images(out: str | os.PathLike, n_images: int = 10, board: dict | Non
     poses = charuco_poses_for(n_images, vk.intrinsics, b, seed)
     out = Path(out)
     with atomic_dir(out, force=force) as tmp:
-        names = []
-        for k, T in enumerate(poses):
-            scene = scenes.charuco(b["squares_x"], b["squares_y"], b["square_mm"] / 1000.0, b["marker_mm"] / 1000.0,
-                                   b["dictionary"], board_to_world=T)
-            fr = next(vk.iter_frames(scene, 1))
-            name = f"ir_{k:03d}.png"
-            write_png16(tmp / name, fr.ir)
-            names.append(name)
-            if progress is not None:
-                progress(1)
+        names = _write_board_images(tmp, vk, (
+            scenes.charuco(b["squares_x"], b["squares_y"], b["square_mm"] / 1000.0, b["marker_mm"] / 1000.0,
+                           b["dictionary"], board_to_world=T) for T in poses), progress)
         atomic_write_json(tmp / "board.json", {"type": "charuco", **b})
         truth = _truth_common(vk, seed, sensor) | {
             "dataset": "charuco_images", "board": {"type": "charuco", **b},
@@ -273,6 +256,21 @@ def charuco_images(out: str | os.PathLike, n_images: int = 10, board: dict | Non
             "images": [{"file": n, "board_to_camera": T} for n, T in zip(names, poses)]}
         atomic_write_json(tmp / "truth.json", truth)
     return out
+
+
+def _write_board_images(tmp: Path, vk, board_scenes, progress: Progress = None) -> list[str]:
+    """One IR frame of each scene of the iterable ``board_scenes`` as ``tmp/ir_NNN.png`` (16-bit);
+    returns the file names."""
+    from tofmetry.io.images import write_png16
+
+    names = []
+    for k, scene in enumerate(board_scenes):
+        name = f"ir_{k:03d}.png"
+        write_png16(tmp / name, next(vk.iter_frames(scene, 1)).ir)
+        names.append(name)
+        if progress is not None:
+            progress(1)
+    return names
 
 
 def _load_mesh(mesh) -> tuple[np.ndarray, np.ndarray]:
