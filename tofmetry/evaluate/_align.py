@@ -113,10 +113,10 @@ def align_to_reference(model_pts: np.ndarray, ref_pts: np.ndarray, ref_nrm: np.n
         candidates = [candidates[k] for _, k in scored[:screen_keep]]
     best = None
     for T0 in candidates:  # every remaining candidate through all the stages; the best at the finest wins
-        m = icp(m_fine, r_fine, r_nrm, T0, icp_radii_mm[0] * 1e-3, max_iter=30)
-        st = [{"max_dist_mm": icp_radii_mm[0], "fitness": m.fitness, "inlier_rmse_mm": m.inlier_rmse_m * 1e3}]
-        for r in icp_radii_mm[1:]:
-            m = icp(m_fine, r_fine, r_nrm, m.transform, r * 1e-3, max_iter=30)
+        T, st = T0, []
+        for r in icp_radii_mm:
+            m = icp(m_fine, r_fine, r_nrm, T, r * 1e-3, max_iter=30)
+            T = m.transform
             st.append({"max_dist_mm": r, "fitness": m.fitness, "inlier_rmse_mm": m.inlier_rmse_m * 1e3})
         sc = score(m)
         if best is None or sc > best[0]:
