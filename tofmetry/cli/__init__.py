@@ -14,7 +14,7 @@ from __future__ import annotations
 import typer
 from rich.markup import escape
 
-from tofmetry.cli import assess, batch, calibrate, core, interop, model, record, simulate, study
+from tofmetry.cli import _interrupt, assess, batch, calibrate, core, interop, model, record, simulate, study
 from tofmetry.cli._common import console
 from tofmetry.errors import TofmetryError
 
@@ -51,8 +51,10 @@ def main() -> None:
 
     Exit codes: 0 success, 1 a command's own failure (e.g. a study stage failed), 2 bad input or
     an implausible result (:class:`~tofmetry.errors.TofmetryError`), 3 an unreliable registration,
-    130 interrupted (Ctrl-C; nothing that looks complete is left behind).
+    130 interrupted (Ctrl-C; nothing that looks complete is left behind; it waits for an import
+    or a numba compilation under way to finish, :mod:`tofmetry.cli._interrupt`).
     """
+    _interrupt.install()
     try:
         app()
     except TofmetryError as exc:
@@ -60,10 +62,11 @@ def main() -> None:
         raise SystemExit(2) from None
     except KeyboardInterrupt:          # typer turns it into exit 130 itself; kept for other entry paths
         _interrupted()
-        raise SystemExit(130) from None
+        _interrupt.exit_interrupted(130)
     except SystemExit as exc:
         if exc.code == 130:
             _interrupted()
+            _interrupt.exit_interrupted(130)
         raise
 
 

@@ -114,6 +114,9 @@ def reconstruct(
         console.print(f"global adjustment: {adj['iterations']} iterations, residual RMS {adj['rms_mm'][-1]:.2f} mm, poses "
                       f"moved up to {max(adj['moved_deg'].values()):.3f} deg / {max(adj['moved_mm'].values()):.2f} mm; "
                       f"depth gain {adj['depth_gain'] * 100:+.3f} % of (z - {adj['z_ref_mm']:.0f} mm): {adj.get('gain_note', '')}")
+        amp = adj.get("amplitude_bias") or {}
+        if amp.get("k_mm_per_ln") is not None:
+            console.print(f"amplitude bias: k = {amp['k_mm_per_ln']:.2f} mm per ln unit ({amp['note']})")
     sc = res.diagnostics.get("scale") or {}
     if sc.get("predicted_scale_sigma_pct") is not None:
         console.print(f"scale: predicted uncertainty +-{sc['predicted_scale_sigma_pct']:.2f} % (1 sigma), surface offset "

@@ -8,12 +8,8 @@ or FPFH coarse, free-space test, robust point-to-plane ICP; alternatives kept) -
 :class:`RigReconstruction` (:mod:`._rig`) fuses one capture per sensor of a calibrated rig in the rig frame.
 """
 
-from tofmetry.reconstruct._adjust import (
-    AdjustResult,
-    AdjustView,
-    apply_depth_gain,
-    global_adjust,
-)
+from tofmetry.reconstruct._adjust import AdjustView, apply_depth_gain, global_adjust
+from tofmetry.reconstruct._adjust_result import AdjustResult, keep_amplitude_if_it_explains
 from tofmetry.reconstruct._amplitude import (
     PAPER_K_MM_PER_LN,
     amplitude_bias_mm,
@@ -88,6 +84,7 @@ from tofmetry.reconstruct._segment import (
 __all__ = [
     "PAPER_K_MM_PER_LN",
     "AdjustResult",
+    "keep_amplitude_if_it_explains",
     "AdjustView",
     "FusionConfig",
     "Match",

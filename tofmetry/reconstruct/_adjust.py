@@ -20,6 +20,17 @@ the views determine it, counting the calibration's own residual as an error comm
 keeps ``g`` near 0 otherwise.
 
 Points move along their rays: ``p' = p (z + g (z - z_ref)) / z`` (camera frame, ``z`` = Z).
+
+Why an amplitude-bias correction: dark and oblique surfaces read long by ``k ln(A_white / A)``
+(study §3.3.1; :mod:`tofmetry.reconstruct._amplitude`), and the preprocessing removes it with a
+fixed ``k`` (6.7 mm per ln unit, the study's). A sensor's own ``k`` differs (the virtual family
+draws 4-9 mm); the rest shifts every surface along the rays by ``dk ln(A_white / A)``, more on dark
+and oblique parts. One point seen by two views at different incidences gets different amplitudes,
+so the views disagree unless ``dk`` is right: it is observable from the scan itself. When the views
+carry ``ln(A_white / A)`` per point (``source_amp``, ``target_amp``), ``dk`` [m per ln unit] is an
+unknown like the gain (``Z -> Z - dk ln(A_white / A)``), estimated only when the data alone determine
+it better than its prior (measured on a family draw with k = 8.3: model mean error 1.45 mm with
+the fixed 6.7, 0.55 mm with the true k).
 """
 
 from __future__ import annotations
@@ -31,12 +42,9 @@ from scipy.spatial import cKDTree
 
 from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.errors import EstimationError, InputError
+from tofmetry.reconstruct._adjust_result import AdjustResult
 from tofmetry.reconstruct._adjust_sigma import curve_sigmas, gain_sigmas, pose_sigmas
-from tofmetry.reconstruct._range_curve import (
-    range_basis,
-    range_curve_m,
-    range_curve_sigma_m,
-)
+from tofmetry.reconstruct._range_curve import range_basis
 
 
 @dataclass
@@ -49,112 +57,16 @@ class AdjustView:
     source_normals : (M, 3) their unit normals (correspondences must agree in orientation)
     target : (K, 3) the view's surface the others are matched to (e.g. the 2.5 mm voxel cloud)
     target_normals : (K, 3) unit normals of ``target``
+    source_amp, target_amp : (M,), (K,) ``ln(A_white / A)`` of each point (the amplitude-bias
+        regressor, dimensionless; 0 where unknown), or None: no amplitude-bias estimation
     """
 
     source: np.ndarray
     source_normals: np.ndarray
     target: np.ndarray
     target_normals: np.ndarray
-
-
-@dataclass
-class AdjustResult:
-    """Outcome of :func:`global_adjust`.
-
-    Attributes
-    ----------
-    poses : (V, 4, 4) camera-to-world, view 0 unchanged
-    depth_gain : estimated ``g`` (dimensionless; 0.005 = the depth reads 0.5 % of (z - z_ref) short)
-    depth_gain_sigma : its standard error (from the Gauss-Newton normal matrix and the residual scale)
-    z_ref_m : reference depth [m] where the gain correction is zero
-    iterations : number of Gauss-Newton iterations run
-    rms_mm : (iterations,) robust RMS point-to-plane residual per iteration [mm]
-    pair_counts : (V, V) number of correspondences source view i -> target view j at the end
-    pair_rms_mm : (V, V) their RMS point-to-plane residual [mm] (NaN without correspondences)
-    moved_deg, moved_mm : (V,) how far each pose moved from the initial one [deg], [mm]
-    converged : the last update was below the tolerance
-    gain_estimated : whether the gain was estimated (asked for and observable)
-    gain_sigma_data : standard error of the gain from the data alone (the poses marginalised, no
-        prior; NaN when not asked for): what the views say about it, random part (noise, times the
-        inflation) and systematic part (:attr:`gain_sigma_systematic`) combined
-    gain_sigma_systematic : the part of ``gain_sigma_data`` that a systematic depth error of the
-        views (``systematic_m`` of :func:`global_adjust`) leaves (NaN when not asked for)
-    gain_note : why the gain was or was not estimated
-    pose_sigma_deg, pose_sigma_mm : (V,) standard errors of each pose (rotation [deg], camera
-        translation [mm]) from the normal equations, correspondences taken as independent (a lower
-        bound: the residuals of one view are correlated; the range curve, when estimated, held fixed)
-    range_curve_m : (D,) coefficients of the range-error curve [m] (:mod:`tofmetry.reconstruct._range_curve`;
-        None when not asked for, zeros when not observable); ``range_curve_sigma_m``, ``range_curve_cov_m2``:
-        their standard errors and covariance (noise only, times the inflation; no systematic part);
-        ``range_curve_sigma_data_m``: from the data alone, no prior; ``range_curve_note``: why it was or was not estimated
-    """
-
-    poses: np.ndarray
-    depth_gain: float
-    depth_gain_sigma: float
-    z_ref_m: float
-    iterations: int
-    rms_mm: np.ndarray
-    pair_counts: np.ndarray
-    pair_rms_mm: np.ndarray
-    moved_deg: np.ndarray
-    moved_mm: np.ndarray
-    converged: bool
-    gain_estimated: bool = False
-    gain_sigma_data: float = float("nan")
-    gain_note: str = ""
-    pose_sigma_deg: np.ndarray | None = None
-    pose_sigma_mm: np.ndarray | None = None
-    gain_sigma_systematic: float = float("nan")
-    range_curve_m: np.ndarray | None = None
-    range_curve_sigma_m: np.ndarray | None = None
-    range_curve_sigma_data_m: np.ndarray | None = None
-    range_curve_cov_m2: np.ndarray | None = None
-    range_curve_half_span_m: float = float("nan")
-    range_curve_prior_m: float = float("nan")
-    range_curve_estimated: bool = False
-    gain_refused: float = float("nan")
-    gain_max_abs: float = float("nan")
-    range_curve_note: str = ""
-
-    def range_curve_report(self) -> dict | None:
-        """The range curve (coefficients, standard errors, and dz with its standard error at a few
-        depths across the span, [mm]); None when not asked for."""
-        if self.range_curve_m is None:
-            return None
-        h, zr = self.range_curve_half_span_m, self.z_ref_m
-        z = zr + h * np.array([-1.0, -0.5, 0.0, 0.5, 1.0])
-        cov = self.range_curve_cov_m2 if self.range_curve_cov_m2 is not None else np.zeros((len(self.range_curve_m),) * 2)
-        dz = range_curve_m(z, self.range_curve_m, zr, h)
-        sd = range_curve_sigma_m(z, cov, zr, h) if len(cov) else np.zeros_like(z)
-        r6 = lambda a: [round(float(x) * 1e3, 4) for x in a]
-        return {"estimated": bool(self.range_curve_estimated), "note": self.range_curve_note,
-                "degree": int(len(self.range_curve_m) + 1), "half_span_mm": round(float(h) * 1e3, 2),
-                "prior_mm": round(float(self.range_curve_prior_m) * 1e3, 4),
-                "coefficients_mm": r6(self.range_curve_m),
-                "sigma_mm": None if self.range_curve_sigma_m is None else r6(self.range_curve_sigma_m),
-                "sigma_data_mm": None if self.range_curve_sigma_data_m is None else r6(self.range_curve_sigma_data_m),
-                "z_mm": [round(float(x) * 1e3, 1) for x in z], "dz_mm": r6(dz), "dz_sigma_mm": r6(sd)}
-
-    def to_dict(self, names: list[str] | None = None) -> dict:
-        names = names or [str(k) for k in range(len(self.poses))]
-        return {"depth_gain": float(self.depth_gain), "depth_gain_sigma": float(self.depth_gain_sigma),
-                "z_ref_mm": float(self.z_ref_m * 1e3), "iterations": int(self.iterations),
-                "converged": bool(self.converged), "gain_estimated": bool(self.gain_estimated),
-                "gain_sigma_data": float(self.gain_sigma_data),
-                "gain_sigma_systematic": float(self.gain_sigma_systematic), "gain_note": self.gain_note,
-                "gain_refused": float(self.gain_refused), "gain_max_abs": float(self.gain_max_abs),
-                "range_curve": self.range_curve_report(),
-                "rms_mm": [round(float(x), 4) for x in self.rms_mm],
-                "moved_deg": {n: round(float(x), 4) for n, x in zip(names, self.moved_deg)},
-                "moved_mm": {n: round(float(x), 3) for n, x in zip(names, self.moved_mm)},
-                "pose_sigma_deg": None if self.pose_sigma_deg is None else
-                {n: round(float(x), 5) for n, x in zip(names, self.pose_sigma_deg)},
-                "pose_sigma_mm": None if self.pose_sigma_mm is None else
-                {n: round(float(x), 4) for n, x in zip(names, self.pose_sigma_mm)},
-                "pairs": [{"source": names[i], "target": names[j], "n": int(self.pair_counts[i, j]),
-                           "rms_mm": round(float(self.pair_rms_mm[i, j]), 3)}
-                          for i in range(len(names)) for j in range(len(names)) if self.pair_counts[i, j] > 0]}
+    source_amp: np.ndarray | None = None
+    target_amp: np.ndarray | None = None
 
 
 def apply_depth_gain(points: np.ndarray, gain: float, z_ref_m: float) -> np.ndarray:
@@ -187,32 +99,40 @@ def _exp_se3(xi: np.ndarray) -> np.ndarray:
     return T
 
 
-def _world(views: list[AdjustView], P: np.ndarray, g: float, z_ref_m: float, which: str, curve=None):
-    """World points, normals, d(point)/d(gain) and d(point)/d(curve coefficients) ((M, 3, D)) of
-    every view's ``source`` or ``target`` cloud; ``curve`` = (coefficients [m], half span [m]) or None."""
+def _world(views: list[AdjustView], P: np.ndarray, g: float, z_ref_m: float, which: str, curve=None,
+           amp: float | None = None):
+    """World points, normals, d(point)/d(gain) and d(point)/d(depth-error coefficients) ((M, 3, E):
+    the range curve's, then the amplitude bias's) of every view's ``source`` or ``target`` cloud;
+    ``curve`` = (coefficients [m], half span [m]) or None; ``amp`` = ``dk`` [m] or None (off)."""
     pts, nrm, dg, dc = [], [], [], []
     for v, T in zip(views, P):
         R, t = T[:3, :3], T[:3, 3]
         c, n = (v.source, v.source_normals) if which == "source" else (v.target, v.target_normals)
         z = c[:, 2:3]
         p = apply_depth_gain(c, g, z_ref_m)
+        cols = []  # Z displacement per unit of each coefficient [m / m]
         if curve is not None and len(curve[0]):
             B = range_basis(c[:, 2], z_ref_m, curve[1], len(curve[0]) + 1)  # (M, D)
             p = p + c * (B @ curve[0])[:, None] / z
-            dc.append(np.einsum("mk,md->mkd", (c / z) @ R.T, B))
-        else:
-            dc.append(np.zeros((len(c), 3, 0)))
+            cols.append(B)
+        if amp is not None:
+            L = v.source_amp if which == "source" else v.target_amp
+            p = p - c * (amp * L)[:, None] / z
+            cols.append(-L[:, None])
+        B = np.hstack(cols) if cols else np.zeros((len(c), 0))
+        dc.append(np.einsum("mk,md->mkd", (c / z) @ R.T, B))
         pts.append(p @ R.T + t)
         nrm.append(n @ R.T)
         dg.append((c * ((z - z_ref_m) / z)) @ R.T)
     return pts, nrm, dg, dc
 
 
-def _correspondences(views, P, g, z_ref_m, r, cos_max, pairs=None, curve=None) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
+def _correspondences(views, P, g, z_ref_m, r, cos_max, pairs=None, curve=None,
+                     amp=None) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
     """(i, j, source indices of view i, target indices of view j): nearest target point within ``r``
     with normals agreeing within ``arccos(cos_max)``; only ``pairs`` when given."""
-    src, srcn, _, _ = _world(views, P, g, z_ref_m, "source", curve)
-    tgt, tgtn, _, _ = _world(views, P, g, z_ref_m, "target", curve)
+    src, srcn, _, _ = _world(views, P, g, z_ref_m, "source", curve, amp)
+    tgt, tgtn, _, _ = _world(views, P, g, z_ref_m, "target", curve, amp)
     trees = [cKDTree(t) for t in tgt]
     out = []
     V = len(views)
@@ -231,17 +151,18 @@ def _correspondences(views, P, g, z_ref_m, r, cos_max, pairs=None, curve=None) -
     return out
 
 
-def _normal_equations(views, P, g, z_ref_m, corr, huber_m, estimate_gain, curve=None):
+def _normal_equations(views, P, g, z_ref_m, corr, huber_m, estimate_gain, curve=None, amp=None):
     """Gauss-Newton normal equations of all correspondences (view 0 fixed; unknowns: poses, then
-    the ``D`` range-curve coefficients when ``curve`` is given, last the gain).
+    the ``D`` range-curve coefficients when ``curve`` is given, then ``dk`` when ``amp`` is given,
+    last the gain).
 
     Residual: ``n . (p - q)`` with ``n`` the normalised sum of both points' normals (held fixed
     in the linearisation)."""
     V = len(views)
-    D = 0 if curve is None else len(curve[0])
+    D = (0 if curve is None else len(curve[0])) + (amp is not None)
     npar = 6 * (V - 1) + D + 1
-    src, srcn, dsrc, csrc = _world(views, P, g, z_ref_m, "source", curve)
-    tgt, tgtn, dtgt, ctgt = _world(views, P, g, z_ref_m, "target", curve)
+    src, srcn, dsrc, csrc = _world(views, P, g, z_ref_m, "source", curve, amp)
+    tgt, tgtn, dtgt, ctgt = _world(views, P, g, z_ref_m, "target", curve, amp)
     H = np.zeros((npar, npar))
     b = np.zeros(npar)
     sw = swr2 = 0.0
@@ -279,13 +200,22 @@ def _normal_equations(views, P, g, z_ref_m, corr, huber_m, estimate_gain, curve=
     return H, b, swr2 / max(sw, 1e-12), counts, pair_rms, sw
 
 
+def _correlation_with_gain(H: np.ndarray, index: int) -> float:
+    """Correlation of unknown ``index`` with the gain (last) from the data-only normal matrix."""
+    try:
+        C = np.linalg.inv(H + np.eye(len(H)) * 1e-12 * np.trace(H) / len(H))
+    except np.linalg.LinAlgError:
+        return float("nan")
+    return float(C[index, -1] / np.sqrt(max(C[index, index] * C[-1, -1], 1e-300)))
+
+
 def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, radii_m: tuple[float, ...] = (0.006, 0.003),
                   iters_per_radius: tuple[int, ...] = (2, 6), inner_iters: int = 1, huber_m: float | None = None,
                   estimate_gain: bool = True, gain_prior_sigma: float = 0.02, max_normal_deg: float = 45.0,
                   tol_deg: float = 1e-3, tol_m: float = 1e-5, gain_max_sigma: float | None = None,
                   sigma_inflation: float = 1.0, gain_max_abs: float | None = None,
                   systematic_m: float = 0.0, curve_degree: int = 0, curve_prior_m: float = 5e-4,
-                  curve_half_span_m: float | None = None) -> AdjustResult:
+                  curve_half_span_m: float | None = None, amplitude_prior_m: float | None = None) -> AdjustResult:
     """Jointly refine all poses (view 0 fixed) and, optionally, the depth gain.
 
     Each outer iteration matches every view's ``source`` points (gain-corrected, to world) to
@@ -330,6 +260,10 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         and :attr:`AdjustResult.range_curve_note` says why
     curve_half_span_m : half the depth span of the curve [m]; None: the largest distance from
         ``z_ref_m`` of the central 98 % of all views' ``source`` depths
+    amplitude_prior_m : prior standard deviation of the amplitude-bias correction ``dk`` [m per ln
+        unit]; None: not estimated (also when a view carries no ``source_amp`` / ``target_amp``).
+        Estimated only when the data alone (poses, curve and gain marginalised, times
+        ``sigma_inflation``) determine it better than this prior, checked like the curve
 
     Returns
     -------
@@ -374,12 +308,25 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
     curve_sd = np.full(D, np.nan)
     curve_cov = np.zeros((D, D))
     curve_checked = False
+    # amplitude bias: dk [m per ln unit], active flag
+    amp_on = amplitude_prior_m is not None and all(v.source_amp is not None and v.target_amp is not None
+                                                   for v in views)
+    amp_note = "estimated" if amp_on else ("not asked for" if amplitude_prior_m is None
+                                           else "not available: a view carries no amplitude regressor")
+    a_k, amp_sd, amp_var, amp_corr = 0.0, float("nan"), float("nan"), float("nan")
+    amp_checked = False
 
     def cv():
         return (c_curve, curve_half_span_m) if curve_on else None
 
+    def ampv():
+        return a_k if amp_on else None
+
+    def n_extra():
+        return (D if curve_on else 0) + int(amp_on)
+
     def without_curve(H):
-        if not curve_on:
+        if not n_extra():
             return H
         keep = np.r_[np.arange(6 * (V - 1)), len(H) - 1]
         return H[np.ix_(keep, keep)]
@@ -387,7 +334,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
     for it, r in enumerate(schedule, start=1):
         if r != prev_r:
             pairs, prev_r = None, r
-        corr = _correspondences(views, P, g, z_ref_m, r, cos_max, pairs, cv())
+        corr = _correspondences(views, P, g, z_ref_m, r, cos_max, pairs, cv(), ampv())
         pairs = {(i, j) for i, j, _, _ in corr}
         if sum(len(c[2]) for c in corr) < 6 * V:
             raise EstimationError(f"global adjustment: too few correspondences between the views at {r * 1e3:.1f} mm "
@@ -395,17 +342,28 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         k = huber_m if huber_m is not None else r / 3.0
         P_start = P.copy()
         for _ in range(inner_iters):
-            H, b, s2, counts, pair_rms, sw = _normal_equations(views, P, g, z_ref_m, corr, k, estimate_gain, cv())
-            if curve_on and (it == 1 or (r == radii_m[-1] and it == len(schedule) - n_last + 1)) and not curve_checked:
-                curve_sd = curve_sigmas(H, s2, sigma_inflation, D, estimate_gain)
-                if r == radii_m[-1]:
-                    curve_checked = True
-                if not np.all(curve_sd < curve_prior_m):
-                    curve_note = ("not observable: the views determine its coefficients only to +-"
-                                  + ", ".join(f"{x * 1e3:.3f}" for x in curve_sd)
-                                  + f" mm (prior +-{curve_prior_m * 1e3:.3f} mm); kept at 0")
-                    curve_on, c_curve = False, np.zeros(D)
-                    H, b, s2, counts, pair_rms, sw = _normal_equations(views, P, g, z_ref_m, corr, k, estimate_gain)
+            H, b, s2, counts, pair_rms, sw = _normal_equations(views, P, g, z_ref_m, corr, k, estimate_gain, cv(), ampv())
+            check = it == 1 or (r == radii_m[-1] and it == len(schedule) - n_last + 1)
+            if check and ((curve_on and not curve_checked) or (amp_on and not amp_checked)):
+                sd = curve_sigmas(H, s2, sigma_inflation, n_extra(), estimate_gain)
+                off = False
+                if curve_on and not curve_checked:
+                    curve_sd, curve_checked = sd[:D], r == radii_m[-1]
+                    if not np.all(curve_sd < curve_prior_m):
+                        curve_note = ("not observable: the views determine its coefficients only to +-"
+                                      + ", ".join(f"{x * 1e3:.3f}" for x in curve_sd)
+                                      + f" mm (prior +-{curve_prior_m * 1e3:.3f} mm); kept at 0")
+                        curve_on, c_curve, off = False, np.zeros(D), True
+                if amp_on and not amp_checked:
+                    amp_sd, amp_checked = float(sd[-1]), r == radii_m[-1]
+                    amp_corr = _correlation_with_gain(H, 6 * (V - 1) + (D if curve_on else 0)) if estimate_gain else 0.0
+                    if not amp_sd < amplitude_prior_m:
+                        amp_note = (f"not observable: the views determine dk only to +-{amp_sd * 1e3:.2f} mm per ln "
+                                    f"unit (prior +-{amplitude_prior_m * 1e3:.2f}); kept at 0")
+                        amp_on, a_k, off = False, 0.0, True
+                if off:
+                    H, b, s2, counts, pair_rms, sw = _normal_equations(views, P, g, z_ref_m, corr, k, estimate_gain,
+                                                                       cv(), ampv())
             H_data = without_curve(H).copy()
             if estimate_gain:
                 sigma_data, sigma_sys = gain_sigmas(H_data, s2, sw, sigma_inflation, systematic_m)
@@ -417,7 +375,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                     note = (f"not observable: the views determine it only to +-{100 * sigma_data:.2f} % "
                             f"(> {100 * gain_max_sigma:.2f} %); kept at 0")
                     estimate_gain, g = False, 0.0
-                    H, b, s2, counts, pair_rms, sw = _normal_equations(views, P, g, z_ref_m, corr, k, False, cv())
+                    H, b, s2, counts, pair_rms, sw = _normal_equations(views, P, g, z_ref_m, corr, k, False, cv(), ampv())
                     H_data = without_curve(H).copy()
             if estimate_gain:
                 H[-1, -1] += s2 / gain_prior_sigma ** 2  # prior g ~ N(0, sigma) in residual units
@@ -428,6 +386,10 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                 cc = np.arange(6 * (V - 1), 6 * (V - 1) + D)
                 H[cc, cc] += s2 / curve_prior_m ** 2  # prior c_k ~ N(0, curve_prior_m)
                 b[cc] += s2 / curve_prior_m ** 2 * c_curve
+            if amp_on:
+                ai = 6 * (V - 1) + (D if curve_on else 0)
+                H[ai, ai] += s2 / amplitude_prior_m ** 2  # prior dk ~ N(0, amplitude_prior_m)
+                b[ai] += s2 / amplitude_prior_m ** 2 * a_k
             n_all = len(H)
             H += np.eye(n_all) * 1e-12 * np.trace(H) / n_all  # numerical damping only
             dx = -np.linalg.solve(H, b)
@@ -436,6 +398,9 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
             if curve_on:
                 c_curve = c_curve + dx[cc]
                 curve_cov = np.linalg.inv(H)[np.ix_(cc, cc)] * s2 * sigma_inflation ** 2
+            if amp_on:
+                a_k += float(dx[ai])
+                amp_var = float(np.linalg.inv(H)[ai, ai]) * s2 * sigma_inflation ** 2
             if estimate_gain:
                 g += float(dx[-1])
                 sigma_g = float(np.hypot(np.sqrt(max(np.linalg.inv(H)[-1, -1] * s2, 0.0)), sigma_sys))
@@ -457,7 +422,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         fixed = global_adjust(views, poses, z_ref_m, radii_m, iters_per_radius, inner_iters, huber_m, False,
                               gain_prior_sigma, max_normal_deg, tol_deg, tol_m, None, sigma_inflation,
                               curve_degree=curve_degree, curve_prior_m=curve_prior_m,
-                              curve_half_span_m=curve_half_span_m)
+                              curve_half_span_m=curve_half_span_m, amplitude_prior_m=amplitude_prior_m)
         fixed.gain_sigma_data, fixed.gain_sigma_systematic = sigma_data, sigma_sys
         fixed.gain_refused, fixed.gain_max_abs = float(g), float(gain_max_abs)
         fixed.gain_note = (f"implausible: the views ask for {100 * g:+.2f} % (+-{100 * sigma_data:.2f} %), beyond the "
@@ -468,6 +433,12 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         note = f"estimated: the views determine it to +-{100 * sigma_data:.3f} %"
     res = AdjustResult(P, g, sigma_g, z_ref_m, it, np.array(rms_hist), counts, pair_rms, moved_deg, moved_mm, converged,
                        estimate_gain, sigma_data, note, sig_deg, sig_mm, sigma_sys)
+    res.amplitude_dk_m, res.amplitude_estimated = (a_k, True) if amp_on else (0.0, False)
+    res.amplitude_dk_sigma_m = float(np.sqrt(max(amp_var, 0.0))) if amp_on else float("nan")
+    res.amplitude_dk_sigma_data_m = amp_sd
+    res.amplitude_gain_correlation = amp_corr
+    res.amplitude_note = (f"estimated: the views determine dk to +-{amp_sd * 1e3:.2f} mm per ln unit (data alone)"
+                          if amp_on else amp_note)
     if D:
         res.range_curve_m = c_curve.copy()
         res.range_curve_cov_m2 = curve_cov if curve_on else np.zeros((D, D))

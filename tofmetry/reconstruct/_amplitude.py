@@ -48,6 +48,28 @@ def white_amplitude_map(ir_means: list[np.ndarray], depth_means_mm: list[np.ndar
         return np.nanmedian(np.stack(vals), axis=0)
 
 
+def amplitude_log_ratio(depth_mm: np.ndarray, ir: np.ndarray, white_map: np.ndarray, intr: CameraIntrinsics) -> np.ndarray:
+    """``ln(A_white / A)`` per pixel (dimensionless; 0 where it cannot be formed): the regressor of
+    the amplitude bias, how much darker (or more oblique) than a white frontal surface a pixel is.
+
+    Parameters
+    ----------
+    depth_mm : (H, W) Z [mm]; ir : (H, W) mean amplitude; white_map : from :func:`white_amplitude_map`
+
+    Returns
+    -------
+    (H, W) float64
+    """
+    rays = intr.ray_table(True)
+    norm = np.sqrt(rays[..., 0] ** 2 + rays[..., 1] ** 2 + 1.0)
+    r = np.asarray(depth_mm, np.float64) * 1e-3 * norm
+    ok = (r > 0) & np.isfinite(white_map) & (np.asarray(ir) > 0)
+    out = np.zeros(r.shape)
+    a_white = white_map[ok] / r[ok] ** 2
+    out[ok] = np.log(a_white / np.asarray(ir, np.float64)[ok])
+    return out
+
+
 def amplitude_bias_mm(depth_mm: np.ndarray, ir: np.ndarray, white_map: np.ndarray, intr: CameraIntrinsics,
                       k_mm_per_ln: float = PAPER_K_MM_PER_LN) -> np.ndarray:
     """Estimated bias ``k ln(A_white / A)`` [mm] per pixel (0 where it cannot be formed).
@@ -56,11 +78,4 @@ def amplitude_bias_mm(depth_mm: np.ndarray, ir: np.ndarray, white_map: np.ndarra
     ----------
     depth_mm : (H, W) Z [mm]; ir : (H, W) mean amplitude; white_map : from :func:`white_amplitude_map`
     """
-    rays = intr.ray_table(True)
-    norm = np.sqrt(rays[..., 0] ** 2 + rays[..., 1] ** 2 + 1.0)
-    r = np.asarray(depth_mm, np.float64) * 1e-3 * norm
-    ok = (r > 0) & np.isfinite(white_map) & (np.asarray(ir) > 0)
-    out = np.zeros(r.shape)
-    a_white = white_map[ok] / r[ok] ** 2
-    out[ok] = k_mm_per_ln * np.log(a_white / np.asarray(ir, np.float64)[ok])
-    return out
+    return k_mm_per_ln * amplitude_log_ratio(depth_mm, ir, white_map, intr)

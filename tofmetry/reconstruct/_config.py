@@ -146,6 +146,16 @@ class RegistrationConfig(BaseModel):
     range_curve_prior_mm: float | None = Field(None, gt=0, description="prior standard deviation of each range-curve "
                                                "coefficient [mm]; None: the depth calibration's predicted central "
                                                "error between its stations (1 mm without one)")
+    amplitude_k_prior_mm: float | None = Field(3.0, gt=0, description="with an amplitude reference, the global "
+                                               "adjustment also corrects the amplitude-bias coefficient k of the "
+                                               "preprocessing by dk (Z -> Z - dk ln(A_white / A)): one point seen at "
+                                               "different incidences by two views disagrees unless k is the sensor's. "
+                                               "Prior standard deviation of dk [mm per ln unit]; estimated only when "
+                                               "the views determine it better. None: off")
+    amplitude_min_rms_drop: float = Field(0.005, ge=0, description="the amplitude-bias correction dk is kept only "
+                                          "when it lowers the global adjustment's final residual RMS by at least this "
+                                          "share (other incidence-dependent errors are observed like dk: see "
+                                          "keep_amplitude_if_it_explains)")
     sigma_inflation: float = Field(5.0, ge=1, description="factor on the standard errors of the global adjustment "
                                    "(neighbouring points of a view share their depth error: ~25 px patches per "
                                    "independent sample)")

@@ -53,16 +53,25 @@ def voxel_down(points: np.ndarray, normals: np.ndarray | None, voxel_m: float):
 
 
 def voxel_down_values(points: np.ndarray, normals: np.ndarray, values: np.ndarray | None, voxel_m: float):
-    """:func:`voxel_down` that also averages a per-point scalar ``values`` (N,) (None: returns None)."""
+    """:func:`voxel_down` that also averages per-point values: (N,) or (N, C) with C <= 3 (carried
+    as Open3D colours, which are averaged unclipped); returns them with the same trailing shape
+    (None: returns None)."""
     pcd = to_pcd(points, normals)
     if values is not None:
-        v = np.asarray(values, np.float64).reshape(-1, 1)
-        pcd.colors = __import__("open3d").utility.Vector3dVector(np.repeat(v, 3, axis=1))
+        v = np.asarray(values, np.float64)
+        v2 = v.reshape(len(v), -1)
+        if v2.shape[1] > 3:
+            raise ValueError(f"voxel_down_values: at most 3 values per point, found {v2.shape[1]}")
+        pad = np.zeros((len(v2), 3))
+        pad[:, :v2.shape[1]] = v2
+        pcd.colors = __import__("open3d").utility.Vector3dVector(pad)
     pcd = pcd.voxel_down_sample(voxel_m)
     p = np.asarray(pcd.points).copy()
     n = np.asarray(pcd.normals).copy()
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-    vals = np.asarray(pcd.colors)[:, 0].copy() if values is not None else None
+    vals = None
+    if values is not None:
+        vals = np.asarray(pcd.colors)[:, :v2.shape[1]].copy().reshape(len(p), *v.shape[1:])
     return p, n, vals
 
 

@@ -15,12 +15,9 @@ from scipy.spatial import cKDTree
 
 from tofmetry._shared.geometry import fit_plane_svd, transform_points
 from tofmetry.errors import EstimationError, InputError, SensorMismatchError
-from tofmetry.reconstruct._adjust import (
-    AdjustResult,
-    AdjustView,
-    apply_depth_gain,
-    global_adjust,
-)
+from tofmetry.reconstruct._adjust import AdjustView, apply_depth_gain, global_adjust
+from tofmetry.reconstruct._adjust_result import AdjustResult, keep_amplitude_if_it_explains
+from tofmetry.reconstruct._amplitude import amplitude_log_ratio
 from tofmetry.reconstruct._colour import colour_model
 from tofmetry.reconstruct._config import ReconstructionConfig
 from tofmetry.reconstruct._fusion import TSDFFusion, crop_mesh, poisson_mesh
@@ -230,21 +227,31 @@ class ReconstructionPipeline:
         e_sys = rc.gain_systematic_mm
         if e_sys is None:  # opt-in: the calibration's predicted central error
             e_sys = (calibration_central_mm(self.cal.prediction or {}) if self.cal is not None else None) or 0.0
-        av = [AdjustView(*(r.mid_points, r.mid_normals) if r.mid_points is not None else (r.icp_points, r.icp_normals),
-                         r.icp_points, r.icp_normals) for r in regs]
+        av = [AdjustView(*(r.mid_points, r.mid_normals, r.icp_points, r.icp_normals, r.mid_amp, r.icp_amp)
+                           if r.mid_points is not None else
+                           (r.icp_points, r.icp_normals, r.icp_points, r.icp_normals, r.icp_amp, r.icp_amp)) for r in regs]
+        amp_prior = rc.amplitude_k_prior_mm if self.white_map is not None else None
+
+        def run(amplitude_prior_mm: float | None) -> AdjustResult:
+            return global_adjust(av, poses, z_ref, tuple(x * 1e-3 for x in rc.adjust_radii_mm), rc.adjust_iters,
+                                 estimate_gain=rc.estimate_depth_gain, gain_prior_sigma=rc.depth_gain_prior,
+                                 gain_max_sigma=rc.gain_max_sigma, sigma_inflation=rc.sigma_inflation,
+                                 gain_max_abs=None if sg_cal is None else rc.gain_max_calibration_sigmas * sg_cal,
+                                 systematic_m=e_sys * 1e-3, curve_degree=rc.range_curve_degree,
+                                 curve_prior_m=self._curve_prior_mm() * 1e-3,
+                                 amplitude_prior_m=None if amplitude_prior_mm is None else amplitude_prior_mm * 1e-3)
+
         with self.progress("global adjustment", None):
             try:
-                res = global_adjust(av, poses, z_ref, tuple(x * 1e-3 for x in rc.adjust_radii_mm), rc.adjust_iters,
-                                    estimate_gain=rc.estimate_depth_gain, gain_prior_sigma=rc.depth_gain_prior,
-                                    gain_max_sigma=rc.gain_max_sigma, sigma_inflation=rc.sigma_inflation,
-                                    gain_max_abs=None if sg_cal is None else rc.gain_max_calibration_sigmas * sg_cal,
-                                    systematic_m=e_sys * 1e-3, curve_degree=rc.range_curve_degree,
-                                    curve_prior_m=self._curve_prior_mm() * 1e-3)
+                res = run(None)
+                if amp_prior is not None:
+                    res = keep_amplitude_if_it_explains(res, run(amp_prior), rc.amplitude_min_rms_drop)
             except EstimationError as exc:  # keep the pose-graph poses; the reason goes to the diagnostics
                 self.adjust_failure = str(exc)
                 return None
         curve = res.range_curve_m if res.range_curve_estimated else None
-        if res.depth_gain != 0.0 or curve is not None:
+        dk_mm = res.amplitude_dk_m * 1e3 if res.amplitude_estimated else 0.0
+        if res.depth_gain != 0.0 or curve is not None or dk_mm != 0.0:
             thr = self.cfg.segment.plane_threshold_mm * 1e-3
             h = res.range_curve_half_span_m
             for v, s in zip(views, segs):
@@ -256,6 +263,10 @@ class ReconstructionPipeline:
                     v.points = v.points + apply_range_curve(p0, curve, z_ref, h) - p0
                     v.depth_mm = np.where(d0 > 0, v.depth_mm + 1e3 * range_curve_m(d0.ravel() * 1e-3, curve, z_ref, h)
                                           .reshape(d0.shape), 0.0)
+                if dk_mm != 0.0:  # Z -> Z - dk ln(A_white / A), like the preprocessing's own correction
+                    L = amplitude_log_ratio(d0, v.ir, self.white_map, regs[0].intr)
+                    v.points = v.points - p0 * (dk_mm * 1e-3 * L.ravel()[v.index] / p0[:, 2])[:, None]
+                    v.depth_mm = np.where(d0 > 0, v.depth_mm - dk_mm * L, 0.0)
                 if on_plane is not None and on_plane.sum() >= 3:  # the support plane moved with its points
                     s.plane = fit_plane_svd(v.points[on_plane], orient=s.plane[:3])
         return res
@@ -365,6 +376,10 @@ class ReconstructionPipeline:
         self.timings = {"views_s": t1 - t0, "registration_s": t2a - t1, "adjustment_s": t2 - t2a, "fusion_s": t3 - t2,
                         "meshing_s": t4 - t3, "color_s": t5 - t4, "total_s": t5 - t0}
         adj_d = ({"failed": self.adjust_failure} if self.adjust_failure else None) if adj is None else adj.to_dict(names)
+        if adj is not None:  # the coefficient the model was corrected with: the preprocessing's plus dk
+            amp = adj_d["amplitude_bias"]
+            amp["k_mm_per_ln"] = (None if self.white_map is None else
+                                  round(self.cfg.preprocess.amplitude_k_mm_per_ln + (amp["dk_mm_per_ln"] or 0.0), 4))
         rc = self.cfg.registration
         edges = graph.edges + self.other_edges
         pred = None if self.cal is None else (self.cal.prediction or {})

@@ -13,6 +13,7 @@ import numpy as np
 from scipy.ndimage import minimum_filter
 from scipy.spatial import cKDTree
 
+from tofmetry.reconstruct._amplitude import amplitude_log_ratio
 from tofmetry.reconstruct._config import RegistrationConfig
 from tofmetry.reconstruct._o3d import voxel_down, voxel_down_values
 from tofmetry.reconstruct._photometric import log_albedo
@@ -37,6 +38,9 @@ class RegView:
     obj_normals : (K, 3) unit normals of ``obj_points`` (toward the camera)
     obj_ir, icp_ir : relative log IR albedo of ``obj_points`` / ``icp_points``
         (:func:`~tofmetry.reconstruct._photometric.log_albedo`), or None without IR
+    icp_amp, mid_amp : ``ln(A_white / A)`` of ``icp_points`` / ``mid_points`` (the amplitude-bias
+        regressor, :func:`~tofmetry.reconstruct._amplitude.amplitude_log_ratio`), or None without
+        IR and an amplitude reference
     """
 
     name: str
@@ -55,6 +59,8 @@ class RegView:
     obj_normals: np.ndarray | None = None
     obj_ir: np.ndarray | None = None
     icp_ir: np.ndarray | None = None
+    icp_amp: np.ndarray | None = None
+    mid_amp: np.ndarray | None = None
     _tree: cKDTree | None = field(default=None, repr=False)
 
     @property
@@ -78,20 +84,26 @@ def make_reg_view(view: ViewData, seg: Segmentation, cfg: RegistrationConfig, in
     fine = view.cos_incidence >= np.cos(np.radians(cfg.fine_max_incidence_deg))
     sel = (seg.object_mask & reliable & fine) | (ring & fine)
     alb = log_albedo(view, intr, white_map) if cfg.ir_yaw and view.ir is not None and intr is not None else None
-    p, n, p_ir = voxel_down_values(view.points[sel], view.normals[sel], None if alb is None else alb[sel],
-                                   cfg.icp_voxel_mm * 1e-3)
+    amp = None
+    if white_map is not None and view.ir is not None and intr is not None:
+        amp = amplitude_log_ratio(view.depth_mm, view.ir, white_map, intr).ravel()[view.index]
+    vals = np.stack([np.zeros(len(view.points)) if alb is None else alb, amp], axis=1) if amp is not None else alb
+    p, n, p_vals = voxel_down_values(view.points[sel], view.normals[sel], None if vals is None else vals[sel],
+                                     cfg.icp_voxel_mm * 1e-3)
+    p_ir, p_amp = (p_vals[:, 0] if alb is not None else None, p_vals[:, 1]) if amp is not None else (p_vals, None)
     om = seg.object_mask & reliable
     po, pon, po_ir = voxel_down_values(view.points[om], view.normals[om], None if alb is None else alb[om],
                                        cfg.icp_voxel_mm * 1e-3)
     pf, nf = voxel_down(view.points[core], view.normals[core], cfg.feature_voxel_mm * 1e-3)
     csel = (core & reliable) | ring
     pc, nc = voxel_down(view.points[csel], view.normals[csel], cfg.coarse_voxel_mm * 1e-3)
-    pm, nm = voxel_down(view.points[sel], view.normals[sel], cfg.mid_voxel_mm * 1e-3)
+    pm, nm, pm_amp = voxel_down_values(view.points[sel], view.normals[sel], None if amp is None else amp[sel],
+                                       cfg.mid_voxel_mm * 1e-3)
     near = None
     if intr is not None:
         d = np.where(view.depth_mm > 0, view.depth_mm * 1e-3, np.inf).astype(np.float32)
         near = minimum_filter(d, size=3, mode="nearest")
-    return RegView(view.name, p, n, po, pf, nf, pc, nc, seg.plane, pm, nm, near, intr, pon, po_ir, p_ir)
+    return RegView(view.name, p, n, po, pf, nf, pc, nc, seg.plane, pm, nm, near, intr, pon, po_ir, p_ir, p_amp, pm_amp)
 
 
 def free_space_violation(src: RegView, tgt: RegView, T: np.ndarray, tol_m: float) -> float:
