@@ -115,7 +115,7 @@ def test_most_views_left_out_make_the_run_unreliable():
     assert v["reliable"] and any("left out" in w for w in v["warnings"])
 
 
-def test_a_refused_gain_within_twice_its_bound_is_a_warning():
+def test_a_refused_gain_within_one_and_a_half_times_its_bound_is_a_warning():
     e = [_edge("00", "01"), _edge("01", "02"), _edge("00", "02")]
     note = "implausible: the views ask for -1.16 % (+-0.15 %), beyond the +-0.85 % the depth calibration can leave"
     v = assess(_names(3), e, {"reasons": [], "loops": []}, calibration_prediction={},
@@ -123,4 +123,7 @@ def test_a_refused_gain_within_twice_its_bound_is_a_warning():
     assert v["reliable"] and any("-1.16 %" in w for w in v["warnings"])
     v = assess(_names(3), e, {"reasons": [], "loops": []}, calibration_prediction={},
                adjustment={"gain_note": note, "gain_refused": -0.0512, "gain_max_abs": 0.0085})
+    assert not v["reliable"]
+    v = assess(_names(3), e, {"reasons": [], "loops": []}, calibration_prediction={},  # a family miss at 2 times
+               adjustment={"gain_note": note, "gain_refused": -0.0069, "gain_max_abs": 0.0043})
     assert not v["reliable"]
