@@ -34,26 +34,60 @@ class Segmentation:
     plane_inlier_share: float
 
 
+def ransac_plane(points: np.ndarray, threshold_m: float, iterations: int = 1000, seed: int = 0) -> tuple[np.ndarray, int]:
+    """The plane through 3 sampled points that holds the most points within ``threshold_m``.
+
+    Deterministic for a given ``seed`` (NumPy's generator; the scores are exact counts, ties go to
+    the first sample). Open3D's ``segment_plane`` is not: its multi-threaded RANSAC gave planes
+    0.01 mm apart in separate processes on the same points with the same seed (measured on a
+    family scan: 2 views of 10 segmented differently, and the run's loop closure moved from 2.13 to
+    1.64 deg, across the verdict's limit).
+
+    Parameters
+    ----------
+    points : (N, 3) [m]; threshold_m : inlier distance [m]; iterations : samples drawn
+
+    Returns
+    -------
+    plane : (4,) unit normal and offset (``n . p + d = 0``) [m]; inliers : their count
+    """
+    p = np.asarray(points, np.float64)
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, len(p), size=(iterations, 3))
+    a, b, c = p[idx[:, 0]], p[idx[:, 1]], p[idx[:, 2]]
+    n = np.cross(b - a, c - a)
+    norm = np.linalg.norm(n, axis=1)
+    ok = norm > 1e-12
+    n, a = n[ok] / norm[ok, None], a[ok]
+    d = -np.einsum("ij,ij->i", n, a)
+    best, best_count = 0, -1
+    for s in range(0, len(n), 64):  # (N, 64) distances at a time
+        counts = (np.abs(p @ n[s:s + 64].T + d[s:s + 64]) < threshold_m).sum(axis=0)
+        j = int(np.argmax(counts))
+        if counts[j] > best_count:
+            best, best_count = s + j, int(counts[j])
+    if best_count < 0:
+        raise EstimationError("support plane: the points are collinear or too few (no plane through 3 of them)")
+    return np.r_[n[best], d[best]], best_count
+
+
 def fit_support_plane(points: np.ndarray, threshold_m: float, seed: int = 0) -> tuple[np.ndarray, float]:
-    """Dominant plane by RANSAC (Open3D ``segment_plane`` on 5 mm voxels), refined by least squares.
+    """Dominant plane by RANSAC (:func:`ransac_plane` on 5 mm voxels), refined by least squares.
 
     Returns
     -------
     plane : (4,) unit normal oriented toward the origin (camera), offset [m]
     inlier_share : float
     """
-    import open3d as o3d
-
     quiet()
-    o3d.utility.random.seed(seed)
-    pcd = to_pcd(points).voxel_down_sample(0.005)
-    model, _ = pcd.segment_plane(threshold_m, 3, 1000)
-    plane = np.asarray(model, np.float64)
-    plane /= np.linalg.norm(plane[:3])
-    # least-squares refinement on all points within the threshold
-    h = points @ plane[:3] + plane[3]
-    sel = points[np.abs(h) < threshold_m]
-    if len(sel) >= 3:
+    down = np.asarray(to_pcd(points).voxel_down_sample(0.005).points)
+    plane, _ = ransac_plane(down, threshold_m, 1000, seed)
+    # least-squares refinement on all points within the threshold, repeated: the plane through the
+    # middle of the noisy slab, whatever the tilt of the sample RANSAC kept
+    for _ in range(3):
+        sel = points[np.abs(points @ plane[:3] + plane[3]) < threshold_m]
+        if len(sel) < 3:
+            break
         plane = fit_plane_svd(sel, orient=plane[:3])
     if plane[3] < 0:  # camera (origin) on the positive side: height(origin) = d > 0
         plane = -plane
