@@ -34,7 +34,8 @@ class Segmentation:
     plane_inlier_share: float
 
 
-def ransac_plane(points: np.ndarray, threshold_m: float, iterations: int = 1000, seed: int = 0) -> tuple[np.ndarray, int]:
+def ransac_plane(points: np.ndarray, threshold_m: float, iterations: int = 1000, seed: int = 0,
+                 score_points: int = 5000) -> tuple[np.ndarray, int]:
     """The plane through 3 sampled points that holds the most points within ``threshold_m``.
 
     Deterministic for a given ``seed`` (NumPy's generator; the scores are exact counts, ties go to
@@ -43,9 +44,14 @@ def ransac_plane(points: np.ndarray, threshold_m: float, iterations: int = 1000,
     family scan: 2 views of 10 segmented differently, and the run's loop closure moved from 2.13 to
     1.64 deg, across the verdict's limit).
 
+    The candidates are scored on ``score_points`` points drawn once (the share of a dominant plane
+    is estimated to about +-0.5 % from 5000): 0.03 s instead of 0.6 s on the 80 000 points of a
+    view's 5 mm voxels, the cost of Open3D's early-terminating search.
+
     Parameters
     ----------
     points : (N, 3) [m]; threshold_m : inlier distance [m]; iterations : samples drawn
+    score_points : points the candidates are scored on (all when fewer)
 
     Returns
     -------
@@ -60,15 +66,17 @@ def ransac_plane(points: np.ndarray, threshold_m: float, iterations: int = 1000,
     ok = norm > 1e-12
     n, a = n[ok] / norm[ok, None], a[ok]
     d = -np.einsum("ij,ij->i", n, a)
+    q = p[rng.choice(len(p), score_points, replace=False)] if len(p) > score_points else p
     best, best_count = 0, -1
-    for s in range(0, len(n), 64):  # (N, 64) distances at a time
-        counts = (np.abs(p @ n[s:s + 64].T + d[s:s + 64]) < threshold_m).sum(axis=0)
+    for s in range(0, len(n), 64):  # (M, 64) distances at a time
+        counts = (np.abs(q @ n[s:s + 64].T + d[s:s + 64]) < threshold_m).sum(axis=0)
         j = int(np.argmax(counts))
         if counts[j] > best_count:
             best, best_count = s + j, int(counts[j])
     if best_count < 0:
         raise EstimationError("support plane: the points are collinear or too few (no plane through 3 of them)")
-    return np.r_[n[best], d[best]], best_count
+    plane = np.r_[n[best], d[best]]
+    return plane, int(np.sum(np.abs(p @ plane[:3] + plane[3]) < threshold_m))
 
 
 def fit_support_plane(points: np.ndarray, threshold_m: float, seed: int = 0) -> tuple[np.ndarray, float]:
