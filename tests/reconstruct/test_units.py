@@ -58,6 +58,28 @@ def test_tsdf_plane_at_one_metre():
     assert np.abs(V[:, 2] - 1.0).max() < 4e-4
 
 
+def test_tsdf_places_a_sphere_where_it_is():
+    """Regression: Open3D reads the depth pixel floor(u), not the nearest, so each view was fused
+    half a pixel off in u and v (an analytic sphere at 1 m: centre 1.28 mm off along both image
+    axes). The fused surface must sit where the depth puts it: centre within a tenth of a pixel's
+    footprint (0.27 mm at 1 m), radius within a tenth of a voxel."""
+    intr = KINECT_V2.depth
+    c, R = np.array([0.02, -0.01, 1.0]), 0.1
+    rays = np.dstack([intr.ray_table(True), np.ones(intr.shape)])  # (x, y, 1) of each (distorted) pixel
+    a = np.sum(rays ** 2, -1)
+    b = -2 * rays @ c
+    disc = b * b - 4 * a * (c @ c - R * R)
+    z = np.where(disc > 0, (-b - np.sqrt(np.maximum(disc, 0))) / (2 * a) * 1e3, 0.0)  # Z [mm], rays have z = 1
+    f = TSDFFusion(intr, voxel_mm=1.6, trunc_mm=5.0)
+    f.integrate(z, np.eye(4))
+    V = f.extract(1.0)[0]
+    A = np.c_[2 * V, np.ones(len(V))]
+    x = np.linalg.lstsq(A, np.sum(V * V, 1), rcond=None)[0]
+    centre, radius = x[:3], np.sqrt(x[3] + x[:3] @ x[:3])
+    assert np.abs(centre[:2] - c[:2]).max() < 0.1 * 1.0 / intr.fx, centre - c
+    assert abs(radius - R) < 0.16e-3, radius - R
+
+
 def test_tsdf_keeps_surface_seen_by_one_view_only():
     """Regression (issue #5): Open3D keeps voxels with weight strictly above its threshold, so
     extracting at weight 1 dropped every patch seen by a single view. Two views of a wall at

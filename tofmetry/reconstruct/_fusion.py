@@ -66,6 +66,20 @@ def undistort_depth(depth_mm: np.ndarray, intr: CameraIntrinsics, jump_mm: float
     return out.astype(np.float32)
 
 
+def _o3d_K(intr: CameraIntrinsics) -> np.ndarray:
+    """The camera matrix to hand Open3D's TSDF integration: the principal point moved by +0.5 px.
+
+    Open3D projects a voxel to ``u = fx x / z + cx`` and reads the depth pixel ``floor(u)``
+    (not the nearest one), so every view was fused half a pixel off in u and v: measured on an
+    analytic sphere at 1 m, its centre 1.28 mm (0.47 px) off along both image axes with this
+    module's earlier plain ``K``, 0.01 mm with the shifted one.
+    """
+    K = np.array(intr.K, dtype=np.float64)
+    K[0, 2] += 0.5
+    K[1, 2] += 0.5
+    return K
+
+
 class TSDFFusion:
     """TSDF volume; one ``integrate(depth, pose)`` per view, then ``extract``.
 
@@ -85,7 +99,7 @@ class TSDFFusion:
         self.voxel_m = voxel_mm * 1e-3
         self.trunc_mult = trunc_mm / voxel_mm
         self.depth_max_m = depth_max_mm * 1e-3
-        self._K = o3c.Tensor(intr.K, dtype=o3c.float64)
+        self._K = o3c.Tensor(_o3d_K(intr), dtype=o3c.float64)
         self.vbg = o3d.t.geometry.VoxelBlockGrid(
             attr_names=("tsdf", "weight"), attr_dtypes=(o3c.float32, o3c.float32), attr_channels=((1), (1)),
             voxel_size=self.voxel_m, block_resolution=block_resolution, block_count=block_count,
@@ -105,7 +119,7 @@ class TSDFFusion:
         import open3d.core as o3c
 
         intr = self.intr if intr is None else intr
-        K = self._K if intr is self.intr else o3c.Tensor(intr.K, dtype=o3c.float64)
+        K = self._K if intr is self.intr else o3c.Tensor(_o3d_K(intr), dtype=o3c.float64)
         d = undistort_depth(depth_mm, intr)
         img = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(d)))
         ext = o3c.Tensor(np.linalg.inv(pose), dtype=o3c.float64)
