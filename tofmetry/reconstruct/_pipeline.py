@@ -26,6 +26,7 @@ from tofmetry.reconstruct._preprocess import ViewData, prepare_view
 from tofmetry.reconstruct._range_curve import apply_range_curve, range_curve_m
 from tofmetry.reconstruct._register import register_pair, rejection_reason
 from tofmetry.reconstruct._regview import RegView, make_reg_view
+from tofmetry.reconstruct._scale_budget import scale_budget
 from tofmetry.reconstruct._segment import Segmentation, segment_object
 from tofmetry.reconstruct._verdict import (
     assess,
@@ -271,6 +272,23 @@ class ReconstructionPipeline:
                     s.plane = fit_plane_svd(v.points[on_plane], orient=s.plane[:3])
         return res
 
+    def _scale_budget(self, views: list[ViewData], segs: list[Segmentation], poses: np.ndarray, intr):
+        """``(offset_sigma_m, gain_sigma) -> dict``: :func:`scale_budget` on the object points of
+        ``views`` placed by ``poses`` (camera to world), with the amplitude term when an amplitude
+        reference was given."""
+        pts = [v.points[s.object_mask] for v, s in zip(views, segs)]
+        nrm = [v.normals[s.object_mask] for v, s in zip(views, segs)]
+        L = None
+        if self.white_map is not None and all(v.ir is not None for v in views):
+            L = [amplitude_log_ratio(v.depth_mm, v.ir, self.white_map, intr).ravel()[v.index[s.object_mask]]
+                 for v, s in zip(views, segs)]
+        z_ref = _median_object_depth_m(views, segs)
+        k_sigma = self.cfg.registration.amplitude_k_sigma_mm * 1e-3
+
+        def budget(offset_sigma_m: float, gain_sigma: float) -> dict:
+            return scale_budget(pts, nrm, poses, z_ref, L, offset_sigma_m, gain_sigma, k_sigma)
+        return budget
+
     def _curve_prior_mm(self) -> float:
         """Prior standard deviation of the range curve's coefficients [mm]: configured, or the depth
         calibration's predicted central error between its stations (1 mm without one)."""
@@ -390,7 +408,8 @@ class ReconstructionPipeline:
                  if not np.allclose(W, np.eye(4)) else {"frame": "camera frame of the first view (x right, y down, z "
                                                                  "forward)", "from_first_camera": W.tolist()})
         diag = {"consistency": graph.consistency, "reliable": bool(verdict["reliable"]), "reliability": verdict,
-                "scale": scale_report(adj_d, pred, _median_object_depth_m(views, segs) * 1e3), "world": world,
+                "scale": scale_report(adj_d, pred, _median_object_depth_m(views, segs) * 1e3,
+                                      self._scale_budget(views, segs, poses, intr)), "world": world,
                 "views": {v.name: v.stats for v in views}, "fusion": fusion_info, "timings_s": self.timings,
                 "adjustment": adj_d, "left_out": self.left_out, "color": colour_diag,
                 "calibrated": self.cal is not None, "amplitude_corrected": self.white_map is not None, "intrinsics": intr.to_dict(),

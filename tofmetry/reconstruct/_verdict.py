@@ -205,7 +205,8 @@ def _station_spacing_mm(calibration_prediction: dict) -> float:
     return float(np.median(np.diff(centres))) if len(centres) > 1 else 250.0
 
 
-def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z_ref_mm: float) -> dict:
+def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z_ref_mm: float,
+                 budget=None) -> dict:
     """The model's predicted scale and surface-offset uncertainty from the depth chain.
 
     A range offset ``e`` left by the calibration moves every point along its ray: the surfaces
@@ -217,6 +218,12 @@ def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z
     and ``sigma_g`` the self-calibrated gain's standard error when it was estimated, otherwise
     the gain a calibration with that error can leave between stations, ``e / (spacing / 2)``.
     Not included: the lens calibration's focal error (it scales the lateral size as well).
+
+    ``budget``: optional callable ``(offset_sigma_m, gain_sigma) -> dict`` of
+    :func:`~tofmetry.reconstruct._scale_budget.scale_budget` on the model's own geometry. When it
+    gives a finite sigma, that sigma is the prediction (the rule above stays in the report as
+    ``rule_scale_sigma_pct``): it counts what the rule cannot, which surfaces face the cameras and
+    the amplitude bias's uncertainty.
 
     Returns
     -------
@@ -237,7 +244,15 @@ def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z
                       "source": "the calibration carries no predicted error"}
     sg = float(adj.get("gain_sigma_data", np.nan)) if est else e / (spacing / 2)
     s = float(np.hypot(e / z_ref_mm, sg / 2))
-    return out | {"gain_sigma": sg, "predicted_scale_sigma_pct": 100 * s, "predicted_offset_sigma_mm": float(e),
-                  "station_spacing_mm": spacing,
-                  "source": "calibration's predicted central error" + (" and the self-calibrated gain's standard error"
-                                                                       if est else " (gain not estimated)")}
+    src = "calibration's predicted central error" + (" and the self-calibrated gain's standard error"
+                                                     if est else " (gain not estimated)")
+    out |= {"gain_sigma": sg, "predicted_scale_sigma_pct": 100 * s, "rule_scale_sigma_pct": 100 * s,
+            "predicted_offset_sigma_mm": float(e), "station_spacing_mm": spacing, "source": src}
+    b = budget(e * 1e-3, sg) if budget is not None and np.isfinite(sg) else None
+    if b is not None:
+        out["budget"] = b
+        if np.isfinite(b.get("sigma", np.nan)):
+            out["predicted_scale_sigma_pct"] = 100 * float(b["sigma"])
+            out["source"] = src + ", propagated through the model's geometry" + (
+                "" if "amplitude" not in b else " with the amplitude bias's uncertainty")
+    return out
