@@ -72,6 +72,12 @@ def test_recovers_the_amplitude_bias_and_the_poses(ring_close):
     assert without.rms_mm[-1] > 1.5 * with_amp.rms_mm[-1], (without.rms_mm, with_amp.rms_mm)
     rep = with_amp.to_dict()["amplitude_bias"]
     assert rep["estimated"] and abs(rep["dk_mm_per_ln"] - 1.5) < 0.3
+    # the gain's regression on dk says how far the gain goes when k is held wrong (here at 0): to
+    # first order (the poses move too), measured 0.0024 predicted against 0.0033, while the gain's
+    # own standard error claims +-0.00006; this is what the predicted scale uncertainty inherits
+    shift, pred = without.depth_gain - with_amp.depth_gain, -with_amp.amplitude_gain_slope * with_amp.amplitude_dk_m
+    assert 0.5 < pred / shift < 2.0, (pred, shift)
+    assert abs(shift) > 10 * without.gain_sigma_data, (shift, without.gain_sigma_data)
     assert without.to_dict()["amplitude_bias"]["note"] == "not asked for"
 
 

@@ -63,6 +63,45 @@ def test_scale_report_from_the_calibration_and_the_gain():
     assert scale_report(None, None, 1000.0)["predicted_scale_sigma_pct"] is None
 
 
+def test_scale_report_takes_the_larger_of_the_rule_and_the_budget():
+    """The budget is handed the calibration's offset [m] and the gain's sigma; the prediction is
+    the larger of the two propagations, and the report keeps both."""
+    pred = {"interpolation": {"central_abs_mm": {"predicted": 0.3}},
+            "folds": [{"center_mm": 1000.0 + 250 * k} for k in range(5)]}
+    adj = {"depth_gain": 0.001, "gain_estimated": True, "gain_sigma_data": 0.0004}
+    rule = 100 * np.hypot(0.3 / 1000, 0.0002)
+    seen = []
+
+    def budget(sigma):
+        def f(offset_sigma_m, gain_sigma):
+            seen.append((offset_sigma_m, gain_sigma))
+            return {"sigma": sigma}
+        return f
+    r = scale_report(adj, pred, 1000.0, budget(0.01))
+    assert seen[-1] == (0.3e-3, 0.0004)
+    assert np.isclose(r["predicted_scale_sigma_pct"], 1.0) and np.isclose(r["rule_scale_sigma_pct"], rule)
+    assert "geometry" in r["source"]
+    r = scale_report(adj, pred, 1000.0, budget(1e-6))
+    assert np.isclose(r["predicted_scale_sigma_pct"], rule) and np.isclose(r["budget_scale_sigma_pct"], 1e-4)
+    r = scale_report(adj, pred, 1000.0, budget(float("nan")))  # scale and offset not separable on the shape
+    assert np.isclose(r["predicted_scale_sigma_pct"], rule) and r["budget_scale_sigma_pct"] is None
+
+
+def test_the_gain_inherits_the_amplitude_coefficients_uncertainty():
+    """A gain that moves by 1e-4 per mm per ln unit of error in k, with k known to +-3: +-3e-4 more."""
+    pred = {"interpolation": {"central_abs_mm": {"predicted": 0.3}},
+            "folds": [{"center_mm": 1000.0 + 250 * k} for k in range(5)]}
+    adj = {"depth_gain": 0.001, "gain_estimated": True, "gain_sigma_data": 0.0004,
+           "amplitude_bias": {"gain_per_mm_per_ln": -1e-4}}
+    r = scale_report(adj, pred, 1000.0, k_sigma_mm=3.0)
+    assert np.isclose(r["gain_sigma_from_k"], 3e-4) and np.isclose(r["gain_sigma"], 5e-4)
+    assert np.isclose(r["predicted_scale_sigma_pct"], 100 * np.hypot(0.3 / 1000, 2.5e-4))
+    assert "k known to" in r["source"]
+    assert np.isclose(scale_report(adj, pred, 1000.0)["gain_sigma"], 4e-4)  # no amplitude reference: not counted
+    adj["gain_estimated"] = False  # the gain left at 0 does not trade with k
+    assert "gain_sigma_from_k" not in scale_report(adj, pred, 1000.0, k_sigma_mm=3.0)
+
+
 def test_support_plane_frame():
     rng = np.random.default_rng(0)
     n = np.array([0.1, -0.9, -0.3])

@@ -3,6 +3,7 @@ the rig frame), ``evaluate`` (model vs reference) and ``plan``."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import typer
@@ -121,6 +122,11 @@ def reconstruct(
     if sc.get("predicted_scale_sigma_pct") is not None:
         console.print(f"scale: predicted uncertainty +-{sc['predicted_scale_sigma_pct']:.2f} % (1 sigma), surface offset "
                       f"+-{sc['predicted_offset_sigma_mm']:.2f} mm ({sc['source']})")
+        b = sc.get("budget") or {}
+        terms = [(k, b[k]["sigma"]) for k in ("offset", "gain", "amplitude") if isinstance(b.get(k), dict)]
+        if terms and all(math.isfinite(v) for _, v in terms):
+            console.print("  on the model's geometry: " + ", ".join(f"{k} +-{100 * v:.3f} %" for k, v in terms)
+                          + f"; the closed-form rule +-{sc['rule_scale_sigma_pct']:.3f} %")
     console.print(f"world frame: {(res.diagnostics.get('world') or {}).get('frame', '')}")
     tm = res.diagnostics["timings_s"]
     console.print(f"wrote {output} in {tm['total_s']:.1f} s (views {tm['views_s']:.1f}, registration "

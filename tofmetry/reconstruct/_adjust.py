@@ -200,13 +200,16 @@ def _normal_equations(views, P, g, z_ref_m, corr, huber_m, estimate_gain, curve=
     return H, b, swr2 / max(sw, 1e-12), counts, pair_rms, sw
 
 
-def _correlation_with_gain(H: np.ndarray, index: int) -> float:
-    """Correlation of unknown ``index`` with the gain (last) from the data-only normal matrix."""
+def _correlation_with_gain(H: np.ndarray, index: int) -> tuple[float, float]:
+    """Correlation of unknown ``index`` with the gain (last) from the data-only normal matrix, and
+    the gain's regression on it, ``C[g, i] / C[i, i]``: how far the gain estimate moves per unit
+    of error in that unknown when it is held at a wrong value."""
     try:
         C = np.linalg.inv(H + np.eye(len(H)) * 1e-12 * np.trace(H) / len(H))
     except np.linalg.LinAlgError:
-        return float("nan")
-    return float(C[index, -1] / np.sqrt(max(C[index, index] * C[-1, -1], 1e-300)))
+        return float("nan"), float("nan")
+    return (float(C[index, -1] / np.sqrt(max(C[index, index] * C[-1, -1], 1e-300))),
+            float(C[index, -1] / max(C[index, index], 1e-300)))
 
 
 def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, radii_m: tuple[float, ...] = (0.006, 0.003),
@@ -313,7 +316,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                                                    for v in views)
     amp_note = "estimated" if amp_on else ("not asked for" if amplitude_prior_m is None
                                            else "not available: a view carries no amplitude regressor")
-    a_k, amp_sd, amp_var, amp_corr = 0.0, float("nan"), float("nan"), float("nan")
+    a_k, amp_sd, amp_var, amp_corr, amp_slope = 0.0, float("nan"), float("nan"), float("nan"), float("nan")
     amp_checked = False
 
     def cv():
@@ -356,7 +359,8 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                         curve_on, c_curve, off = False, np.zeros(D), True
                 if amp_on and not amp_checked:
                     amp_sd, amp_checked = float(sd[-1]), r == radii_m[-1]
-                    amp_corr = _correlation_with_gain(H, 6 * (V - 1) + (D if curve_on else 0)) if estimate_gain else 0.0
+                    amp_corr, amp_slope = (_correlation_with_gain(H, 6 * (V - 1) + (D if curve_on else 0))
+                                           if estimate_gain else (0.0, 0.0))
                     if not amp_sd < amplitude_prior_m:
                         amp_note = (f"not observable: the views determine dk only to +-{amp_sd * 1e3:.2f} mm per ln "
                                     f"unit (prior +-{amplitude_prior_m * 1e3:.2f}); kept at 0")
@@ -437,6 +441,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
     res.amplitude_dk_sigma_m = float(np.sqrt(max(amp_var, 0.0))) if amp_on else float("nan")
     res.amplitude_dk_sigma_data_m = amp_sd
     res.amplitude_gain_correlation = amp_corr
+    res.amplitude_gain_slope = amp_slope
     res.amplitude_note = (f"estimated: the views determine dk to +-{amp_sd * 1e3:.2f} mm per ln unit (data alone)"
                           if amp_on else amp_note)
     if D:

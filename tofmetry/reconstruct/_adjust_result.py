@@ -40,6 +40,12 @@ class AdjustResult:
         None when not asked for, zeros when not observable); ``range_curve_sigma_m``, ``range_curve_cov_m2``:
         their standard errors and covariance (noise only, times the inflation; no systematic part);
         ``range_curve_sigma_data_m``: from the data alone, no prior; ``range_curve_note``: why it was or was not estimated
+    amplitude_dk_m, amplitude_dk_sigma_m, amplitude_dk_sigma_data_m, amplitude_estimated, amplitude_note :
+        the amplitude-bias correction ``dk`` [m per ln unit] (:func:`keep_amplitude_if_it_explains`)
+    amplitude_gain_correlation, amplitude_gain_slope : correlation of ``dk`` with the gain in the
+        adjustment with ``dk`` free, and the gain's regression on it (gain per m per ln unit): how
+        far the gain moves when ``k`` is wrong, which is how the amplitude coefficient's
+        uncertainty enters the gain's (:func:`~tofmetry.reconstruct._verdict.scale_report`)
     """
 
     poses: np.ndarray
@@ -75,6 +81,7 @@ class AdjustResult:
     amplitude_estimated: bool = False
     amplitude_note: str = "not asked for"
     amplitude_gain_correlation: float = float("nan")
+    amplitude_gain_slope: float = float("nan")
 
     def amplitude_report(self) -> dict:
         """The amplitude-bias correction ``dk`` [mm per ln unit] with its standard errors."""
@@ -83,7 +90,9 @@ class AdjustResult:
                 "dk_mm_per_ln": f(self.amplitude_dk_m), "dk_sigma_mm_per_ln": f(self.amplitude_dk_sigma_m),
                 "dk_sigma_data_mm_per_ln": f(self.amplitude_dk_sigma_data_m),
                 "gain_correlation": round(float(self.amplitude_gain_correlation), 3)
-                if np.isfinite(self.amplitude_gain_correlation) else None}
+                if np.isfinite(self.amplitude_gain_correlation) else None,
+                "gain_per_mm_per_ln": float(self.amplitude_gain_slope) * 1e-3
+                if np.isfinite(self.amplitude_gain_slope) else None}
 
     def range_curve_report(self) -> dict | None:
         """The range curve (coefficients, standard errors, and dz with its standard error at a few
@@ -147,6 +156,7 @@ def keep_amplitude_if_it_explains(plain: AdjustResult, with_amplitude: AdjustRes
     if not with_amplitude.amplitude_estimated:
         plain.amplitude_note = with_amplitude.amplitude_note
         plain.amplitude_dk_sigma_data_m = with_amplitude.amplitude_dk_sigma_data_m
+        plain.amplitude_gain_slope = with_amplitude.amplitude_gain_slope
         return plain
     r0, r1 = float(plain.rms_mm[-1]), float(with_amplitude.rms_mm[-1])
     drop = 1.0 - r1 / r0 if r0 > 0 else 0.0
@@ -159,4 +169,5 @@ def keep_amplitude_if_it_explains(plain: AdjustResult, with_amplitude: AdjustRes
                             "the views' disagreement is not the amplitude bias's")
     plain.amplitude_dk_sigma_data_m = with_amplitude.amplitude_dk_sigma_data_m
     plain.amplitude_gain_correlation = with_amplitude.amplitude_gain_correlation
+    plain.amplitude_gain_slope = with_amplitude.amplitude_gain_slope
     return plain

@@ -153,9 +153,11 @@ class RegistrationConfig(BaseModel):
                                                "Prior standard deviation of dk [mm per ln unit]; estimated only when "
                                                "the views determine it better. None: off")
     amplitude_k_sigma_mm: float = Field(3.0, gt=0, description="uncertainty (1 sigma) of the amplitude-bias "
-                                        "coefficient k [mm per ln unit] in the model's predicted scale uncertainty: the "
-                                        "study's 6.7 came from one sensor; dk's own standard error is not used (it "
-                                        "counts noise only, not the other incidence-dependent errors it trades with)")
+                                        "coefficient k [mm per ln unit] in the model's predicted scale uncertainty, "
+                                        "directly (the scale budget) and through the self-calibrated gain it trades "
+                                        "with: the study's 6.7 came from one sensor; dk's own standard error is not "
+                                        "used (it counts noise only, not the other incidence-dependent errors it "
+                                        "trades with)")
     amplitude_min_rms_drop: float = Field(0.005, ge=0, description="the amplitude-bias correction dk is kept only "
                                           "when it lowers the global adjustment's final residual RMS by at least this "
                                           "share (other incidence-dependent errors are observed like dk: see "

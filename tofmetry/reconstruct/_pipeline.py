@@ -409,7 +409,9 @@ class ReconstructionPipeline:
                                                                  "forward)", "from_first_camera": W.tolist()})
         diag = {"consistency": graph.consistency, "reliable": bool(verdict["reliable"]), "reliability": verdict,
                 "scale": scale_report(adj_d, pred, _median_object_depth_m(views, segs) * 1e3,
-                                      self._scale_budget(views, segs, poses, intr)), "world": world,
+                                      self._scale_budget(views, segs, poses, intr),
+                                      rc.amplitude_k_sigma_mm if self.white_map is not None else None),
+                "world": world,
                 "views": {v.name: v.stats for v in views}, "fusion": fusion_info, "timings_s": self.timings,
                 "adjustment": adj_d, "left_out": self.left_out, "color": colour_diag,
                 "calibrated": self.cal is not None, "amplitude_corrected": self.white_map is not None, "intrinsics": intr.to_dict(),
