@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from tofmetry._shared.geometry import transform_points
-from tofmetry.reconstruct._verdict import assess, calibration_gain_sigma, scale_report
+from tofmetry.reconstruct._verdict import (
+    assess, calibration_gain_sigma, extrapolation_error_mm, extrapolation_warning, scale_report,
+)
 from tofmetry.reconstruct._world import support_plane_frame, transform_plane
 
 
@@ -166,3 +168,17 @@ def test_a_refused_gain_within_one_and_a_half_times_its_bound_is_a_warning():
     v = assess(_names(3), e, {"reasons": [], "loops": []}, calibration_prediction={},  # a family miss at 2 times
                adjustment={"gain_note": note, "gain_refused": -0.0069, "gain_max_abs": 0.0043})
     assert not v["reliable"]
+
+
+def test_extrapolation_error_and_warning():
+    """The error where the calibration extrapolates: the worst |central| + p95 of its extrapolation
+    folds under the fallback it chose; a run whose object lies mostly there is warned."""
+    pred = {"fallback_chosen": "hold", "extrapolation": [
+        {"fallback": "hold", "central_mm": -3.5, "p95_mm": 3.1}, {"fallback": "trend", "central_mm": -4.4, "p95_mm": 4.0},
+        {"fallback": "hold", "central_mm": 0.5, "p95_mm": 6.5}]}
+    assert np.isclose(extrapolation_error_mm(pred), 7.0)
+    assert extrapolation_error_mm({}) == 0.0
+    stats = {"00": {"object_points": 1000, "object_points_extrapolated": 300}, "01": {"object_points": 1000}}
+    w = extrapolation_warning(stats, pred, (767.0, 4491.0))
+    assert w.startswith("15 %") and "767-4491 mm" in w and "7.0 mm" in w
+    assert extrapolation_warning({"00": {"object_points": 1000, "object_points_extrapolated": 50}}, pred, (767, 4491)) is None

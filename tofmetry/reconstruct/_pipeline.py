@@ -32,6 +32,8 @@ from tofmetry.reconstruct._verdict import (
     assess,
     calibration_central_mm,
     calibration_gain_sigma,
+    extrapolation_error_mm,
+    extrapolation_warning,
     scale_report,
 )
 from tofmetry.reconstruct._world import support_plane_frame, transform_plane
@@ -124,11 +126,17 @@ class ReconstructionPipeline:
         """One capture's view (:func:`prepare_view`) and its object segmentation; a failed
         segmentation names the view."""
         v = prepare_view(cap.depth_stack(), intr, cal, self.cfg.preprocess, name=name, ir=ir, white_map=white_map)
+        outside, tol = None, None
+        if cal is not None and cal.support is not None:
+            outside = ~cal.support.inside(v.depth_mm).ravel()[v.index]
+            tol = np.where(outside, extrapolation_error_mm(cal.prediction or {}) * 1e-3, 0.0)
         try:
-            s = segment_object(v.points, self.cfg.segment, seed=self.cfg.registration.seed)
+            s = segment_object(v.points, self.cfg.segment, seed=self.cfg.registration.seed, height_tolerance_m=tol)
         except EstimationError as exc:
             raise EstimationError(f"view {name}: {exc}") from None
         v.stats["object_points"] = int(s.object_mask.sum())
+        if outside is not None:
+            v.stats["object_points_extrapolated"] = int((outside & s.object_mask).sum())
         return v, s
 
     def load_views(self) -> tuple[list[ViewData], list[Segmentation], list[RegView], object]:
@@ -403,6 +411,10 @@ class ReconstructionPipeline:
         pred = None if self.cal is None else (self.cal.prediction or {})
         verdict = assess(names, edges, graph.consistency, self.left_out, adj_d, pred, rc.max_calibration_mm,
                          rc.pose_gate_deg, rc.pose_gate_mm, rc.yaw_free_ratio, rc.max_left_out)
+        if self.cal is not None and self.cal.support is not None:
+            w = extrapolation_warning({v.name: v.stats for v in views}, pred, self.cal.support.range_mm)
+            if w:
+                verdict["warnings"].append(w)
         world = ({"frame": "support plane z = 0 (normal up), origin under the object's footprint centre, x along the "
                            "first view's viewing direction projected on the plane", "from_first_camera": W.tolist()}
                  if not np.allclose(W, np.eye(4)) else {"frame": "camera frame of the first view (x right, y down, z "

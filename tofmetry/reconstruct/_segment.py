@@ -103,12 +103,17 @@ def fit_support_plane(points: np.ndarray, threshold_m: float, seed: int = 0) -> 
     return plane, share
 
 
-def segment_object(points: np.ndarray, config: SegmentConfig | None = None, seed: int = 0) -> Segmentation:
+def segment_object(points: np.ndarray, config: SegmentConfig | None = None, seed: int = 0,
+                   height_tolerance_m: np.ndarray | None = None) -> Segmentation:
     """Segment the object standing on the support plane.
 
     Parameters
     ----------
     points : (N, 3) float64 [m], camera frame
+    height_tolerance_m : optional (N,) float [m], added per point to ``min_height_mm``: how far a
+        point's depth may be off beyond the plane fit's own tolerance (depth the calibration only
+        extrapolates to: the support plane there can read millimetres off, and a band of it would
+        otherwise stand "on" the plane and join the object)
 
     Raises
     ------
@@ -120,7 +125,8 @@ def segment_object(points: np.ndarray, config: SegmentConfig | None = None, seed
         return Segmentation(np.ones(n, bool), np.zeros(n, bool), None, None, 0.0)
     plane, share = fit_support_plane(points, cfg.plane_threshold_mm * 1e-3, seed)
     h = points @ plane[:3] + plane[3]
-    cand = (h > cfg.min_height_mm * 1e-3) & (h < cfg.max_height_mm * 1e-3)
+    floor = cfg.min_height_mm * 1e-3 + (0.0 if height_tolerance_m is None else np.asarray(height_tolerance_m))
+    cand = (h > floor) & (h < cfg.max_height_mm * 1e-3)
     if cand.sum() < 50:
         raise EstimationError(f"segmentation: only {int(cand.sum())} points stand on the support plane "
                               f"(plane holds {share:.0%} of the view); use --keep-all to skip segmentation")

@@ -191,6 +191,34 @@ def calibration_central_mm(calibration_prediction: dict | None) -> float | None:
     return None if e is None else float(e)
 
 
+def extrapolation_error_mm(calibration_prediction: dict | None) -> float:
+    """How far the calibration's correction can be off where it extrapolates [mm]: over its
+    extrapolation folds (the nearest and the farthest station predicted from the others, with the
+    fallback it chose), the largest ``|central| + p95`` (offset plus the per-pixel spread about
+    it); 0 without such folds."""
+    rows = (calibration_prediction or {}).get("extrapolation") or []
+    fb = (calibration_prediction or {}).get("fallback_chosen")
+    vals = [abs(float(r.get("central_mm", 0.0))) + float(r.get("p95_mm", 0.0)) for r in rows
+            if isinstance(r, dict) and (fb is None or r.get("fallback") in (None, fb))]
+    vals = [v for v in vals if np.isfinite(v)]
+    return max(vals) if vals else 0.0
+
+
+def extrapolation_warning(views_stats: dict, calibration_prediction: dict | None, support_range_mm,
+                          min_share: float = 0.1) -> str | None:
+    """A warning when more than ``min_share`` of the object's points lie where the depth
+    calibration only extrapolates (outside its support); None otherwise."""
+    n = sum(st.get("object_points", 0) for st in views_stats.values())
+    out = sum(st.get("object_points_extrapolated", 0) for st in views_stats.values())
+    if n == 0 or out <= min_share * n:
+        return None
+    lo, hi = support_range_mm
+    return (f"{100 * out / n:.0f} % of the object's points lie outside the depth calibration's support (its stations "
+            f"span {lo:.0f}-{hi:.0f} mm): their correction is extrapolated, off by up to "
+            f"{extrapolation_error_mm(calibration_prediction):.1f} mm by its own extrapolation folds; scan within the "
+            "calibrated range or calibrate nearer")
+
+
 def calibration_gain_sigma(calibration_prediction: dict | None) -> float | None:
     """The depth gain a calibration can leave between its stations: its predicted central error
     ``e`` [mm] over half the station spacing [mm] (dimensionless); None without a prediction."""
