@@ -152,12 +152,12 @@ class RegistrationConfig(BaseModel):
                                                "different incidences by two views disagrees unless k is the sensor's. "
                                                "Prior standard deviation of dk [mm per ln unit]; estimated only when "
                                                "the views determine it better. None: off")
-    amplitude_k_sigma_mm: float = Field(3.0, gt=0, description="uncertainty (1 sigma) of the amplitude-bias "
+    amplitude_k_sigma_mm: float = Field(2.0, gt=0, description="uncertainty (1 sigma) of the amplitude-bias "
                                         "coefficient k [mm per ln unit] in the model's predicted scale uncertainty, "
                                         "directly (the scale budget) and through the self-calibrated gain it trades "
-                                        "with: the study's 6.7 came from one sensor; dk's own standard error is not "
-                                        "used (it counts noise only, not the other incidence-dependent errors it "
-                                        "trades with)")
+                                        "with: 30 % of the study's 6.7, which came from one sensor (unit-to-unit "
+                                        "spread unknown); dk's own standard error is not used (it counts noise only, "
+                                        "not the other incidence-dependent errors it trades with)")
     amplitude_min_rms_drop: float = Field(0.005, ge=0, description="the amplitude-bias correction dk is kept only "
                                           "when it lowers the global adjustment's final residual RMS by at least this "
                                           "share (other incidence-dependent errors are observed like dk: see "
