@@ -180,5 +180,5 @@ def test_extrapolation_error_and_warning():
     assert extrapolation_error_mm({}) == 0.0
     stats = {"00": {"object_points": 1000, "object_points_extrapolated": 300}, "01": {"object_points": 1000}}
     w = extrapolation_warning(stats, pred, (767.0, 4491.0))
-    assert w.startswith("15 %") and "767-4491 mm" in w and "7.0 mm" in w
+    assert w.startswith("15 %") and "(767-4491 mm)" in w and "7.0 mm" in w
     assert extrapolation_warning({"00": {"object_points": 1000, "object_points_extrapolated": 50}}, pred, (767, 4491)) is None

@@ -127,8 +127,10 @@ class ReconstructionPipeline:
         segmentation names the view."""
         v = prepare_view(cap.depth_stack(), intr, cal, self.cfg.preprocess, name=name, ir=ir, white_map=white_map)
         outside, tol = None, None
-        if cal is not None and cal.support is not None:
-            outside = ~cal.support.inside(v.depth_mm).ravel()[v.index]
+        if cal is not None and cal.support is not None:  # beyond the depths its stations span (not a corner gap)
+            lo, hi = cal.support.range_mm
+            z = v.points[:, 2] * 1e3
+            outside = (z < lo) | (z > hi)
             tol = np.where(outside, extrapolation_error_mm(cal.prediction or {}) * 1e-3, 0.0)
         try:
             s = segment_object(v.points, self.cfg.segment, seed=self.cfg.registration.seed, height_tolerance_m=tol)

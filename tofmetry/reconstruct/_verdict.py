@@ -207,14 +207,14 @@ def extrapolation_error_mm(calibration_prediction: dict | None) -> float:
 def extrapolation_warning(views_stats: dict, calibration_prediction: dict | None, support_range_mm,
                           min_share: float = 0.1) -> str | None:
     """A warning when more than ``min_share`` of the object's points lie where the depth
-    calibration only extrapolates (outside its support); None otherwise."""
+    calibration only extrapolates (nearer or farther than the depths its stations span); None otherwise."""
     n = sum(st.get("object_points", 0) for st in views_stats.values())
     out = sum(st.get("object_points_extrapolated", 0) for st in views_stats.values())
     if n == 0 or out <= min_share * n:
         return None
     lo, hi = support_range_mm
-    return (f"{100 * out / n:.0f} % of the object's points lie outside the depth calibration's support (its stations "
-            f"span {lo:.0f}-{hi:.0f} mm): their correction is extrapolated, off by up to "
+    return (f"{100 * out / n:.0f} % of the object's points lie outside the depths the calibration's stations span "
+            f"({lo:.0f}-{hi:.0f} mm): their correction is extrapolated, off by up to "
             f"{extrapolation_error_mm(calibration_prediction):.1f} mm by its own extrapolation folds; scan within the "
             "calibrated range or calibrate nearer")
 
