@@ -7,6 +7,8 @@ import pytest
 
 from tofmetry.reconstruct._scale_budget import scale_budget, scale_response
 
+from .test_adjust import _look_at
+
 
 def _ellipsoid(n: int = 4000, axes=(0.2, 0.12, 0.08), seed: int = 0):
     """Points and outward normals of an ellipsoid (a sphere could not tell scale from offset)."""
@@ -17,18 +19,6 @@ def _ellipsoid(n: int = 4000, axes=(0.2, 0.12, 0.08), seed: int = 0):
     p = v * a
     nrm = p / a ** 2
     return p, nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
-
-
-def _look_at(centre: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """Camera-to-world pose of a camera at ``centre`` looking at ``target`` (y down)."""
-    z = target - centre
-    z /= np.linalg.norm(z)
-    x = np.cross(z, [0.0, 0.0, 1.0])
-    x /= np.linalg.norm(x)
-    T = np.eye(4)
-    T[:3, :3] = np.c_[x, np.cross(z, x), z]
-    T[:3, 3] = centre
-    return T
 
 
 def test_scale_response_recovers_a_scale_an_offset_and_ignores_a_rigid_motion():
