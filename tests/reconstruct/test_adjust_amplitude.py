@@ -109,3 +109,17 @@ def test_dk_is_kept_only_when_it_explains_the_disagreement(ring_close):
         assert res.amplitude_estimated == kept, res.amplitude_note
         if not kept:
             assert res.amplitude_note.startswith("not applied") and res.amplitude_dk_m == 0.0, res.amplitude_note
+
+
+def test_a_refused_gain_keeps_its_trade_with_dk(ring_close):
+    """When the gain is refused (kept at 0), the regression of the free gain on dk measured before
+    the refusal stays in the result: the plain adjustment's gain may be kept, and its uncertainty
+    still inherits k's through it."""
+    rng = np.random.default_rng(7)
+    views = _views(ring_close[:5], TRUE_DK, rng, n=10000)
+    kw = {"iters_per_radius": (1, 3), "curve_degree": 0, "amplitude_prior_m": 3e-3}
+    free = global_adjust(views, np.stack(ring_close[:5]), Z_REF, **kw)
+    refused = global_adjust(views, np.stack(ring_close[:5]), Z_REF, gain_max_abs=1e-7, **kw)
+    assert np.isfinite(refused.gain_refused) and refused.depth_gain == 0.0
+    assert np.isfinite(free.amplitude_gain_slope) and free.amplitude_gain_slope != 0.0
+    assert refused.amplitude_gain_slope == pytest.approx(free.amplitude_gain_slope, rel=0.5)

@@ -429,6 +429,8 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                               curve_half_span_m=curve_half_span_m, amplitude_prior_m=amplitude_prior_m)
         fixed.gain_sigma_data, fixed.gain_sigma_systematic = sigma_data, sigma_sys
         fixed.gain_refused, fixed.gain_max_abs = float(g), float(gain_max_abs)
+        if np.isfinite(amp_slope):  # the gain's trade with dk, from this run where the gain was free
+            fixed.amplitude_gain_correlation, fixed.amplitude_gain_slope = amp_corr, amp_slope
         fixed.gain_note = (f"implausible: the views ask for {100 * g:+.2f} % (+-{100 * sigma_data:.2f} %), beyond the "
                            f"+-{100 * gain_max_abs:.2f} % the depth calibration can leave; kept at 0")
         return fixed
