@@ -73,3 +73,21 @@ def fit_plane_svd(points: np.ndarray, orient: np.ndarray | None = None) -> np.nd
 def transform_points(points: np.ndarray, T: np.ndarray) -> np.ndarray:
     """(N, 3) points carried by the (4, 4) rigid transform ``T`` (``p' = R p + t``, same unit as ``t``)."""
     return np.asarray(points) @ T[:3, :3].T + T[:3, 3]
+
+
+#: above this correlation of a fitted scale and surface offset the shape cannot tell them apart (a
+#: box: every face moves alike under both); used wherever a scale is read off a surface
+SCALE_OFFSET_MAX_CORRELATION = 0.98
+
+
+def similarity_offset_jacobian(centred: np.ndarray, normals: np.ndarray, length: float) -> np.ndarray:
+    """(N, 8) Jacobian of point-to-plane residuals under a small rotation, translation, scale and
+    normal offset: ``n . (w x q + t + s q) + o`` for ``(w / length, t, s, o)``.
+
+    Parameters
+    ----------
+    centred : (N, 3) points about their centroid [m]; normals : (N, 3) unit normals, all outward
+    length : RMS radius of the points [m] (scales the rotation's columns for conditioning)
+    """
+    q, n = np.asarray(centred, np.float64), np.asarray(normals, np.float64)
+    return np.c_[np.cross(q, n) / length, n, np.einsum("ij,ij->i", n, q), np.ones(len(q))]

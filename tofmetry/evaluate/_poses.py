@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tofmetry._shared.geometry import rotation_angle_deg
+from tofmetry._shared.geometry import SCALE_OFFSET_MAX_CORRELATION, rotation_angle_deg, similarity_offset_jacobian
 from tofmetry.errors import InputError
 
 
@@ -113,7 +113,7 @@ def pose_errors(poses, true_poses, object_points: np.ndarray, max_points: int = 
 
 
 def scale_from_reference(points: np.ndarray, reference, inlier_mm: float = 3.0, iterations: int = 4,
-                         max_points: int = 60_000, max_correlation: float = 0.98) -> dict:
+                         max_points: int = 60_000, max_correlation: float = SCALE_OFFSET_MAX_CORRELATION) -> dict:
     """Uniform scale of a model relative to a reference mesh (module docstring).
 
     Parameters
@@ -153,7 +153,7 @@ def scale_from_reference(points: np.ndarray, reference, inlier_mm: float = 3.0, 
         m = q[ok].mean(0)
         qc = q[ok] - m
         # residual n . (q' - closest) with q' = m + dt + (1 + ds) dR (q - m), linearised
-        J = np.c_[np.cross(qc, n[ok]) / L, n[ok], np.einsum("ij,ij->i", n[ok], qc), np.ones(int(ok.sum()))]
+        J = similarity_offset_jacobian(qc, n[ok], L)
         e = r[ok]
         k = 0.5e-3
         w = np.where(np.abs(e) <= k, 1.0, k / np.abs(e))

@@ -27,9 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-#: above this correlation of the scale and offset estimates the shape cannot tell them apart
-#: (a box: every face moves alike under both), as in :func:`tofmetry.evaluate.scale_from_reference`
-MAX_CORRELATION = 0.98
+from tofmetry._shared.geometry import SCALE_OFFSET_MAX_CORRELATION, similarity_offset_jacobian
 
 
 def scale_response(points_w: np.ndarray, normals_w: np.ndarray, moves_w: np.ndarray) -> tuple[float, float, float]:
@@ -45,8 +43,8 @@ def scale_response(points_w: np.ndarray, normals_w: np.ndarray, moves_w: np.ndar
     -------
     (scale, offset_m, correlation): the fitted relative scale change (+0.001 = 0.1 % larger), the
     offset along the normals [m] and the correlation of the two estimates. ``scale`` is NaN when
-    the two are not separable on this shape (``|correlation| > MAX_CORRELATION``) or the fit is
-    singular.
+    the two are not separable on this shape (``|correlation| > SCALE_OFFSET_MAX_CORRELATION``) or
+    the fit is singular.
     """
     p = np.asarray(points_w, np.float64)
     n = np.asarray(normals_w, np.float64)
@@ -55,8 +53,7 @@ def scale_response(points_w: np.ndarray, normals_w: np.ndarray, moves_w: np.ndar
         return float("nan"), float("nan"), float("nan")
     qc = p - p.mean(0)
     L = float(np.sqrt(np.mean(np.sum(qc ** 2, 1)))) or 1.0
-    # n . d = w . (qc x n) + n . t + s (n . qc) + o ; rotation scaled by L for conditioning
-    J = np.c_[np.cross(qc, n) / L, n, np.einsum("ij,ij->i", n, qc), np.ones(len(p))]
+    J = similarity_offset_jacobian(qc, n, L)
     b = np.einsum("ij,ij->i", n, d)
     H = J.T @ J
     if not np.linalg.cond(H) < 1e12:  # a plane: the scale moves nothing along its normal
@@ -64,7 +61,7 @@ def scale_response(points_w: np.ndarray, normals_w: np.ndarray, moves_w: np.ndar
     Hi = np.linalg.inv(H)
     x = Hi @ (J.T @ b)
     corr = float(Hi[6, 7] / np.sqrt(max(Hi[6, 6] * Hi[7, 7], 1e-300)))
-    if not np.isfinite(corr) or abs(corr) > MAX_CORRELATION:
+    if not np.isfinite(corr) or abs(corr) > SCALE_OFFSET_MAX_CORRELATION:
         return float("nan"), float("nan"), corr
     return float(x[6]), float(x[7]), corr
 
