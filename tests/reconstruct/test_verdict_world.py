@@ -6,7 +6,7 @@ import numpy as np
 
 from tofmetry._shared.geometry import transform_points
 from tofmetry.reconstruct._verdict import (
-    assess, calibration_gain_sigma, extrapolation_error_mm, extrapolation_warning, scale_report,
+    assess, calibration_gain_sigma, extrapolated_points, extrapolation_error_mm, extrapolation_warning, scale_report,
 )
 from tofmetry.reconstruct._world import support_plane_frame, transform_plane
 
@@ -182,3 +182,18 @@ def test_extrapolation_error_and_warning():
     w = extrapolation_warning(stats, pred, (767.0, 4491.0))
     assert w.startswith("15 %") and "(767-4491 mm)" in w and "7.0 mm" in w
     assert extrapolation_warning({"00": {"object_points": 1000, "object_points_extrapolated": 50}}, pred, (767, 4491)) is None
+
+
+def test_extrapolated_points_get_the_extrapolation_error_as_tolerance():
+    """Points nearer or farther than the stations' span get ``extrapolation_error_mm``; no
+    calibration (or one without a support map) gives none."""
+    from types import SimpleNamespace
+
+    pred = {"fallback_chosen": "hold", "extrapolation": [{"fallback": "hold", "central_mm": -3.5, "p95_mm": 3.1}]}
+    cal = SimpleNamespace(support=SimpleNamespace(range_mm=(767.0, 4491.0)), prediction=pred)
+    pts = np.array([[0.0, 0.0, 0.5], [0.1, 0.0, 1.0], [0.0, 0.2, 4.6]])
+    outside, tol = extrapolated_points(pts, cal)
+    assert outside.tolist() == [True, False, True]
+    assert np.allclose(tol, [6.6e-3, 0.0, 6.6e-3])
+    assert extrapolated_points(pts, None) == (None, None)
+    assert extrapolated_points(pts, SimpleNamespace(support=None, prediction=pred)) == (None, None)

@@ -63,12 +63,12 @@ def object_from_first_view(capture: str | os.PathLike, calibration=None) -> tupl
 
     Returns (proxy, median distance of the object from the camera [m], intrinsics)."""
     from tofmetry.io import Capture
-    from tofmetry.reconstruct import prepare_view, segment_object
+    from tofmetry.reconstruct import extrapolated_points, prepare_view, segment_object
 
     cap = Capture(capture)
     intr = calibration.intrinsics if calibration is not None else cap.intrinsics()[0]
     v = prepare_view(cap.depth_stack(), intr, calibration, name=str(capture))
-    seg = segment_object(v.points)
+    seg = segment_object(v.points, height_tolerance_m=extrapolated_points(v.points, calibration)[1])
     n = seg.plane[:3]
     obj = v.points[seg.object_mask]
     h = obj @ n + seg.plane[3]

@@ -80,6 +80,7 @@ from tofmetry.reconstruct._segment import (
     fit_support_plane,
     segment_object,
 )
+from tofmetry.reconstruct._verdict import extrapolated_points
 
 __all__ = [
     "PAPER_K_MM_PER_LN",
@@ -135,6 +136,7 @@ __all__ = [
     "relative_pose_errors",
     "rotation_angle_deg",
     "segment_object",
+    "extrapolated_points",
     "select_hypotheses",
     "spanning_tree",
     "undistort_depth",

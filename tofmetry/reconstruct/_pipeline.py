@@ -32,7 +32,7 @@ from tofmetry.reconstruct._verdict import (
     assess,
     calibration_central_mm,
     calibration_gain_sigma,
-    extrapolation_error_mm,
+    extrapolated_points,
     extrapolation_warning,
     scale_report,
 )
@@ -126,12 +126,7 @@ class ReconstructionPipeline:
         """One capture's view (:func:`prepare_view`) and its object segmentation; a failed
         segmentation names the view."""
         v = prepare_view(cap.depth_stack(), intr, cal, self.cfg.preprocess, name=name, ir=ir, white_map=white_map)
-        outside, tol = None, None
-        if cal is not None and cal.support is not None:  # beyond the depths its stations span (not a corner gap)
-            lo, hi = cal.support.range_mm
-            z = v.points[:, 2] * 1e3
-            outside = (z < lo) | (z > hi)
-            tol = np.where(outside, extrapolation_error_mm(cal.prediction or {}) * 1e-3, 0.0)
+        outside, tol = extrapolated_points(v.points, cal)
         try:
             s = segment_object(v.points, self.cfg.segment, seed=self.cfg.registration.seed, height_tolerance_m=tol)
         except EstimationError as exc:
@@ -282,17 +277,16 @@ class ReconstructionPipeline:
                     s.plane = fit_plane_svd(v.points[on_plane], orient=s.plane[:3])
         return res
 
-    def _scale_budget(self, views: list[ViewData], segs: list[Segmentation], poses: np.ndarray, intr):
+    def _scale_budget(self, views: list[ViewData], segs: list[Segmentation], poses: np.ndarray, intr, z_ref: float):
         """``(offset_sigma_m, gain_sigma) -> dict``: :func:`scale_budget` on the object points of
-        ``views`` placed by ``poses`` (camera to world), with the amplitude term when an amplitude
-        reference was given."""
+        ``views`` placed by ``poses`` (camera to world), the gain acting about ``z_ref`` [m], with the
+        amplitude term when an amplitude reference was given."""
         pts = [v.points[s.object_mask] for v, s in zip(views, segs)]
         nrm = [v.normals[s.object_mask] for v, s in zip(views, segs)]
         L = None
         if self.white_map is not None and all(v.ir is not None for v in views):
             L = [amplitude_log_ratio(v.depth_mm, v.ir, self.white_map, intr).ravel()[v.index[s.object_mask]]
                  for v, s in zip(views, segs)]
-        z_ref = _median_object_depth_m(views, segs)
         k_sigma = self.cfg.registration.amplitude_k_sigma_mm * 1e-3
 
         def budget(offset_sigma_m: float, gain_sigma: float) -> dict:
@@ -411,6 +405,7 @@ class ReconstructionPipeline:
         rc = self.cfg.registration
         edges = graph.edges + self.other_edges
         pred = None if self.cal is None else (self.cal.prediction or {})
+        z_obj = _median_object_depth_m(views, segs)
         verdict = assess(names, edges, graph.consistency, self.left_out, adj_d, pred, rc.max_calibration_mm,
                          rc.pose_gate_deg, rc.pose_gate_mm, rc.yaw_free_ratio, rc.max_left_out)
         if self.cal is not None and self.cal.support is not None:
@@ -422,8 +417,7 @@ class ReconstructionPipeline:
                  if not np.allclose(W, np.eye(4)) else {"frame": "camera frame of the first view (x right, y down, z "
                                                                  "forward)", "from_first_camera": W.tolist()})
         diag = {"consistency": graph.consistency, "reliable": bool(verdict["reliable"]), "reliability": verdict,
-                "scale": scale_report(adj_d, pred, _median_object_depth_m(views, segs) * 1e3,
-                                      self._scale_budget(views, segs, poses, intr),
+                "scale": scale_report(adj_d, pred, z_obj * 1e3, self._scale_budget(views, segs, poses, intr, z_obj),
                                       rc.amplitude_k_sigma_mm if self.white_map is not None else None),
                 "world": world,
                 "views": {v.name: v.stats for v in views}, "fusion": fusion_info, "timings_s": self.timings,

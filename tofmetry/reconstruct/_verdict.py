@@ -204,6 +204,28 @@ def extrapolation_error_mm(calibration_prediction: dict | None) -> float:
     return max(vals) if vals else 0.0
 
 
+def extrapolated_points(points: np.ndarray, calibration) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Which points lie nearer or farther than the depths the calibration's stations span, and the
+    height tolerance each gets in :func:`~tofmetry.reconstruct.segment_object` there
+    (:func:`extrapolation_error_mm`, 0 elsewhere).
+
+    Parameters
+    ----------
+    points : (N, 3) float [m] camera frame; calibration : DepthCalibration or None
+
+    Returns
+    -------
+    (outside (N,) bool, tolerance (N,) float [m]), or (None, None) without a calibration with a
+    support map. A corner cell's narrower interval is not extrapolation: only the overall span counts.
+    """
+    if calibration is None or calibration.support is None:
+        return None, None
+    lo, hi = calibration.support.range_mm
+    z = np.asarray(points)[:, 2] * 1e3
+    outside = (z < lo) | (z > hi)
+    return outside, np.where(outside, extrapolation_error_mm(calibration.prediction or {}) * 1e-3, 0.0)
+
+
 def extrapolation_warning(views_stats: dict, calibration_prediction: dict | None, support_range_mm,
                           min_share: float = 0.1) -> str | None:
     """A warning when more than ``min_share`` of the object's points lie where the depth
@@ -258,8 +280,10 @@ def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z
     the larger of the two (``rule_scale_sigma_pct``, ``budget_scale_sigma_pct``): the budget sees
     which surfaces face the cameras, which on elongated or flat parts makes the scale far more
     sensitive than the rule says; the rule's ``g / 2`` stands for the views re-registering, which
-    the budget does not model. On 2026-11-25's family both undershot the measured scale error
-    (README): neither counts the registration's own errors or the fusion's.
+    the budget does not model. Neither counts the registration's own errors or the fusion's. On
+    2026-11-25's family (README), before the gain inherited ``k``'s uncertainty both undershot
+    the measured scale error (1.55 sigma at the median); with it the measured error was 0.41 sigma
+    at the median, 5 of 5 reliable runs within 1.645 sigma.
 
     Returns
     -------
