@@ -10,10 +10,13 @@ Each draw (one seed) is:
 * a **path** (:func:`tofmetry.simulate.paths.random_path`): 6-16 views at 0.6-1.5 m, a turntable
   circle or a hand-held loop with tilt;
 * a **sensor** (:func:`tofmetry.simulate.family.random_sensor` of the same seed), calibrated by
-  tofmetry's own chain: 16 wall stations (0.8-4.5 m, tilts up to 1 deg) simulated in memory ->
-  :func:`tofmetry.calibrate.fit_depth_model` (as :mod:`tofmetry.pipelines.depth_family` does),
-  plus the white-wall amplitude reference of the near stations. The scan is taken with that very
-  sensor, so the residuals are what the real chain leaves.
+  tofmetry's own chain: 19 wall stations (0.5-4.5 m, tilts up to 1 deg; the study's 16 start at
+  0.8 m, but the paths come to 0.6 m and a user calibrates the range they scan) simulated in memory
+  -> :func:`tofmetry.calibrate.fit_depth_model` (as :mod:`tofmetry.pipelines.depth_family` does),
+  plus the white-wall amplitude reference of the near stations, and the amplitude-bias coefficient
+  ``k`` measured on two grey-level boards (0.8 and 1.2 m, as ``tofmetry reconstruct
+  --amplitude-board``). The scan is taken with that very sensor, so the residuals are what the real
+  chain leaves. ``--stations study --no-boards`` runs the chain as before both (A/B).
 
 The scan is written by :func:`tofmetry.simulate.datasets.scan` (PNG captures, as a user's), then
 reconstructed by :func:`tofmetry.pipelines.reconstruct.reconstruct_scan` and evaluated by
@@ -46,6 +49,10 @@ from tofmetry.simulate.paths import random_path
 from tofmetry.simulate.walls import DEFAULT_DISTANCES_MM, iter_wall_stations, plan_wall_stations, resolve_tilts, \
     wall_station_means
 
+#: wall stations of the family's calibration [mm]: the study's, plus the near range the paths reach
+FAMILY_DISTANCES_MM = (500, 600, 700) + tuple(DEFAULT_DISTANCES_MM)
+#: distances of the grey-level boards measuring the amplitude-bias coefficient [m]
+BOARD_DISTANCES_M = (0.8, 1.2)
 REPO = Path(__file__).resolve().parents[2]
 MESH_DIR = Path(os.environ.get("TOFMETRY_SHARED_DATA", REPO.parent / "shared" / "data")) / "scan-meshes"
 
@@ -79,7 +86,8 @@ def draw_case(seed: int, mesh_dir: Path | None = MESH_DIR, reduced: bool = False
     return Draw(int(seed), obj, path, random_sensor(seed))
 
 
-def calibrate_sensor(draw, seed: int, n_frames: int = 20, amplitude_max_mm: float = 2500.0):
+def calibrate_sensor(draw, seed: int, n_frames: int = 20, amplitude_max_mm: float = 2500.0,
+                     distances_mm=FAMILY_DISTANCES_MM):
     """Depth calibration of ``draw`` by tofmetry's chain on in-memory wall stations, and the white
     amplitude reference of the stations up to ``amplitude_max_mm`` (as ``--amplitude-reference``).
 
@@ -88,7 +96,7 @@ def calibrate_sensor(draw, seed: int, n_frames: int = 20, amplitude_max_mm: floa
 
     t0 = time.perf_counter()
     intr = draw.intrinsics
-    means = wall_station_means(draw, DEFAULT_DISTANCES_MM, n_frames, seed=seed, tilt_jitter_deg=1.0)
+    means = wall_station_means(draw, distances_mm, n_frames, seed=seed, tilt_jitter_deg=1.0)
     samples = []
     for st in means:
         if np.isfinite(st.mean_mm).mean() < 0.01:
@@ -97,7 +105,7 @@ def calibrate_sensor(draw, seed: int, n_frames: int = 20, amplitude_max_mm: floa
                                    sem_mm=st.std_mm / np.sqrt(n_frames), valid_fraction=st.count / n_frames)[0])
     cal = fit_depth_model(samples, intr, DepthFitConfig(), sensor="kinect_v2").calibration
     # amplitude reference: a few frames with IR of the near stations (another noise stream)
-    near = [d for d in DEFAULT_DISTANCES_MM if d <= amplitude_max_mm]
+    near = [d for d in distances_mm if d <= amplitude_max_mm]
     em = draw.errors
     offset = em.mounting_offset_mm if em.on("mounting_offset") else 0.0
     tilts = resolve_tilts(len(near), (0.0, 0.0), 1.0, seed + 1)
@@ -110,8 +118,16 @@ def calibrate_sensor(draw, seed: int, n_frames: int = 20, amplitude_max_mm: floa
     return cal, white, time.perf_counter() - t0
 
 
+def board_captures(draw, seed: int, work: Path, n_frames: int = 10) -> list[Path]:
+    """Grey-level board captures of ``draw`` at :data:`BOARD_DISTANCES_M` (folders with ``capture/``)."""
+    from tofmetry.simulate import datasets
+
+    return [datasets.materials(work / f"board-{seed}-{int(1000 * z)}", n_frames=n_frames, distance_m=z, sensor=draw,
+                               seed=seed + 11 + k, force=True) for k, z in enumerate(BOARD_DISTANCES_M)]
+
+
 def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, mesh_dir: Path | None = MESH_DIR,
-             keep: bool = False, config=None) -> dict:
+             keep: bool = False, config=None, stations_mm=FAMILY_DISTANCES_MM, boards: bool = True) -> dict:
     """Simulate, calibrate, reconstruct and evaluate one draw; returns one JSON-able row."""
     from tofmetry.evaluate import EvaluationConfig, evaluate_model, pose_errors, scale_from_reference
     from tofmetry.io import read_json
@@ -123,7 +139,10 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
     d = draw_case(seed, mesh_dir, reduced)
     row = {"seed": int(seed), **d.describe()}
     t0 = time.perf_counter()
-    cal, white, t_cal = calibrate_sensor(d.sensor, seed)
+    cal, white, t_cal = calibrate_sensor(d.sensor, seed, distances_mm=stations_mm)
+    em = d.sensor.errors
+    row["true_k_mm_per_ln"] = round(em.amp_bias_mm_per_ln + (em.amp_bias_abs_mm_per_ln if em.on("amplitude_bias") else 0), 3)
+    board_dirs = board_captures(d.sensor, seed, work) if boards else None
     row["calibration"] = {"seconds": round(t_cal, 1), "model": cal.prediction.get("method"),
                           "predicted_central_mm": (cal.prediction.get("interpolation") or {}).get("central_abs_mm", {})
                           .get("predicted"), "warnings": len(cal.prediction.get("warnings", []))}
@@ -136,7 +155,7 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
     row["simulate_s"] = round(t2 - t1, 1)
     cfg = config or ReconstructionConfig()
     try:
-        res = reconstruct_scan(scan_dir, cal, None, config=cfg, white_map=white)
+        res = reconstruct_scan(scan_dir, cal, None, config=cfg, white_map=white, amplitude_boards=board_dirs)
     except Exception as exc:  # noqa: BLE001 - a refused run is a result of the family
         row.update(refused=f"{type(exc).__name__}: {exc}"[:600], reliable=False)
         if not keep:
@@ -164,7 +183,7 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
                selection={k: v for k, v in (res.diagnostics["consistency"].get("selection") or {}).items()
                           if k in ("changed", "dropped", "spread", "ambiguous_with", "reasons")},
                pose_errors=pe.to_dict(),
-               plan=res.diagnostics.get("plan"))
+               plan=res.diagnostics.get("plan"), amplitude_slope=res.diagnostics.get("amplitude_slope"))
     model = Geometry(res.mesh_vertices, res.mesh_triangles, source="model")
     try:
         ev = evaluate_model(model, ref, EvaluationConfig(align=True, exclude_normal=(0.0, 0.0, -1.0)), poses=doc)
@@ -188,6 +207,8 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
                               or n_out > LEFT_OUT_MAX * d.path.n_views)
     if not keep:
         shutil.rmtree(scan_dir, ignore_errors=True)
+        for b in board_dirs or []:
+            shutil.rmtree(b, ignore_errors=True)
     return row
 
 
@@ -264,6 +285,9 @@ def main(argv=None) -> int:
     ap.add_argument("-o", "--output", type=Path, default=Path("bench/results"))
     ap.add_argument("--range-curve", type=int, default=None, metavar="DEGREE",
                     help="registration.range_curve_degree of the reconstructions (default: the config's)")
+    ap.add_argument("--stations", choices=("family", "study"), default="family",
+                    help="wall stations of the calibration: 0.5-4.5 m (family) or the study's 0.8-4.5 m")
+    ap.add_argument("--no-boards", action="store_true", help="correct with the study's k (no grey-level boards)")
     a = ap.parse_args(argv)
     config = None
     if a.range_curve is not None:
@@ -280,7 +304,9 @@ def main(argv=None) -> int:
     try:
         for k, s in enumerate(seeds):
             r = run_case(s, work, a.frames, a.reduced, keep=a.keep,
-                         config=None if config is None else config.model_copy(deep=True))
+                         config=None if config is None else config.model_copy(deep=True),
+                         stations_mm=FAMILY_DISTANCES_MM if a.stations == "family" else DEFAULT_DISTANCES_MM,
+                         boards=not a.no_boards)
             rows.append(r)
             with open(jl, "a") as fh:
                 fh.write(json.dumps(r, default=float) + "\n")

@@ -71,3 +71,17 @@ def test_cli_plan(tmp_path):
     assert isinstance(r.exception, InputError)
     r = CliRunner().invoke(app, ["plan", "-o", str(tmp_path / "p3.json")])
     assert isinstance(r.exception, InputError) and "exactly one" in str(r.exception)
+
+
+def test_plan_warns_where_the_calibration_only_extrapolates(box):
+    from types import SimpleNamespace
+
+    from tofmetry.pipelines.plan import calibrated_range_warning
+
+    cal = SimpleNamespace(support=SimpleNamespace(range_mm=(780.0, 4520.0)),
+                          prediction={"extrapolation": [{"central_mm": -1.5, "p95_mm": 2.0}]})
+    half = 0.5 * np.linalg.norm(box.extent_m)             # 0.206 m: the box's half diagonal
+    w = calibrated_range_warning(box, 0.8, cal)          # nearest depth ~ 0.59 m < 0.78 m
+    assert w is not None and "780-4520 mm" in w and "3.5 mm" in w and f"{0.78 + half:.2f} m" in w
+    assert calibrated_range_warning(box, 0.78 + half + 0.01, cal) is None
+    assert calibrated_range_warning(box, 0.8, None) is None

@@ -100,15 +100,23 @@ def test_end_to_end_full_errors(tmp_path):
 
     from tofmetry.cli import app
     from tofmetry.simulate import datasets
+    from tofmetry.simulate.family import default_sensor
 
     scan = datasets.scan(tmp_path / "scan", n_views=8, n_frames=5, seed=0)
     wall = datasets.wall_dataset(tmp_path / "wall", distances_mm=(800, 1000, 1250, 1500, 2000), n_frames=10, seed=1)
+    board = datasets.materials(tmp_path / "board", n_frames=5, distance_m=1.0, seed=2)  # k measured, not assumed
     run = CliRunner()
     r = run.invoke(app, ["calibrate", "depth", str(wall), "-o", str(tmp_path / "cal.npz"), "--reference-offset-mm", "20"])
     assert r.exit_code == 0, r.output
     r = run.invoke(app, ["reconstruct", str(scan), "--calibration", str(tmp_path / "cal.npz"), "-o", str(tmp_path / "rec"),
-                         "--amplitude-reference", str(wall)])
+                         "--amplitude-reference", str(wall), "--amplitude-board", str(board)])
     assert r.exit_code == 0, r.output
+    slope = read_json(tmp_path / "rec" / "poses.json")["diagnostics"]["amplitude_slope"]
+    em = default_sensor().errors
+    k_true = em.amp_bias_mm_per_ln + (em.amp_bias_abs_mm_per_ln if em.on("amplitude_bias") else 0.0)
+    assert slope["calibrated"] and len(slope["boards"]) == 1 and 0 < slope["sigma_mm_per_ln"] < 0.5, slope
+    assert abs(slope["k_mm_per_ln"] - k_true) < 3 * slope["sigma_mm_per_ln"] + 0.05, (slope, k_true)
+    assert "amplitude coefficient measured on 1 board(s)" in r.output
     poses = np.array([v["camera_to_world"] for v in read_json(tmp_path / "rec" / "poses.json")["views"]])
     err = relative_pose_errors(poses, _true_poses(scan))
     assert err[:, 0].max() < 0.5, err

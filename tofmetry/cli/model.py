@@ -23,10 +23,14 @@ def reconstruct(
         None, "--amplitude-reference", help="Wall dataset (white, frontal; e.g. the one of the depth calibration) "
         "giving the white amplitude per pixel: enables the amplitude-dependent bias correction (needs IR)."),
     amplitude_max_mm: float = typer.Option(2500.0, help="Use wall stations up to this distance for the amplitude reference [mm]."),
-    amplitude_k: float = typer.Option(
-        AMPLITUDE_BIAS_MM_PER_LN, "--amplitude-k",
-        help="Slope k of the amplitude bias k ln(A_white / A) [mm per unit ln]; default the paper's 12 / ln 6 = 6.70 "
-        "(pass the slope measured by 'tofmetry assess materials')."),
+    amplitude_k: float | None = typer.Option(
+        None, "--amplitude-k",
+        help=f"Slope k of the amplitude bias k ln(A_white / A) [mm per unit ln]; default the paper's 12 / ln 6 = "
+        f"{AMPLITUDE_BIAS_MM_PER_LN:.2f}, which came from one sensor (better: --amplitude-board)."),
+    amplitude_board: list[Path] | None = typer.Option(
+        None, "--amplitude-board", help="Capture (depth + IR) of a grey-level checkerboard seen frontally, e.g. "
+        "'tofmetry simulate materials' (repeatable: boards at other distances): measures this sensor's k and its "
+        "uncertainty after the depth calibration, used instead of the default. Needs --amplitude-reference."),
     keep_all: bool = typer.Option(False, "--keep-all", help="Skip object segmentation: keep the whole working range."),
     poisson: bool = typer.Option(False, "--poisson", help="Also write a density-trimmed Poisson mesh (mesh_poisson.ply)."),
     voxel_mm: float | None = typer.Option(None, help="TSDF voxel [mm] (default: 0.6 * range / focal)."),
@@ -66,13 +70,19 @@ def reconstruct(
         raise InputError("--sensor-calibration needs --rig (a single sensor's scan takes --calibration FILE)")
     elif (calibration is None) == (not no_calibration):
         raise InputError("pass either --calibration FILE or --no-calibration (raw depth), not both / not neither")
+    if amplitude_board and amplitude_k is not None:
+        raise InputError("pass either --amplitude-k K or --amplitude-board CAPTURE (k measured), not both")
+    if amplitude_board and (amplitude_reference is None or rig is not None):
+        raise InputError("--amplitude-board needs --amplitude-reference WALL (the white amplitude per pixel) and is "
+                         "not available with --rig")
     refuse_existing(output, force)
     cfg = ReconstructionConfig()
     cfg.segment.keep_all = keep_all
     cfg.fusion.poisson = poisson
     cfg.fusion.voxel_mm = voxel_mm
     cfg.preprocess.max_mm = max_mm
-    cfg.preprocess.amplitude_k_mm_per_ln = amplitude_k
+    if amplitude_k is not None:
+        cfg.preprocess.amplitude_k_mm_per_ln = amplitude_k
     cfg.registration.global_adjust = global_adjust
     cfg.registration.estimate_depth_gain = depth_gain
     cfg.color = color
@@ -81,7 +91,9 @@ def reconstruct(
         return
     console.print(f"scan {scan_dir}; calibration: {calibration or 'none (raw depth)'}")
     res = reconstruct_scan(scan_dir, calibration, output, config=cfg, amplitude_wall=amplitude_reference,
-                           amplitude_max_mm=amplitude_max_mm, force=force, progress=progress)
+                           amplitude_max_mm=amplitude_max_mm, amplitude_boards=amplitude_board, force=force,
+                           progress=progress)
+    _print_amplitude_slope(res.diagnostics.get("amplitude_slope"))
     console.print(f"{len(res.names)} views: {', '.join(res.names)}")
     t = Table(title="registration edges (fitness = matched share of the object points the other camera could see)")
     for col in ("source", "target", "method", "fitness", "RMSE [mm]", "seen-through", "kept", "resid [deg]",
@@ -196,6 +208,17 @@ def _reconstruct_rig(scan_dir: Path, rig: Path, sensor_calibration: list[str], o
             raise typer.Exit(3)
 
 
+def _print_amplitude_slope(slope: dict | None) -> None:
+    if not slope:
+        return
+    per = "; ".join(f"{Path(b['path']).name} at {b['distance_mm'] or float('nan'):.0f} mm: {b['k_mm_per_ln']:.2f} +-{b['se_mm_per_ln']:.2f}"
+                    for b in slope["boards"])
+    console.print(f"amplitude coefficient measured on {len(slope['boards'])} board(s): k = {slope['k_mm_per_ln']:.2f} "
+                  f"+-{slope['sigma_mm_per_ln']:.2f} mm per ln unit ({per})")
+    for n in slope["notes"]:
+        console.print(f"[yellow]  {n}[/yellow]")
+
+
 def _print_colour(col: dict | None) -> None:
     """The share of the model coloured (nothing without colour frames)."""
     if not col:
@@ -307,6 +330,8 @@ def plan(
         p = run.asked.prediction
         console.print(f"asked {run.asked.name}: completeness {p.completeness:.1%}, smallest overlap {p.min_overlap:.2f}, "
                       f"mean |d| {p.mean_abs_mm:.2f} mm")
+    for w in run.settings.get("warnings", []):
+        console.print(f"[yellow]{w}[/yellow]")
     if run.proposal is None:
         console.print(f"[yellow]no candidate reaches {target:.0%} with enough overlap; the best is listed first[/yellow]")
     else:

@@ -24,7 +24,9 @@ profile, :class:`~tofmetry.errors.ImplausibleResultError` unless accepted) and :
 never goes into an input).
 
 Assessment, model, accuracy: :mod:`.assess` (an assessment's files), :mod:`.reconstruct`
-(:func:`~.reconstruct.reconstruct_scan`), :mod:`.evaluate` (:func:`~.evaluate.evaluate_files`).
+(:func:`~.reconstruct.reconstruct_scan`), :mod:`.amplitude_slope` (the sensor's amplitude-bias
+coefficient from grey-level boards, :func:`~.amplitude_slope.amplitude_slope_from_boards`),
+:mod:`.evaluate` (:func:`~.evaluate.evaluate_files`).
 
 The names below load their module on first use (PEP 562): ``tofmetry correct`` imports the frame
 pipelines only, not the calibration pipelines' figures (matplotlib; 0.5 s of start-up measured).

@@ -132,12 +132,36 @@ def plan_acquisition(*, size: tuple[float, float, float] | None = None, mesh: st
 
         poses = parse_views(views, obj, distance_m)
         asked = Proposal(views, poses, predict(obj, poses, intr, **kw), {"spec": views})
-    run = PlanRun(obj, intr, best, ranked, asked, {"target": target, "distance_m": distance_m, "n_frames": n_frames,
-                                                   "calibration_mm": cal_mm})
+    settings = {"target": target, "distance_m": distance_m, "n_frames": n_frames, "calibration_mm": cal_mm}
+    w = calibrated_range_warning(obj, distance_m, cal)
+    if w:
+        settings["warnings"] = [w]
+    run = PlanRun(obj, intr, best, ranked, asked, settings)
     if output is not None:
         refuse_existing(output, force)
         atomic_write_json(Path(output), run.to_dict())
     return run
+
+
+def calibrated_range_warning(obj: PlanObject, distance_m: float, calibration) -> str | None:
+    """A warning when the views at ``distance_m`` [m] from the object centre see depths the depth
+    calibration's stations do not span (its correction there is extrapolated); None otherwise.
+
+    The depths seen are bounded by the distance minus / plus half the object's diagonal (a camera
+    looks at the centre, so Z along its axis lies within that)."""
+    if calibration is None or getattr(calibration, "support", None) is None:
+        return None
+    from tofmetry.reconstruct import extrapolation_error_mm
+
+    lo, hi = calibration.support.range_mm
+    half = 0.5 * float(np.linalg.norm(obj.extent_m))
+    near, far = 1e3 * (distance_m - half), 1e3 * (distance_m + half)
+    if near >= lo and far <= hi:
+        return None
+    return (f"views at {distance_m:.2f} m see the object at about {max(near, 0):.0f}-{far:.0f} mm, the calibration's "
+            f"stations span {lo:.0f}-{hi:.0f} mm: outside, its correction is extrapolated, off by up to "
+            f"{extrapolation_error_mm(calibration.prediction):.1f} mm by its own extrapolation folds; scan from "
+            f"{(lo * 1e-3 + half):.2f} m or farther, or calibrate nearer")
 
 
 def read_plan(path: str | os.PathLike) -> dict:

@@ -11,7 +11,7 @@ capture per sensor of a calibrated rig (``rig.json``), fused in the rig frame.
 from __future__ import annotations
 
 import os
-from contextlib import AbstractContextManager
+from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
 from typing import Callable
 
@@ -21,6 +21,7 @@ from tofmetry.calibrate import DepthCalibration
 from tofmetry.errors import InputError
 from tofmetry.io import ScanDataset, WallDataset
 from tofmetry.io.rig_json import read_rig
+from tofmetry.pipelines.amplitude_slope import AmplitudeSlope, amplitude_slope_from_boards
 from tofmetry.pipelines.calibration_files import load_calibration
 from tofmetry.reconstruct import (
     ReconstructionConfig, ReconstructionPipeline, ReconstructionResult, RigReconstruction, corrected_mean_depth,
@@ -101,11 +102,23 @@ def amplitude_reference(wall_dir: str | os.PathLike, calibration: DepthCalibrati
         return white_map_from_wall(wall_dir, calibration, intr, max_mm, advance=adv)
 
 
+def with_measured_amplitude_slope(config: ReconstructionConfig, slope: AmplitudeSlope) -> ReconstructionConfig:
+    """A copy of ``config`` using a measured amplitude-bias coefficient: ``k`` in the preprocessing,
+    its uncertainty in the scale budget and as the prior of the scan's own correction ``dk`` (a
+    scan rarely determines ``k`` as well as boards do)."""
+    cfg = config.model_copy(deep=True)
+    cfg.preprocess.amplitude_k_mm_per_ln = slope.k_mm_per_ln
+    cfg.registration.amplitude_k_sigma_mm = slope.sigma_mm_per_ln
+    if cfg.registration.amplitude_k_prior_mm is not None:
+        cfg.registration.amplitude_k_prior_mm = slope.sigma_mm_per_ln
+    return cfg
+
+
 def reconstruct_scan(scan_dir: str | os.PathLike, calibration: str | os.PathLike | DepthCalibration | None = None,
                      output: str | os.PathLike | None = None, *, config: ReconstructionConfig | None = None,
                      amplitude_wall: str | os.PathLike | None = None, amplitude_max_mm: float = 2500.0,
-                     white_map: np.ndarray | None = None, force: bool = False,
-                     progress: Progress | None = None) -> ReconstructionResult:
+                     white_map: np.ndarray | None = None, amplitude_boards: list | None = None,
+                     force: bool = False, progress: Progress | None = None) -> ReconstructionResult:
     """Reconstruct the object of a scan dataset and optionally write the model folder.
 
     Parameters
@@ -117,6 +130,10 @@ def reconstruct_scan(scan_dir: str | os.PathLike, calibration: str | os.PathLike
     amplitude_wall : wall dataset giving the white amplitude per pixel (enables the amplitude-bias
         correction, needs IR); ``amplitude_max_mm`` limits its stations [mm]
     white_map : an amplitude reference already measured (instead of ``amplitude_wall``)
+    amplitude_boards : grey-level board captures measuring the sensor's amplitude-bias coefficient
+        ``k`` and its uncertainty (:func:`~tofmetry.pipelines.amplitude_slope.amplitude_slope_from_boards`,
+        corrected with ``calibration``); they replace the configured ``k``, its uncertainty in the
+        scale budget and the prior of the scan's own ``dk``. Needs an amplitude reference.
     force : replace an existing output folder
     progress : optional ``progress(description, total)`` context-manager factory
 
@@ -130,7 +147,18 @@ def reconstruct_scan(scan_dir: str | os.PathLike, calibration: str | os.PathLike
         cal = load_calibration(cal)
     if white_map is None and amplitude_wall is not None:
         white_map = amplitude_reference(amplitude_wall, cal, ds, amplitude_max_mm, progress)
-    res = ReconstructionPipeline(ds, cal, config or ReconstructionConfig(), progress=progress, white_map=white_map).run()
+    cfg = config or ReconstructionConfig()
+    slope = None
+    if amplitude_boards:
+        if white_map is None:
+            raise InputError("amplitude boards: the amplitude-bias correction also needs the white amplitude per "
+                             "pixel (an amplitude reference: --amplitude-reference WALL)")
+        with progress("amplitude coefficient (boards)", len(amplitude_boards)) if progress else nullcontext() as adv:
+            slope = amplitude_slope_from_boards(amplitude_boards, cal, adv)
+        cfg = with_measured_amplitude_slope(cfg, slope)
+    res = ReconstructionPipeline(ds, cal, cfg, progress=progress, white_map=white_map).run()
+    if slope is not None:
+        res.diagnostics["amplitude_slope"] = slope.to_dict()
     if output is not None:
         write_reconstruction(Path(output), res, force=force)
     return res

@@ -80,7 +80,7 @@ from tofmetry.reconstruct._segment import (
     fit_support_plane,
     segment_object,
 )
-from tofmetry.reconstruct._verdict import extrapolated_points
+from tofmetry.reconstruct._verdict import extrapolated_points, extrapolation_error_mm
 
 __all__ = [
     "PAPER_K_MM_PER_LN",
@@ -136,7 +136,7 @@ __all__ = [
     "relative_pose_errors",
     "rotation_angle_deg",
     "segment_object",
-    "extrapolated_points",
+    "extrapolated_points", "extrapolation_error_mm",
     "select_hypotheses",
     "spanning_tree",
     "undistort_depth",
