@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from tofmetry._shared.geometry import transform_points
 from tofmetry.reconstruct._verdict import (
-    assess, calibration_gain_sigma, extrapolated_points, extrapolation_error_mm, extrapolation_warning, scale_report,
+    assess, calibration_gain_sigma, extrapolated_points, extrapolation_error_mm, extrapolation_warning, local_prediction,
+    scale_report,
 )
 from tofmetry.reconstruct._world import support_plane_frame, transform_plane
 
@@ -197,3 +199,37 @@ def test_extrapolated_points_get_the_extrapolation_error_as_tolerance():
     assert np.allclose(tol, [6.6e-3, 0.0, 6.6e-3])
     assert extrapolated_points(pts, None) == (None, None)
     assert extrapolated_points(pts, SimpleNamespace(support=None, prediction=pred)) == (None, None)
+
+
+def test_the_calibrations_error_is_taken_where_the_object_lies():
+    # a range error that wiggles faster than the stations beyond 1 m: its folds there miss by ~3 mm,
+    # its near folds by < 0.4 mm; the global prediction (median) says ~3 mm for every scan
+    folds = [{"center_mm": c, "central_mm": e} for c, e in
+             ((600, 0.01), (700, 0.05), (800, 0.36), (1000, -2.9), (1250, 1.0), (1500, 2.1), (2000, 4.2))]
+    pred = {"interpolation": {"central_abs_mm": {"predicted": 2.9}}, "folds": folds, "warnings": []}
+    near = local_prediction(pred, (610.0, 790.0))   # only 700 inside: its two neighbours join it
+    assert near["local"]["stations_mm"] == [600.0, 700.0, 800.0]
+    assert near["interpolation"]["central_abs_mm"]["predicted"] == pytest.approx(0.36)
+    assert local_prediction(pred, (590.0, 810.0))["local"]["stations_mm"] == [600.0, 700.0, 800.0]
+    assert near["interpolation"]["central_abs_mm"]["global_predicted"] == 2.9
+    assert pred["interpolation"]["central_abs_mm"]["predicted"] == 2.9                  # input untouched
+    assert assess(_names(2), [_edge("00", "01")], {"reasons": [], "loops": []},
+                  calibration_prediction=near)["reliable"]
+    # a narrow object between two stations gets the two bracketing them; beyond the folds, the nearest two
+    mid = local_prediction(pred, (1050.0, 1200.0))
+    assert mid["local"]["stations_mm"] == [1000.0, 1250.0]
+    assert mid["interpolation"]["central_abs_mm"]["predicted"] == pytest.approx(2.9)
+    v = assess(_names(2), [_edge("00", "01")], {"reasons": [], "loops": []}, calibration_prediction=mid)
+    assert not v["reliable"] and "1050-1200 mm" in v["reasons"][0]
+    assert local_prediction(pred, (2500.0, 2700.0))["local"]["stations_mm"] == [1500.0, 2000.0]
+    assert near["local"]["spacing_mm"] == 100.0 and mid["local"]["spacing_mm"] == 250.0
+    assert local_prediction(None, (0, 1)) is None and local_prediction({"folds": []}, (0, 1)) == {"folds": []}
+
+
+def test_a_joint_fit_far_from_the_pairwise_poses_makes_the_run_unreliable():
+    e = [_edge("00", "01"), _edge("01", "02"), _edge("00", "02")]
+    adj = {"moved_deg": {"00": 0.0, "01": 0.3, "02": 0.71}, "gain_note": "estimated"}
+    v = assess(_names(3), e, {"reasons": [], "loops": []}, adjustment=adj, calibration_prediction={})
+    assert not v["reliable"] and "moved view 02 by 0.71 deg" in v["reasons"][0]
+    adj["moved_deg"]["02"] = 0.45
+    assert assess(_names(3), e, {"reasons": [], "loops": []}, adjustment=adj, calibration_prediction={})["reliable"]

@@ -34,6 +34,7 @@ from tofmetry.reconstruct._verdict import (
     calibration_gain_sigma,
     extrapolated_points,
     extrapolation_warning,
+    local_prediction,
     scale_report,
 )
 from tofmetry.reconstruct._world import support_plane_frame, transform_plane
@@ -105,6 +106,9 @@ class ReconstructionPipeline:
             raise InputError(f"{getattr(dataset, 'path', 'scan')}: {len(dataset)} view(s); at least 2 are needed")
         self.ds = dataset
         self.cal = calibration
+        #: the calibration's prediction with its error between stations taken where the object lies
+        #: (set by run(): local_prediction); it judges the run, the global one bounds the gain
+        self.prediction_at_object = None if calibration is None else (calibration.prediction or {})
         self.cfg = config or ReconstructionConfig()
         self.progress = progress or _no_progress
         self.white_map = white_map
@@ -360,6 +364,10 @@ class ReconstructionPipeline:
     def run(self) -> ReconstructionResult:
         t0 = time.perf_counter()
         views, segs, regs, intr = self.load_views()
+        if self.cal is not None:  # the calibration's predicted error where this object lies
+            z = np.concatenate([v.points[s.object_mask, 2] for v, s in zip(views, segs)]) * 1e3
+            self.prediction_at_object = local_prediction(self.cal.prediction or {},
+                                               tuple(np.percentile(z, (5, 95))) if len(z) else None)
         t1 = time.perf_counter()
         graph = self.register(regs)
         if len(self.kept) < len(views):  # views no registration links to the others are left out
@@ -406,7 +414,8 @@ class ReconstructionPipeline:
         edges = graph.edges + self.other_edges
         pred = None if self.cal is None else (self.cal.prediction or {})
         z_obj = _median_object_depth_m(views, segs)
-        verdict = assess(names, edges, graph.consistency, self.left_out, adj_d, pred, rc.max_calibration_mm,
+        verdict = assess(names, edges, graph.consistency, self.left_out, adj_d, self.prediction_at_object,
+                         rc.max_calibration_mm,
                          rc.pose_gate_deg, rc.pose_gate_mm, rc.yaw_free_ratio, rc.max_left_out)
         if self.cal is not None and self.cal.support is not None:
             w = extrapolation_warning({v.name: v.stats for v in views}, pred, self.cal.support.range_mm)
@@ -423,5 +432,6 @@ class ReconstructionPipeline:
                 "views": {v.name: v.stats for v in views}, "fusion": fusion_info, "timings_s": self.timings,
                 "adjustment": adj_d, "left_out": self.left_out, "color": colour_diag,
                 "calibrated": self.cal is not None, "amplitude_corrected": self.white_map is not None, "intrinsics": intr.to_dict(),
+                "calibration_local": (self.prediction_at_object or {}).get("local"),
                 "working_range_mm": self.working_range_mm(), "config": self.cfg.model_dump()}
         return ReconstructionResult(names, poses, edges, V, F, N, P, PN, poisson, plane_w, diag, colours)
