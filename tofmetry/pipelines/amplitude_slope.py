@@ -170,6 +170,6 @@ def amplitude_slope_from_boards(boards: list[str | os.PathLike], calibration: De
         notes.append("boards not corrected by a depth calibration: the per-pixel deformation across a board "
                      "biases k (give the scan's calibration)")
     if len(ks) == 1:
-        notes.append("one board: sigma is its fit's standard error only; boards at two distances show whether "
-                     "k holds across the range")
+        notes.append(f"one board: sigma is its fit's standard error and the fit model's {model_sigma_mm_per_ln:g}; "
+                     "boards at two distances show whether k holds across the range")
     return AmplitudeSlope(k, sigma, rows, calibration is not None, notes, sigma_boards)

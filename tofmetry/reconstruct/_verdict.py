@@ -384,7 +384,7 @@ def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z
     src = "calibration's predicted central error" + (" and the self-calibrated gain's standard error"
                                                      if est else " (gain not estimated)")
     if sg_k > 0:
-        src += f" (with k known to +-{k_sigma_mm:g} mm per ln unit)"
+        src += f" (with k known to +-{k_sigma_mm:.2f} mm per ln unit)"
     out |= {"gain_sigma": sg, "predicted_scale_sigma_pct": 100 * s, "rule_scale_sigma_pct": 100 * s,
             "predicted_offset_sigma_mm": float(e), "station_spacing_mm": spacing, "source": src}
     b = budget(e * 1e-3, sg) if budget is not None and np.isfinite(sg) else None
