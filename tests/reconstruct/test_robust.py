@@ -101,6 +101,9 @@ def test_loop_gate_sees_a_wrong_bridge_when_the_circle_is_broken():
     assert not c["reliable"] and "loop closed by edge" in c["reasons"][0], c
     ok = loop_closures(8, [_edge(P, i, i + 1) for i in range(7)] + [_edge(P, 0, 7)])
     assert len(ok) == 1 and ok[0]["n_edges"] == 8 and ok[0]["closure_mm"] < 1e-6
+    assert {frozenset(m) for m in ok[0]["members"]} == {frozenset((str(i), str(i + 1))) for i in range(7)} | {
+        frozenset(("0", "7"))}   # the cycle's edges, the closing one first
+    assert ok[0]["members"][0] == ["0", "7"]
 
 
 def _wall_view(z_m: float) -> RegView:

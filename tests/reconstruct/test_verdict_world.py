@@ -233,3 +233,23 @@ def test_a_joint_fit_far_from_the_pairwise_poses_makes_the_run_unreliable():
     assert not v["reliable"] and "moved view 02 by 0.71 deg" in v["reasons"][0]
     adj["moved_deg"]["02"] = 0.45
     assert assess(_names(3), e, {"reasons": [], "loops": []}, adjustment=adj, calibration_prediction={})["reliable"]
+
+
+def test_a_loop_with_one_free_yaw_pins_it():
+    # a box seen from 8 views: one pair overlaps on the flat top only (yaw free); the other 7 edges
+    # fix their yaw, so a wrong yaw on the free one would show in the loop's closure
+    names = _names(8)
+    e = [_edge(names[i], names[i + 1], yaw=0.05 if i == 4 else 1.0) for i in range(7)] + [_edge("00", "07")]
+    members = [["00", "07"]] + [[names[i + 1], names[i]] for i in range(7)]
+    loop = {"edge": ["00", "07"], "n_edges": 8, "closure_deg": 0.1, "closure_mm": 5.0, "closure_object_mm": 3.1,
+            "members": members}
+    v = assess(names, e, {"reasons": [], "loops": [loop]}, calibration_prediction={})
+    assert v["reliable"] and e[4]["verdict"] == "verified by its loop" and "04->05" not in " ".join(v["reasons"])
+    # closing to more than twice the gate at the object: the loop cannot vouch for it
+    bad = dict(loop, closure_object_mm=6.2)
+    e = [_edge(names[i], names[i + 1], yaw=0.05 if i == 4 else 1.0) for i in range(7)] + [_edge("00", "07")]
+    assert not assess(names, e, {"reasons": [], "loops": [bad]}, calibration_prediction={})["reliable"]
+    # two free yaws on one loop: their errors can cancel in the closure (a vase): still yaw free
+    e = [_edge(names[i], names[i + 1], yaw=0.05 if i in (2, 4) else 1.0) for i in range(7)] + [_edge("00", "07")]
+    v = assess(names, e, {"reasons": [], "loops": [loop]}, calibration_prediction={})
+    assert not v["reliable"] and e[2]["verdict"] == e[4]["verdict"] == "yaw free"

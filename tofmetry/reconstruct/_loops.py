@@ -79,7 +79,8 @@ def loop_closures(n: int, pairs: list[PairResult], names: list[str] | None = Non
 
     Returns
     -------
-    list of dicts: edge (source, target names), n_edges in the cycle, closure_deg / closure_mm
+    list of dicts: edge (source, target names), n_edges in the cycle, members (its edges as
+    [name, name] pairs, the closing edge first, in either direction), closure_deg / closure_mm
     (translation at the source camera centre), per_edge_deg / per_edge_mm (closure / sqrt(n_edges):
     independent errors add as a random walk), closure_object_mm (with ``centres``)
     """
@@ -91,17 +92,20 @@ def loop_closures(n: int, pairs: list[PairResult], names: list[str] | None = Non
         if k in in_tree or depth[p.source] < 0 or depth[p.target] < 0:
             continue
         a, b, m = p.source, p.target, 1
+        members = [[names[p.source], names[p.target]]]
         while a != b:  # path length through the tree (lowest common ancestor)
             if depth[a] >= depth[b]:
+                members.append([names[a], names[parent[a]]])
                 a = parent[a]
             else:
+                members.append([names[b], names[parent[b]]])
                 b = parent[b]
             m += 1
         E = np.linalg.inv(p.transform) @ np.linalg.inv(poses[p.target]) @ poses[p.source]
         c_deg, c_mm = rotation_angle_deg(E), float(np.linalg.norm(E[:3, 3])) * 1e3
         d = {"edge": [names[p.source], names[p.target]], "n_edges": m, "closure_deg": round(c_deg, 4),
              "closure_mm": round(c_mm, 3), "per_edge_deg": round(c_deg / np.sqrt(m), 4),
-             "per_edge_mm": round(c_mm / np.sqrt(m), 3)}
+             "per_edge_mm": round(c_mm / np.sqrt(m), 3), "members": members}
         if centres is not None:
             c = np.asarray(centres[p.source], np.float64)
             d["closure_object_mm"] = round(float(np.linalg.norm(E[:3, :3] @ c + E[:3, 3] - c)) * 1e3, 3)

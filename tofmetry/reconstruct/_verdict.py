@@ -8,7 +8,9 @@ own state, and :func:`assess` turns it into verdicts:
   ``yaw free`` (its overlap is nearly a surface of revolution: the rotation about the vertical is
   not determined by the geometry, :func:`~tofmetry.reconstruct.registration_conditioning`) unless
   the IR amplitude's albedo pattern decides it (``verified by IR``,
-  :func:`~tofmetry.reconstruct._photometric.ir_yaw_sweep`),
+  :func:`~tofmetry.reconstruct._photometric.ir_yaw_sweep`) or a loop in which it is the only free
+  edge closes within the pose gate (``verified by its loop``: a wrong yaw there would show in the
+  closure; two free edges on a loop can cancel, as every edge of a vase does),
   ``pruned``, ``dropped`` (contradicts the other views' loops), ``rejected`` (failed the pairwise
   gates; the figures and the gates are in the reason);
 * **views**: ``verified`` (on a closed loop), ``unverified`` (linked by unverified edges only) or
@@ -90,6 +92,10 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
     reasons = list(consistency.get("reasons", []))
     warnings = []
     yaw_free = []
+    loops = consistency.get("loops") or []
+    free = {frozenset((e["source"], e["target"])) for e in kept
+            if (e.get("conditioning") or {}).get("yaw_ratio") is not None
+            and e["conditioning"]["yaw_ratio"] < yaw_free_ratio and not (e.get("ir_yaw") or {}).get("decided")}
     for e in edges:
         if "verdict" in e and e["verdict"] == "left out with its view":
             continue
@@ -108,6 +114,13 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
             e["reason"] = (f"the geometry leaves the yaw free (stiffness ratio {yr:.2f}); the IR albedo pattern fixes it "
                            f"(correlation {iy['correlation']:.2f}, {iy['margin']:.2f} above any other yaw)"
                            + ("" if k not in br else "; no loop goes through this edge"))
+        elif yr is not None and yr < yaw_free_ratio and (lp := _loop_pinning_yaw(e, loops, free, pose_gate_deg,
+                                                                              pose_gate_mm)):
+            e["verdict"] = "verified by its loop"
+            e["reason"] = (f"the geometry leaves the yaw free (stiffness ratio {yr:.2f}), but the loop closed by "
+                           f"{lp['edge'][0]}->{lp['edge'][1]} ({lp['n_edges']} edges, this one the only free one) "
+                           f"closes to {lp['closure_deg']:.2f} deg / {lp.get('closure_object_mm', lp['closure_mm']):.1f} "
+                           "mm at the object: a wrong yaw here would show there, so it holds within the pose gate")
         elif yr is not None and yr < yaw_free_ratio:
             e["verdict"] = "yaw free"
             e["reason"] = (f"the overlap is nearly a surface of revolution: its stiffness about the vertical is {yr:.2f} "
@@ -144,7 +157,6 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
     if unver:
         warnings.append(f"view(s) {', '.join(unver)} are on no closed loop: their poses are not checked")
     # loops: what a spread closure leaves on the views
-    loops = consistency.get("loops") or []
     b_deg = max((lp["closure_deg"] for lp in loops), default=0.0) / 2
     b_mm = max((lp.get("closure_object_mm", lp["closure_mm"]) for lp in loops), default=0.0) / 2
     sel = consistency.get("selection") or {}
@@ -194,6 +206,22 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
         warnings.append("raw depth (no depth calibration): the model's scale and shape carry the sensor's range error")
     return {"reliable": not reasons, "reasons": reasons, "warnings": warnings, "views": views,
             "loop_pose_bound": {"deg": round(b_deg, 4), "mm": round(b_mm, 3)}, "yaw_free_edges": yaw_free}
+
+
+def _loop_pinning_yaw(edge: dict, loops: list[dict], free: set, pose_gate_deg: float,
+                      pose_gate_mm: float) -> dict | None:
+    """A loop through ``edge`` in which it is the only yaw-free edge and whose closure, halved as
+    the pose graph spreads it, stays within the pose gate (rotation, and displacement at the object):
+    the loop then determines the yaw the geometry of the pair leaves free. None when there is none."""
+    key = frozenset((edge["source"], edge["target"]))
+    for lp in loops:
+        members = {frozenset(m) for m in lp.get("members") or []}
+        if key not in members or len(members & free) != 1:
+            continue
+        if (lp["closure_deg"] / 2 <= pose_gate_deg
+                and lp.get("closure_object_mm", lp["closure_mm"]) / 2 <= pose_gate_mm):
+            return lp
+    return None
 
 
 def calibration_central_mm(calibration_prediction: dict | None) -> float | None:
