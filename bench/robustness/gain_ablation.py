@@ -59,7 +59,7 @@ def ablate(seed: int, variant: str, n_frames: int = 5) -> dict:
     from tofmetry.reconstruct import ReconstructionConfig
     from tofmetry.reconstruct._adjust import AdjustView, global_adjust
     from tofmetry.reconstruct._pipeline import ReconstructionPipeline, _median_object_depth_m
-    from tofmetry.reconstruct._verdict import calibration_central_mm
+    from tofmetry.reconstruct._calibration_support import calibration_central_mm
     from tofmetry.simulate import datasets
 
     d = draw_case(seed)

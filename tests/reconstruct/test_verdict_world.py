@@ -6,10 +6,14 @@ import numpy as np
 import pytest
 
 from tofmetry._shared.geometry import transform_points
-from tofmetry.reconstruct._verdict import (
-    assess, calibration_gain_sigma, extrapolated_points, extrapolation_error_mm, extrapolation_warning, local_prediction,
-    scale_report,
+from tofmetry.reconstruct._calibration_support import (
+    calibration_gain_sigma,
+    extrapolated_points,
+    extrapolation_error_mm,
+    extrapolation_warning,
+    local_prediction,
 )
+from tofmetry.reconstruct._verdict import assess, scale_report
 from tofmetry.reconstruct._world import support_plane_frame, transform_plane
 
 

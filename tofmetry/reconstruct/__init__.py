@@ -80,7 +80,7 @@ from tofmetry.reconstruct._segment import (
     fit_support_plane,
     segment_object,
 )
-from tofmetry.reconstruct._verdict import extrapolated_points, extrapolation_error_mm
+from tofmetry.reconstruct._calibration_support import extrapolated_points, extrapolation_error_mm
 
 __all__ = [
     "PAPER_K_MM_PER_LN",

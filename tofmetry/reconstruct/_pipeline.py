@@ -16,8 +16,18 @@ from scipy.spatial import cKDTree
 from tofmetry._shared.geometry import fit_plane_svd, transform_points
 from tofmetry.errors import EstimationError, InputError, SensorMismatchError
 from tofmetry.reconstruct._adjust import AdjustView, apply_depth_gain, global_adjust
-from tofmetry.reconstruct._adjust_result import AdjustResult, keep_amplitude_if_it_explains
+from tofmetry.reconstruct._adjust_result import (
+    AdjustResult,
+    keep_amplitude_if_it_explains,
+)
 from tofmetry.reconstruct._amplitude import amplitude_log_ratio
+from tofmetry.reconstruct._calibration_support import (
+    calibration_central_mm,
+    calibration_gain_sigma,
+    extrapolated_points,
+    extrapolation_warning,
+    local_prediction,
+)
 from tofmetry.reconstruct._colour import colour_model
 from tofmetry.reconstruct._config import ReconstructionConfig
 from tofmetry.reconstruct._fusion import TSDFFusion, crop_mesh, poisson_mesh
@@ -28,15 +38,7 @@ from tofmetry.reconstruct._register import register_pair, rejection_reason
 from tofmetry.reconstruct._regview import RegView, make_reg_view
 from tofmetry.reconstruct._scale_budget import scale_budget
 from tofmetry.reconstruct._segment import Segmentation, segment_object
-from tofmetry.reconstruct._verdict import (
-    assess,
-    calibration_central_mm,
-    calibration_gain_sigma,
-    extrapolated_points,
-    extrapolation_warning,
-    local_prediction,
-    scale_report,
-)
+from tofmetry.reconstruct._verdict import assess, scale_report
 from tofmetry.reconstruct._world import support_plane_frame, transform_plane
 
 
