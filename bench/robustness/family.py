@@ -140,8 +140,7 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
     row = {"seed": int(seed), **d.describe()}
     t0 = time.perf_counter()
     cal, white, t_cal = calibrate_sensor(d.sensor, seed, distances_mm=stations_mm)
-    em = d.sensor.errors
-    row["true_k_mm_per_ln"] = round(em.amp_bias_mm_per_ln + (em.amp_bias_abs_mm_per_ln if em.on("amplitude_bias") else 0), 3)
+    row["true_k_mm_per_ln"] = round(d.sensor.errors.amplitude_slope_mm_per_ln(), 3)
     board_dirs = board_captures(d.sensor, seed, work) if boards else None
     row["calibration"] = {"seconds": round(t_cal, 1), "model": cal.prediction.get("method"),
                           "predicted_central_mm": (cal.prediction.get("interpolation") or {}).get("central_abs_mm", {})

@@ -34,7 +34,7 @@ def test_boards_recover_the_sensors_effective_k(tmp_path, seed):
     draw = random_sensor(seed)
     em = draw.errors.without("deformation", "wiggling")
     draw = draw.with_errors(em)
-    k_true = em.amp_bias_mm_per_ln + (em.amp_bias_abs_mm_per_ln if em.on("amplitude_bias") else 0.0)
+    k_true = em.amplitude_slope_mm_per_ln()
     boards = [datasets.materials(tmp_path / f"b{z}", n_frames=6, distance_m=z, sensor=draw, seed=seed + i)
               for i, z in enumerate((0.8, 1.2))]
     res = amplitude_slope_from_boards(boards)

@@ -112,8 +112,7 @@ def test_end_to_end_full_errors(tmp_path):
                          "--amplitude-reference", str(wall), "--amplitude-board", str(board)])
     assert r.exit_code == 0, r.output
     slope = read_json(tmp_path / "rec" / "poses.json")["diagnostics"]["amplitude_slope"]
-    em = default_sensor().errors
-    k_true = em.amp_bias_mm_per_ln + (em.amp_bias_abs_mm_per_ln if em.on("amplitude_bias") else 0.0)
+    k_true = default_sensor().errors.amplitude_slope_mm_per_ln()
     assert slope["calibrated"] and len(slope["boards"]) == 1 and 0 < slope["sigma_mm_per_ln"] < 0.5, slope
     assert abs(slope["k_mm_per_ln"] - k_true) < 3 * slope["sigma_mm_per_ln"] + 0.05, (slope, k_true)
     assert "amplitude coefficient measured on 1 board(s)" in r.output

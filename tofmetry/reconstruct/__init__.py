@@ -15,6 +15,7 @@ from tofmetry.reconstruct._amplitude import (
     amplitude_bias_mm,
     white_amplitude_map,
 )
+from tofmetry.reconstruct._calibration_support import extrapolated_points, extrapolation_error_mm
 from tofmetry.reconstruct._colour import (
     ModelColours,
     colour_model,
@@ -80,7 +81,6 @@ from tofmetry.reconstruct._segment import (
     fit_support_plane,
     segment_object,
 )
-from tofmetry.reconstruct._calibration_support import extrapolated_points, extrapolation_error_mm
 
 __all__ = [
     "PAPER_K_MM_PER_LN",
@@ -114,6 +114,8 @@ __all__ = [
     "corrected_mean_depth",
     "crop_mesh",
     "estimate_normals",
+    "extrapolated_points",
+    "extrapolation_error_mm",
     "fit_support_plane",
     "free_space_violation",
     "global_adjust",
@@ -136,7 +138,6 @@ __all__ = [
     "relative_pose_errors",
     "rotation_angle_deg",
     "segment_object",
-    "extrapolated_points", "extrapolation_error_mm",
     "select_hypotheses",
     "spanning_tree",
     "undistort_depth",

@@ -36,7 +36,7 @@ def local_prediction(calibration_prediction: dict | None, depth_span_mm) -> dict
     ``global_predicted``); ``local`` records the span, the stations and their median spacing. Each
     fold predicts its station from the others, i.e. over twice the real gap.
 
-    It judges the run (:func:`assess`), not the depth gain: the gain's bound keeps the global figure.
+    It judges the run (:func:`~tofmetry.reconstruct._verdict.assess`), not the depth gain: the gain's bound keeps the global figure.
     Tried as the gain's bound too (4 family draws near 0.7 m), the local figure refused a gain of
     +0.2 % that put an igea's poses right (0.21 -> 0.58 deg without it), while a bunny's views asked
     +2.6 %, more than the local folds predict, and came right (1.08 -> 0.38 deg) once it was applied:

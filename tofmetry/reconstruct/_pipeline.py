@@ -47,9 +47,14 @@ def _no_progress(description: str, total: int | None):
     yield lambda n=1: None
 
 
+def _object_depths_m(views, segs) -> np.ndarray:
+    """(N,) depths Z [m] of the segmented object points of all views."""
+    return np.concatenate([v.points[s.object_mask, 2] for v, s in zip(views, segs)])
+
+
 def _median_object_depth_m(views, segs) -> float:
     """Median depth Z [m] of the segmented object points over all views (1 m when there are none)."""
-    z = np.concatenate([v.points[s.object_mask, 2] for v, s in zip(views, segs)])
+    z = _object_depths_m(views, segs)
     return float(np.median(z)) if len(z) else 1.0
 
 
@@ -367,9 +372,9 @@ class ReconstructionPipeline:
         t0 = time.perf_counter()
         views, segs, regs, intr = self.load_views()
         if self.cal is not None:  # the calibration's predicted error where this object lies
-            z = np.concatenate([v.points[s.object_mask, 2] for v, s in zip(views, segs)]) * 1e3
+            z = _object_depths_m(views, segs) * 1e3
             self.prediction_at_object = local_prediction(self.cal.prediction or {},
-                                               tuple(np.percentile(z, (5, 95))) if len(z) else None)
+                                                         tuple(np.percentile(z, (5, 95))) if len(z) else None)
         t1 = time.perf_counter()
         graph = self.register(regs)
         if len(self.kept) < len(views):  # views no registration links to the others are left out

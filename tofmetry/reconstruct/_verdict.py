@@ -19,13 +19,14 @@ own state, and :func:`assess` turns it into verdicts:
   consistency gate fails (:func:`~tofmetry.reconstruct.consistency_gate`), when a kept edge is yaw
   free, when the loops close only once their error is spread and that error is larger than the
   pose accuracy asked for, when the global adjustment failed or moved a view from its pose-graph
-  pose by more than ``pose_gate_deg`` (the pairs and the joint fit disagree beyond the accuracy asked
-  for: on 40 family draws, 19 of 21 right runs moved 0.07-0.49 deg, two already flagged otherwise
-  0.61 and 1.43; 18 of 19 wrong runs moved 0.69-8.9 deg, among them the two misses), when the depth calibration predicts its own error between stations,
-  where the object lies (:func:`~tofmetry.reconstruct._calibration_support.local_prediction`), above ``max_calibration_mm``, or when more than
-  ``max_left_out`` of the views are left out. A few views left out, an unobservable depth gain, unverified views and a
-  depth calibration that doubts its own prediction are warnings: the model is then incomplete or
-  less checked, not wrong. (A calibration's doubt was a reason until a family of 20 random
+  pose by more than ``pose_gate_deg`` (the pairs and the joint fit disagree beyond the accuracy
+  asked for: on 40 family draws, 19 of 21 right runs moved 0.07-0.49 deg, two already flagged
+  otherwise 0.61 and 1.43; 18 of 19 wrong runs moved 0.69-8.9 deg, among them the two misses),
+  when the depth calibration predicts its own error between stations, where the object lies
+  (:func:`~tofmetry.reconstruct._calibration_support.local_prediction`), above
+  ``max_calibration_mm``, or when more than ``max_left_out`` of the views are left out. A few views
+  left out, an unobservable depth gain, unverified views and a depth calibration that doubts its
+  own prediction are warnings: the model is then incomplete or less checked, not wrong. (A calibration's doubt was a reason until a family of 20 random
   draws showed it flagging three runs whose poses were within 0.16 deg / 1.4 mm, while the runs
   it should have caught were caught by their own loops. Views on no loop were tried as a reason
   too: on 20 draws it caught no wrong run the other reasons missed and flagged a right one.)
@@ -41,6 +42,7 @@ from __future__ import annotations
 import numpy as np
 
 from tofmetry.reconstruct._calibration_support import (
+    calibration_central_mm,
     station_spacing_mm,
 )
 from tofmetry.reconstruct._loops import connected_components
@@ -192,7 +194,7 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
                        "disagree by more than the poses must hold, so one of them is off (a smooth or symmetric "
                        "object sliding, or a depth-calibration residual)")
     warns = (calibration_prediction or {}).get("warnings") or []
-    pc = ((calibration_prediction or {}).get("interpolation") or {}).get("central_abs_mm", {}).get("predicted")
+    pc = calibration_central_mm(calibration_prediction)
     local = (calibration_prediction or {}).get("local") or {}
     where = (f" where the object lies ({local['span_mm'][0]:.0f}-{local['span_mm'][1]:.0f} mm, stations "
              + ", ".join(f"{c:.0f}" for c in local["stations_mm"]) + " mm)") if local else ""
@@ -269,7 +271,7 @@ def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z
     if calibration_prediction is None:
         return out | {"predicted_scale_sigma_pct": None, "predicted_offset_sigma_mm": None,
                       "source": "raw depth: no calibration, no prediction"}
-    e = ((calibration_prediction.get("interpolation") or {}).get("central_abs_mm") or {}).get("predicted")
+    e = calibration_central_mm(calibration_prediction)
     spacing = station_spacing_mm(calibration_prediction)
     if e is None:
         return out | {"predicted_scale_sigma_pct": None, "predicted_offset_sigma_mm": None,

@@ -271,6 +271,13 @@ class ErrorModel:
         """Whether ``term`` is enabled."""
         return term in self.enabled
 
+    def amplitude_slope_mm_per_ln(self) -> float:
+        """The slope [mm per ln unit] of the depth bias in ``ln(A_white / A)`` between surfaces seen at
+        one pixel and range: the relative and the absolute amplitude terms together, ``k + k_abs``
+        (at a fixed place both change with ``ln A`` alike); 0 with ``amplitude_bias`` off. What a
+        grey-level board measures and what an object's dark and bright parts differ by."""
+        return self.amp_bias_mm_per_ln + self.amp_bias_abs_mm_per_ln if self.on("amplitude_bias") else 0.0
+
     def to_dict(self) -> dict:
         """JSON-able dict of every field (``enabled`` as a sorted list)."""
         d = dataclasses.asdict(self)
