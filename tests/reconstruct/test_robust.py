@@ -136,6 +136,19 @@ def test_free_space_violation_counts_points_in_front_of_the_observed_surface():
     assert visibility_violation(front, _points_view(front.obj_points), np.eye(4), tol) == 0.0
 
 
+def test_free_space_leaves_out_what_the_target_sees_at_its_limb():
+    """Surface the target would see at grazing incidence (its silhouette band, where its pixels mix
+    with the background) is no evidence; the same points facing the target are."""
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(-0.1, 0.1, (200, 2))
+    tgt = _wall_view(1.0)
+    front = _points_view(np.c_[xy, np.full(200, 0.9)])
+    grazing = RegView("s", front.icp_points, front.icp_normals, front.obj_points, front.obj_points,
+                      front.icp_normals, obj_normals=np.tile([1.0, 0.0, -0.2], (200, 1)) / np.hypot(1.0, 0.2))
+    assert free_space_violation(front, tgt, np.eye(4), 0.015) == pytest.approx(1.0)
+    assert free_space_violation(grazing, tgt, np.eye(4), 0.015) == 0.0
+
+
 @pytest.fixture(scope="module")
 def box_scan(tmp_path_factory):
     """Chamfered box 30 x 20 x 15 cm (symmetric under a 180-degree turn), 6 views, 2 frames, all error terms."""

@@ -71,6 +71,17 @@ def test_scale_report_from_the_calibration_and_the_gain():
     assert scale_report(None, None, 1000.0)["predicted_scale_sigma_pct"] is None
 
 
+def test_the_chains_own_scale_error_is_added_in_quadrature():
+    pred = {"interpolation": {"central_abs_mm": {"predicted": 0.3}},
+            "folds": [{"center_mm": 1000.0 + 250 * k} for k in range(5)]}
+    adj = {"depth_gain": 0.001, "gain_estimated": True, "gain_sigma_data": 0.0004}
+    r = scale_report(adj, pred, 1000.0, floor_pct=0.05)
+    rule = 100 * np.hypot(0.3 / 1000, 0.0002)
+    assert np.isclose(r["predicted_scale_sigma_pct"], np.hypot(rule, 0.05)) and np.isclose(r["rule_scale_sigma_pct"], rule)
+    assert r["chain_floor_pct"] == 0.05 and "chain" in r["source"]
+    assert scale_report(None, None, 1000.0, floor_pct=0.05)["predicted_scale_sigma_pct"] is None
+
+
 def test_scale_report_takes_the_larger_of_the_rule_and_the_budget():
     """The budget is handed the calibration's offset [m] and the gain's sigma; the prediction is
     the larger of the two propagations, and the report keeps both."""

@@ -434,7 +434,8 @@ class ReconstructionPipeline:
                                                                  "forward)", "from_first_camera": W.tolist()})
         diag = {"consistency": graph.consistency, "reliable": bool(verdict["reliable"]), "reliability": verdict,
                 "scale": scale_report(adj_d, pred, z_obj * 1e3, self._scale_budget(views, segs, poses, intr, z_obj),
-                                      rc.amplitude_k_sigma_mm if self.white_map is not None else None),
+                                      rc.amplitude_k_sigma_mm if self.white_map is not None else None,
+                                      rc.scale_floor_pct),
                 "world": world,
                 "views": {v.name: v.stats for v in views}, "fusion": fusion_info, "timings_s": self.timings,
                 "adjustment": adj_d, "left_out": self.left_out, "color": colour_diag,

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from tofmetry.assess import remove_flying_pixels
@@ -124,7 +125,8 @@ def prepare_view(stack: np.ndarray, intr: CameraIntrinsics, calibration=None, co
     if len(pts) < 100:
         raise InputError(f"view {name}: only {len(pts)} valid depth pixels in the working range "
                          f"{lo:g}..{hi:g} mm")
-    normals, cos_inc = image_normals(pts, idx, intr.shape)
+    normals, cos_inc = image_normals(pts, idx, intr.shape, fx=intr.fx if cfg.normal_patch_mm > 0 else None,
+                                     patch_m=cfg.normal_patch_mm * 1e-3)
     grazing = cos_inc < np.cos(np.radians(cfg.max_incidence_deg))
     keep = ~grazing
     depth.ravel()[idx[grazing]] = 0.0
@@ -135,12 +137,25 @@ def prepare_view(stack: np.ndarray, intr: CameraIntrinsics, calibration=None, co
     return ViewData(name, depth, pts[keep], idx[keep], normals[keep], cos_inc[keep], ir, stats)
 
 
-def image_normals(points: np.ndarray, index: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """Normals of an organised cloud from central differences on the pixel grid.
+def image_normals(points: np.ndarray, index: np.ndarray, shape: tuple[int, int], fx: float | None = None,
+                  patch_m: float = 0.012) -> tuple[np.ndarray, np.ndarray]:
+    """Normals of an organised cloud: a plane fitted to each pixel's neighbourhood on the pixel grid.
+
+    With ``fx`` the neighbourhood is a square window spanning about ``patch_m`` on the surface
+    (``patch_m fx / z`` pixels, odd, 3 to 9: 7 px at 0.65 m, 3 px beyond 1.4 m on a Kinect v2), its
+    normal the least-variance direction of the valid points in it (the integral-image plane fit
+    of Holzer et al. 2012, by box filters). Near the minimum range a ToF camera's noise reaches
+    1-3 mm while its pixels are 1.8 mm apart: central differences there tilt the normal by ~30
+    degrees, the grazing test then drops frontal pixels and a point-to-plane ICP slides (measured on
+    a head at 0.65 m: 5-9 degrees from the true pose with noise alone; 0.1-1.5 with the window).
+    Where the window reaches across a depth jump, and without ``fx``, the normal comes from central
+    differences over 2 pixels.
 
     Parameters
     ----------
     points : (N, 3) [m]; index : (N,) flat pixel index; shape : (H, W)
+    fx : focal length [px] (enables the window fit), or None
+    patch_m : surface span of the window [m]
 
     Returns
     -------
@@ -150,7 +165,7 @@ def image_normals(points: np.ndarray, index: np.ndarray, shape: tuple[int, int])
     H, W = shape
     img = np.full((H, W, 3), np.nan)
     img.reshape(-1, 3)[index] = points
-    # 2-pixel baselines (v +- 1, u +- 1) smooth the per-pixel noise
+    # 2-pixel baselines (v +- 1, u +- 1)
     du = np.full_like(img, np.nan)
     dv = np.full_like(img, np.nan)
     du[:, 1:-1] = img[:, 2:] - img[:, :-2]
@@ -165,9 +180,45 @@ def image_normals(points: np.ndarray, index: np.ndarray, shape: tuple[int, int])
     ok &= nn > 0
     normals = np.zeros_like(points)
     normals[ok] = n[ok] / nn[ok, None]
+    if fx is not None and len(points):
+        jump = np.ones(H * W, bool)
+        jump[index[ok]] = False  # invalid pixels and depth jumps
+        win = np.clip(2 * np.round(0.5 * (patch_m * fx / np.maximum(z, 1e-3) - 1)) + 1, 3, 9).astype(int)
+        for w in np.unique(win[ok]):
+            sel = np.flatnonzero(ok & (win == w))
+            fit, clean = _window_plane_normals(img, jump.reshape(H, W), index[sel], int(w))
+            normals[sel[clean]] = fit[clean]
     flip = np.einsum("ij,ij->i", normals, points) > 0
     normals[flip] *= -1
     los = points / np.linalg.norm(points, axis=1, keepdims=True)
     cos_inc = np.abs(np.einsum("ij,ij->i", normals, los))
     cos_inc[~ok] = 0.0
     return normals, cos_inc
+
+
+def _window_plane_normals(img: np.ndarray, jump: np.ndarray, index: np.ndarray, w: int) -> tuple[np.ndarray, np.ndarray]:
+    """Least-variance direction of the valid points of ``img`` ((H, W, 3) [m], NaN = invalid) in the
+    ``w`` x ``w`` window of each pixel ``index``, and whether the window is clean (no pixel of
+    ``jump``, the invalid pixels and depth jumps, and at least half of it valid)."""
+    valid = np.isfinite(img[..., 0])
+    x = np.where(valid[..., None], img, 0.0)
+    m = valid.astype(np.float64)
+
+    def box(a: np.ndarray) -> np.ndarray:
+        return cv2.boxFilter(a, -1, (w, w), normalize=False, borderType=cv2.BORDER_CONSTANT).reshape(-1)[index]
+
+    cnt = box(m)
+    bad = box((jump & valid).astype(np.float64))
+    mu = np.stack([box(x[..., k]) for k in range(3)], 1) / np.maximum(cnt, 1.0)[:, None]
+    C = np.empty((len(index), 3, 3))
+    for a in range(3):
+        for b in range(a, 3):
+            C[:, a, b] = C[:, b, a] = box(x[..., a] * x[..., b]) / np.maximum(cnt, 1.0) - mu[:, a] * mu[:, b]
+    # least-variance direction: the dominant eigenvector of adj(C) (eigenvalues l1 l2 > l0 l2 > l0 l1),
+    # its largest column refined by two power steps (the ratio l0 / l1 is small on a surface patch)
+    A = np.cross(C[:, [1, 2, 0]], C[:, [2, 0, 1]])
+    v = A[np.arange(len(A)), np.argmax(np.einsum("nij,nij->nj", A, A), axis=1)]
+    for _ in range(2):
+        v = np.einsum("nij,nj->ni", A, v)
+        v /= np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-300)
+    return v, (bad == 0) & (cnt >= 0.5 * w * w)

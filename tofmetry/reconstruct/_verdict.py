@@ -230,7 +230,7 @@ def _loop_pinning_yaw(edge: dict, loops: list[dict], free: set, pose_gate_deg: f
 
 
 def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z_ref_mm: float,
-                 budget=None, k_sigma_mm: float | None = None) -> dict:
+                 budget=None, k_sigma_mm: float | None = None, floor_pct: float = 0.0) -> dict:
     """The model's predicted scale and surface-offset uncertainty from the depth chain.
 
     A range offset ``e`` left by the calibration moves every point along its ray: the surfaces
@@ -258,6 +258,10 @@ def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z
     2026-11-25's family (README), before the gain inherited ``k``'s uncertainty both undershot
     the measured scale error (1.55 sigma at the median); with it the measured error was 0.41 sigma
     at the median, 5 of 5 reliable runs within 1.645 sigma.
+
+    ``floor_pct`` [%], the modelling chain's own scale error (registration, fusion, meshing; a
+    configured figure, :attr:`RegistrationConfig.scale_floor_pct`), is added in quadrature to the
+    prediction (``chain_floor_pct``).
 
     Returns
     -------
@@ -297,4 +301,8 @@ def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z
             out["predicted_scale_sigma_pct"] = out["budget_scale_sigma_pct"]
             out["source"] = src + ", propagated on the model's geometry" + (
                 "" if "amplitude" not in b else " with the amplitude bias's uncertainty")
+    if floor_pct > 0:
+        out["chain_floor_pct"] = float(floor_pct)
+        out["predicted_scale_sigma_pct"] = float(np.hypot(out["predicted_scale_sigma_pct"], floor_pct))
+        out["source"] += f"; the modelling chain's own {floor_pct:g} % in quadrature"
     return out
