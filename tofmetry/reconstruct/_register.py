@@ -254,18 +254,20 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
         if sw["decided"]:
             T0 = sw.pop("transform")
             T = _refine_fine(src, tgt, T0, cfg)
+            fit, rmse = object_fitness(src, tgt, T, r_final)
+            c = ir_agreement(src, tgt, T, r_final)
             if cfg.ir_icp:
                 # the geometric ICP is free to slide in yaw here: the pattern holds it (measured on a
-                # painted vase at 0.74 m: the geometric refinement left 7.4 degrees, the pattern 0.x)
+                # painted vase at 0.74 m: the geometric refinement left 7.4 degrees, the pattern 1.4)
                 Tp = photometric_icp(src, tgt, T0, tuple(x * 1e-3 for x in cfg.icp_radii_mm[-2:]), cfg.ir_icp_lambda)
-                cg, cp = ir_agreement(src, tgt, T, r_final), ir_agreement(src, tgt, Tp, r_final)
-                if cp is not None and (cg is None or cp > cg) and object_fitness(src, tgt, Tp, r_final)[0] >= \
-                        object_fitness(src, tgt, T, r_final)[0] - 0.005:
-                    T = Tp
-            fit, rmse = object_fitness(src, tgt, T, r_final)
+                fit_p, rmse_p = object_fitness(src, tgt, Tp, r_final)
+                cp = ir_agreement(src, tgt, Tp, r_final)
+                if cp is not None and (c is None or cp > c) and fit_p >= fit - 0.005:
+                    T, fit, rmse, c = Tp, fit_p, rmse_p, cp
             v = vis(T)
             ok = _passes(fit, rmse, cfg) and v <= cfg.max_see_through
-            best = _pair_result(src, tgt, i, j, T, fit, rmse, v, best.method + "+ir-yaw", ok, r_final, ir_yaw=sw)
+            best = _pair_result(src, tgt, i, j, T, fit, rmse, v, best.method + "+ir-yaw", ok, r_final, ir_yaw=sw,
+                                ir_corr=c)
             return _with_ir(replace(best, alternatives=[a for a in out if not _same_pose(a.transform, T)]), src, tgt,
                             r_final)
         sw.pop("transform", None)

@@ -124,10 +124,8 @@ def free_space_violation(src: RegView, tgt: RegView, T: np.ndarray, tol_m: float
         return 0.0
     p = src.obj_points @ T[:3, :3].T + T[:3, 3]
     front = p[:, 2] > 1e-3
-    if src.obj_normals is not None and len(src.obj_normals) == len(p):
-        n = src.obj_normals @ T[:3, :3].T
-        cos_inc = -np.einsum("ij,ij->i", n, p) / np.maximum(np.linalg.norm(p, axis=1), 1e-12)
-        front &= cos_inc > np.cos(np.radians(max_incidence_deg))
+    if src.obj_normals is not None:
+        front &= _faces_camera(src.obj_normals @ T[:3, :3].T, p, max_incidence_deg)
     p = p[front]
     if len(p) == 0:
         return 0.0
@@ -140,6 +138,13 @@ def free_space_violation(src: RegView, tgt: RegView, T: np.ndarray, tol_m: float
     if not known.any():
         return 0.0
     return float(np.sum(p[known, 2] < d[known] - tol_m) / known.sum())
+
+
+def _faces_camera(normals: np.ndarray, points: np.ndarray, max_incidence_deg: float) -> np.ndarray:
+    """Mask of ``points`` ((N, 3) camera frame [m]) whose unit ``normals`` (same frame) face the
+    camera at an incidence below ``max_incidence_deg``."""
+    cos_inc = -np.einsum("ij,ij->i", normals, points) / np.maximum(np.linalg.norm(points, axis=1), 1e-12)
+    return cos_inc > np.cos(np.radians(max_incidence_deg))
 
 
 def visibility_violation(src: RegView, tgt: RegView, T: np.ndarray, tol_m: float) -> float:
@@ -155,11 +160,7 @@ def expected_visible(src: RegView, tgt: RegView, T: np.ndarray, max_incidence_de
     if src.obj_normals is None or tgt.intr is None:
         lo, hi = tgt.icp_points.min(0), tgt.icp_points.max(0)
         return np.all((p >= lo) & (p <= hi), axis=1)
-    n = src.obj_normals @ T[:3, :3].T
-    z = p[:, 2]
-    ok = z > 1e-3
-    cos_inc = -np.einsum("ij,ij->i", n, p) / np.maximum(np.linalg.norm(p, axis=1), 1e-12)
-    ok &= cos_inc > np.cos(np.radians(max_incidence_deg))
+    ok = (p[:, 2] > 1e-3) & _faces_camera(src.obj_normals @ T[:3, :3].T, p, max_incidence_deg)
     uv = tgt.intr.project(np.where(ok[:, None], p, [0.0, 0.0, 1.0]))
     H, W = tgt.intr.shape
     ok &= (uv[:, 0] >= 0) & (uv[:, 0] <= W - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= H - 1)
