@@ -274,6 +274,17 @@ def table(s: dict) -> str:
     return "\n".join(lines)
 
 
+def override(config, item: str):
+    """``config`` with ``STAGE.FIELD=JSON`` applied (validated by the config's own model)."""
+    key, sep, value = item.partition("=")
+    stage, _, name = key.strip().partition(".")
+    if not sep or not name or not hasattr(config, stage) or name not in type(getattr(config, stage)).model_fields:
+        raise SystemExit(f"--set {item!r}: expected STAGE.FIELD=JSON with a field of the reconstruction config")
+    d = config.model_dump()
+    d[stage][name] = json.loads(value)
+    return type(config).model_validate(d)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=20, help="number of draws (seeds drawn at random)")
@@ -287,12 +298,18 @@ def main(argv=None) -> int:
     ap.add_argument("--stations", choices=("family", "study"), default="family",
                     help="wall stations of the calibration: 0.5-4.5 m (family) or the study's 0.8-4.5 m")
     ap.add_argument("--no-boards", action="store_true", help="correct with the study's k (no grey-level boards)")
+    ap.add_argument("--set", action="append", default=[], metavar="STAGE.FIELD=JSON",
+                    help="override one field of the reconstruction config, e.g. "
+                    "registration.adjust_radii_mm=[12,6,3] (repeatable; for A/B runs)")
     a = ap.parse_args(argv)
     config = None
-    if a.range_curve is not None:
+    if a.range_curve is not None or a.set:
         from tofmetry.reconstruct import ReconstructionConfig
         config = ReconstructionConfig()
-        config.registration.range_curve_degree = a.range_curve
+        if a.range_curve is not None:
+            config.registration.range_curve_degree = a.range_curve
+        for item in a.set:
+            config = override(config, item)
     seeds = [int(s) for s in a.seeds.split(",")] if a.seeds else \
         [int(s) for s in np.random.default_rng().integers(0, 2**31 - 1, a.n)]
     print("seeds:", ",".join(map(str, seeds)), flush=True)

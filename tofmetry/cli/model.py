@@ -37,9 +37,10 @@ def reconstruct(
     max_mm: float = typer.Option(2500.0, help="Farthest depth kept [mm]."),
     global_adjust: bool = typer.Option(True, "--global-adjust/--no-global-adjust",
                                        help="Refine all poses jointly after the pose graph (multi-view ICP)."),
-    depth_gain: bool = typer.Option(True, "--depth-gain/--no-depth-gain",
+    depth_gain: bool = typer.Option(False, "--depth-gain/--no-depth-gain",
                                     help="Let the global adjustment estimate a depth gain g (z -> z + g (z - z_ref)): the "
-                                    "range-dependent residual a few-station depth calibration leaves over the object's depth."),
+                                    "range-dependent residual a few-station depth calibration leaves over the object's depth. "
+                                    "Off by default: the views rarely determine it and depth noise biases it."),
     rig: Path | None = typer.Option(None, "--rig", help="rig.json (tofmetry calibrate rig): the scan holds one capture per "
                                     "sensor, views/<sensor name>/; they are fused at the rig's poses (no registration) "
                                     "into a model in the rig frame (sensor 0's camera frame)."),

@@ -101,8 +101,12 @@ def _board_capture(path: Path) -> tuple[Capture, Path | None]:
     return Capture(cap_dir), (regions if regions.is_file() else None)
 
 
+#: the amplitude-bias fit model's own bias common to all boards [mm per ln unit] (module docstring)
+MODEL_SIGMA_MM_PER_LN = 0.15
+
+
 def amplitude_slope_from_boards(boards: list[str | os.PathLike], calibration: DepthCalibration | None = None,
-                                advance=None, model_sigma_mm_per_ln: float = 0.15) -> AmplitudeSlope:
+                                advance=None, model_sigma_mm_per_ln: float = MODEL_SIGMA_MM_PER_LN) -> AmplitudeSlope:
     """Measure the amplitude-bias coefficient ``k`` on grey-level board captures.
 
     Parameters

@@ -42,6 +42,7 @@ from scipy.spatial import cKDTree
 
 from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.errors import EstimationError, InputError
+from tofmetry.reconstruct._adjust_prior import pose_prior_terms
 from tofmetry.reconstruct._adjust_result import AdjustResult
 from tofmetry.reconstruct._adjust_sigma import curve_sigmas, gain_sigmas, pose_sigmas
 from tofmetry.reconstruct._range_curve import range_basis
@@ -218,7 +219,8 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                   tol_deg: float = 1e-3, tol_m: float = 1e-5, gain_max_sigma: float | None = None,
                   sigma_inflation: float = 1.0, gain_max_abs: float | None = None,
                   systematic_m: float = 0.0, curve_degree: int = 0, curve_prior_m: float = 5e-4,
-                  curve_half_span_m: float | None = None, amplitude_prior_m: float | None = None) -> AdjustResult:
+                  curve_half_span_m: float | None = None, amplitude_prior_m: float | None = None,
+                  pose_prior_deg: float | None = None, pose_prior_m: float | None = None) -> AdjustResult:
     """Jointly refine all poses (view 0 fixed) and, optionally, the depth gain.
 
     Each outer iteration matches every view's ``source`` points (gain-corrected, to world) to
@@ -267,6 +269,11 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         unit]; None: not estimated (also when a view carries no ``source_amp`` / ``target_amp``).
         Estimated only when the data alone (poses, curve and gain marginalised, times
         ``sigma_inflation``) determine it better than this prior, checked like the curve
+    pose_prior_deg, pose_prior_m : standard deviations [deg], [m] of a Gaussian prior holding each view
+        near its initial pose (rotation; displacement of the object centre, the mean of the initial
+        world points), weighed against the data at their inflated uncertainty
+        (:mod:`tofmetry.reconstruct._adjust_prior`): it holds the directions the points leave free
+        (the axis of a surface of revolution). None: no prior
 
     Returns
     -------
@@ -287,6 +294,9 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         raise InputError("global adjustment: the initial poses are not all finite")
     P = poses.copy()
     g = 0.0
+    prior_on = pose_prior_deg is not None and pose_prior_m is not None
+    centre = (np.concatenate([v.source @ T[:3, :3].T + T[:3, 3] for v, T in zip(views, poses)]).mean(0)
+              if prior_on else None)
     cos_max = np.cos(np.radians(max_normal_deg))
     rms_hist: list[float] = []
     schedule = [r for r, n in zip(radii_m, iters_per_radius) for _ in range(n)]
@@ -392,8 +402,14 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                 b[cc] += s2 / curve_prior_m ** 2 * c_curve
             if amp_on:
                 ai = 6 * (V - 1) + (D if curve_on else 0)
-                H[ai, ai] += s2 / amplitude_prior_m ** 2  # prior dk ~ N(0, amplitude_prior_m)
-                b[ai] += s2 / amplitude_prior_m ** 2 * a_k
+                # prior dk ~ N(0, amplitude_prior_m), against the data at their inflated uncertainty
+                H[ai, ai] += s2 * sigma_inflation ** 2 / amplitude_prior_m ** 2
+                b[ai] += s2 * sigma_inflation ** 2 / amplitude_prior_m ** 2 * a_k
+            if prior_on:
+                Hp, bp = pose_prior_terms(P, poses, centre, np.radians(pose_prior_deg), pose_prior_m,
+                                          s2 * sigma_inflation ** 2)
+                H[:len(bp), :len(bp)] += Hp
+                b[:len(bp)] += bp
             n_all = len(H)
             H += np.eye(n_all) * 1e-12 * np.trace(H) / n_all  # numerical damping only
             dx = -np.linalg.solve(H, b)
@@ -426,7 +442,8 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         fixed = global_adjust(views, poses, z_ref_m, radii_m, iters_per_radius, inner_iters, huber_m, False,
                               gain_prior_sigma, max_normal_deg, tol_deg, tol_m, None, sigma_inflation,
                               curve_degree=curve_degree, curve_prior_m=curve_prior_m,
-                              curve_half_span_m=curve_half_span_m, amplitude_prior_m=amplitude_prior_m)
+                              curve_half_span_m=curve_half_span_m, amplitude_prior_m=amplitude_prior_m,
+                              pose_prior_deg=pose_prior_deg, pose_prior_m=pose_prior_m)
         fixed.gain_sigma_data, fixed.gain_sigma_systematic = sigma_data, sigma_sys
         fixed.gain_refused, fixed.gain_max_abs = float(g), float(gain_max_abs)
         if np.isfinite(amp_slope):  # the gain's trade with dk, from this run where the gain was free

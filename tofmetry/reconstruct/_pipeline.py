@@ -233,12 +233,18 @@ class ReconstructionPipeline:
         return pg.optimize(rc.icp_radii_mm[-1] * 1e-3, rc.edge_prune, rc.gate_max_deg, rc.gate_max_mm)
 
     def adjust(self, views: list[ViewData], segs: list[Segmentation], regs: list[RegView],
-               poses: np.ndarray) -> AdjustResult | None:
+               poses: np.ndarray, loops: list[dict] | None = None) -> AdjustResult | None:
         """Global adjustment of the pose-graph poses (and the depth gain); applies the gain to
-        ``views`` (depth and points) in place. None when switched off."""
+        ``views`` (depth and points) in place. None when switched off. ``loops``: the pose graph's
+        loop closures (:func:`loop_closures`); half the worst one widens the pose prior (a loop
+        that closes only to X deg leaves up to X / 2 on a view once spread)."""
         rc = self.cfg.registration
         if not rc.global_adjust:
             return None
+        prior_deg, prior_mm = rc.adjust_prior_deg, rc.adjust_prior_mm
+        if prior_deg is not None and prior_mm is not None and loops:
+            prior_deg = max(prior_deg, max(lp["closure_deg"] for lp in loops) / 2)
+            prior_mm = max(prior_mm, max(lp.get("closure_object_mm", lp["closure_mm"]) for lp in loops) / 2)
         z_ref = _median_object_depth_m(views, segs)
         sg_cal = None if self.cal is None else calibration_gain_sigma(self.cal.prediction or {})
         e_sys = rc.gain_systematic_mm
@@ -256,7 +262,8 @@ class ReconstructionPipeline:
                                  gain_max_abs=None if sg_cal is None else rc.gain_max_calibration_sigmas * sg_cal,
                                  systematic_m=e_sys * 1e-3, curve_degree=rc.range_curve_degree,
                                  curve_prior_m=self._curve_prior_mm() * 1e-3,
-                                 amplitude_prior_m=None if amplitude_prior_mm is None else amplitude_prior_mm * 1e-3)
+                                 amplitude_prior_m=None if amplitude_prior_mm is None else amplitude_prior_mm * 1e-3,
+                                 pose_prior_deg=prior_deg, pose_prior_m=None if prior_mm is None else prior_mm * 1e-3)
 
         with self.progress("global adjustment", None):
             try:
@@ -381,7 +388,7 @@ class ReconstructionPipeline:
             views, segs, regs = ([x[k] for k in self.kept] for x in (views, segs, regs))
         names = [self.ds.names[k] for k in self.kept]
         t2a = time.perf_counter()
-        adj = self.adjust(views, segs, regs, graph.poses)
+        adj = self.adjust(views, segs, regs, graph.poses, (graph.consistency or {}).get("loops"))
         t2 = time.perf_counter()
         poses = graph.poses if adj is None else adj.poses
         V, F, N, P, PN, fusion_info = self.fuse(views, segs, poses, intr)

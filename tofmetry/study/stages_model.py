@@ -10,7 +10,8 @@ from tofmetry._shared.study_constants import AMPLITUDE_BIAS_MM_PER_LN
 from tofmetry.evaluate import EvaluationConfig
 from tofmetry.pipelines import load_calibration
 from tofmetry.pipelines.evaluate import evaluate_files
-from tofmetry.pipelines.reconstruct import reconstruct_scan, white_map_from_wall
+from tofmetry.pipelines.amplitude_slope import MODEL_SIGMA_MM_PER_LN, AmplitudeSlope
+from tofmetry.pipelines.reconstruct import reconstruct_scan, white_map_from_wall, with_measured_amplitude_slope
 from tofmetry.reconstruct import ReconstructionConfig
 from tofmetry.study.stage import StageOutcome, StudyContext
 
@@ -35,15 +36,20 @@ def _stats_row(label: str, s: dict, comp: dict | None, comp_obs: dict | None) ->
             100 * _at5(comp).get("completeness", float("nan")), 100 * _at5(comp_obs).get("completeness", float("nan"))]
 
 
-def _amplitude_slope(ctx: StudyContext) -> tuple[float, str]:
-    """Slope of the amplitude bias: config > this run's materials assessment > the study's figure."""
+def _amplitude_slope(ctx: StudyContext) -> tuple[float, float | None, str]:
+    """Slope of the amplitude bias [mm per ln unit], its uncertainty when measured (the board fit's
+    standard error and the fit model's own, in quadrature; None otherwise) and where it came from:
+    config > this run's materials assessment > the study's figure."""
     mc = ctx.config.model
     if mc.amplitude_k_mm_per_ln is not None:
-        return mc.amplitude_k_mm_per_ln, "configured"
+        return mc.amplitude_k_mm_per_ln, None, "configured"
     m = ctx.outcomes.get("materials")
     if m is not None and m.status == "ok" and "materials" in m.data:
-        return float(m.data["materials"]["fit"]["slope_mm_per_ln"]), "measured on the grey-level board in this run"
-    return AMPLITUDE_BIAS_MM_PER_LN, "the study's +12 mm at 1/6 amplitude (§3.3.1)"
+        fit = m.data["materials"]["fit"]
+        se = float(fit.get("slope_se_mm_per_ln", np.nan))
+        sigma = float(np.hypot(se, MODEL_SIGMA_MM_PER_LN)) if np.isfinite(se) else None
+        return float(fit["slope_mm_per_ln"]), sigma, "measured on the grey-level board in this run"
+    return AMPLITUDE_BIAS_MM_PER_LN, None, "the study's +12 mm at 1/6 amplitude (§3.3.1)"
 
 
 def _white_map(ctx: StudyContext, cal, out: StageOutcome):
@@ -71,7 +77,7 @@ def stage_model(ctx: StudyContext, out: StageOutcome) -> None:
         out.paragraphs.append("No depth calibration available (the depth stage did not run): raw depth only.")
     d = ctx.stage_dir("model")
     table = []
-    k_amp, k_src = _amplitude_slope(ctx)
+    k_amp, k_sigma, k_src = _amplitude_slope(ctx)
     for label, cal_path in runs:
         cal = load_calibration(cal_path) if cal_path is not None else None
         cfg = ReconstructionConfig()
@@ -82,6 +88,8 @@ def stage_model(ctx: StudyContext, out: StageOutcome) -> None:
             white = _white_map(ctx, cal, out)
             if white is not None:
                 cfg.preprocess.amplitude_k_mm_per_ln = k_amp
+                if k_sigma is not None:  # measured: its uncertainty bounds the scan's own correction dk
+                    cfg = with_measured_amplitude_slope(cfg, AmplitudeSlope(k_amp, k_sigma))
         rdir = d / label
         res = reconstruct_scan(scan, cal, rdir, config=cfg, white_map=white, force=True)
         tm = res.diagnostics.get("timings_s", {})
@@ -145,7 +153,8 @@ def stage_model(ctx: StudyContext, out: StageOutcome) -> None:
             out.data["viewer"] = {"points": np.asarray(ev.points)[sel], "values": np.asarray(ev.deviation_m)[sel] * 1e3,
                                   "range_mm": ecfg.color_scale_mm}
     if mc.amplitude_correction and ctx.calibration_path is not None:
-        out.paragraphs.append(f"Amplitude-related bias corrected with slope {k_amp:.2f} mm per ln(A_white/A) ({k_src}).")
+        out.paragraphs.append(f"Amplitude-related bias corrected with slope {k_amp:.2f}"
+                                  + ("" if k_sigma is None else f" ± {k_sigma:.2f}") + f" mm per ln(A_white/A) ({k_src}).")
     if ref_path is None:
         out.paragraphs.append("No reference.ply in DATA_DIR: the model was built but not assessed.")
     else:
