@@ -8,17 +8,7 @@ from scipy.spatial.transform import Rotation
 from tofmetry.reconstruct import AdjustView, global_adjust, rotation_angle_deg
 from tofmetry.reconstruct._adjust_prior import pose_prior_terms
 
-
-def _look_at(c: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """Camera-to-world pose (x right, y down, z forward) at ``c`` looking at ``target`` (world z up)."""
-    z = target - c
-    z /= np.linalg.norm(z)
-    x = np.cross(z, [0.0, 0.0, 1.0])
-    x /= np.linalg.norm(x)
-    T = np.eye(4)
-    T[:3, :3] = np.column_stack([x, np.cross(z, x), z])
-    T[:3, 3] = c
-    return T
+from .test_adjust import _look_at
 
 
 def _vase(n: int, rng) -> tuple[np.ndarray, np.ndarray]:

@@ -68,7 +68,8 @@ def object_from_first_view(capture: str | os.PathLike, calibration=None) -> tupl
     cap = Capture(capture)
     intr = calibration.intrinsics if calibration is not None else cap.intrinsics()[0]
     v = prepare_view(cap.depth_stack(), intr, calibration, name=str(capture))
-    seg = segment_object(v.points, height_tolerance_m=extrapolated_points(v.points, calibration)[1])
+    seg = segment_object(v.points, height_tolerance_m=extrapolated_points(v.points, calibration)[1],
+                         normals=v.normals, grid=(v.index, intr.shape))
     n = seg.plane[:3]
     obj = v.points[seg.object_mask]
     h = obj @ n + seg.plane[3]

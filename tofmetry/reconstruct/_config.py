@@ -38,6 +38,11 @@ class SegmentConfig(BaseModel):
     ring_mm: float = Field(60.0, ge=0, description="support-plane ring kept around the object footprint for registration [mm]")
     max_footprint_mm: float = Field(600.0, gt=0, description="object points farther than this (in the plane) from the "
                                     "cluster nearest the optical axis are background [mm]")
+    support_band_mm: float = Field(30.0, ge=0, description="pixels lower than this [mm], level (normal within "
+                                   "support_tilt_deg of the plane's) and joined smoothly on the image to the plane's "
+                                   "inliers are support, not object: a table whose depth bends out of the plane's "
+                                   "tolerance (near the end of the calibrated range) otherwise joins the object. 0: off")
+    support_tilt_deg: float = Field(20.0, gt=0, le=90, description="... level within this angle [deg]")
 
 
 class RegistrationConfig(BaseModel):

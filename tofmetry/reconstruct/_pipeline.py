@@ -139,7 +139,8 @@ class ReconstructionPipeline:
         v = prepare_view(cap.depth_stack(), intr, cal, self.cfg.preprocess, name=name, ir=ir, white_map=white_map)
         outside, tol = extrapolated_points(v.points, cal)
         try:
-            s = segment_object(v.points, self.cfg.segment, seed=self.cfg.registration.seed, height_tolerance_m=tol)
+            s = segment_object(v.points, self.cfg.segment, seed=self.cfg.registration.seed, height_tolerance_m=tol,
+                               normals=v.normals, grid=(v.index, intr.shape))
         except EstimationError as exc:
             raise EstimationError(f"view {name}: {exc}") from None
         v.stats["object_points"] = int(s.object_mask.sum())

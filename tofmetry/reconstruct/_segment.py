@@ -11,6 +11,7 @@ from tofmetry._shared.geometry import fit_plane_svd
 from tofmetry.errors import EstimationError
 from tofmetry.reconstruct._config import SegmentConfig
 from tofmetry.reconstruct._o3d import quiet, to_pcd
+from tofmetry.reconstruct._support import support_region
 
 
 @dataclass
@@ -104,7 +105,8 @@ def fit_support_plane(points: np.ndarray, threshold_m: float, seed: int = 0) -> 
 
 
 def segment_object(points: np.ndarray, config: SegmentConfig | None = None, seed: int = 0,
-                   height_tolerance_m: np.ndarray | None = None) -> Segmentation:
+                   height_tolerance_m: np.ndarray | None = None, normals: np.ndarray | None = None,
+                   grid: tuple[np.ndarray, tuple[int, int]] | None = None) -> Segmentation:
     """Segment the object standing on the support plane.
 
     Parameters
@@ -114,6 +116,10 @@ def segment_object(points: np.ndarray, config: SegmentConfig | None = None, seed
         point's depth may be off beyond the plane fit's own tolerance (depth the calibration only
         extrapolates to: the support plane there can read millimetres off, and a band of it would
         otherwise stand "on" the plane and join the object)
+    normals, grid : optional (N, 3) unit normals toward the camera and (flat pixel index (N,), image
+        shape): with both (and ``config.support_band_mm`` > 0), what continues the support plane
+        smoothly and level on the image grid is support, not object, however far the measured
+        table bends from the fitted plane (:func:`~tofmetry.reconstruct._support.support_region`)
 
     Raises
     ------
@@ -127,6 +133,9 @@ def segment_object(points: np.ndarray, config: SegmentConfig | None = None, seed
     h = points @ plane[:3] + plane[3]
     floor = cfg.min_height_mm * 1e-3 + (0.0 if height_tolerance_m is None else np.asarray(height_tolerance_m))
     cand = (h > floor) & (h < cfg.max_height_mm * 1e-3)
+    if normals is not None and grid is not None and cfg.support_band_mm > 0:
+        cand &= ~support_region(points, normals, grid[0], grid[1], plane, cfg.plane_threshold_mm * 1e-3,
+                                cfg.support_band_mm * 1e-3, cfg.support_tilt_deg)
     if cand.sum() < 50:
         raise EstimationError(f"segmentation: only {int(cand.sum())} points stand on the support plane "
                               f"(plane holds {share:.0%} of the view); use --keep-all to skip segmentation")
