@@ -242,6 +242,28 @@ def test_amplitude_bias_model():
     assert PAPER_K_MM_PER_LN == pytest.approx(6.697, abs=1e-3)
 
 
+def test_amplitude_correction_is_clipped_in_units_of_darkness_not_millimetres():
+    """A frontal wall at 0.9 m, e^2.5 darker than white: a sensor with k = 11.4 mm per ln unit reads
+    it 28.5 mm long. The default clip (2.985 ln units times k: 20 mm at the study's k) corrects all of
+    it; the old fixed 20 mm left 8.5 mm (on a painted bar: model mean |d| 3.6 mm instead of 0.29)."""
+    from tofmetry.reconstruct import PreprocessConfig, prepare_view
+
+    intr = KINECT_V2.depth
+    rays = intr.ray_table(True)
+    norm = np.sqrt(rays[..., 0] ** 2 + rays[..., 1] ** 2 + 1.0)
+    a0 = 12000.0
+    wm = np.full(intr.shape, a0)
+    read = 900.0 + 11.4 * 2.5
+    ir = a0 / (read * 1e-3 * norm) ** 2 / np.exp(2.5)  # the amplitude at the depth the sensor reports
+    stack = np.full((3,) + intr.shape, read, np.float32)
+    for clip, expect in ((None, 900.0), (20.0, read - 20.0)):
+        cfg = PreprocessConfig(amplitude_k_mm_per_ln=11.4, amplitude_max_mm=clip)
+        v = prepare_view(stack, intr, None, cfg, name="wall", ir=ir, white_map=wm)
+        h, w = intr.shape[0] // 2, intr.shape[1] // 2
+        centre = v.depth_mm[h - 20:h + 20, w - 20:w + 20]
+        assert np.median(centre) == pytest.approx(expect, abs=0.05), (clip, np.median(centre))
+
+
 def test_information_matrix_point_to_plane_sees_the_sliding_directions():
     """Two copies of a flat patch (z = 1 m, normal toward the camera): point-to-plane matches
     constrain only the depth translation and the two tilts. The information along the in-plane

@@ -106,7 +106,10 @@ def prepare_view(stack: np.ndarray, intr: CameraIntrinsics, calibration=None, co
     amp_mean = 0.0
     if white_map is not None and ir is not None:
         b = amplitude_bias_mm(depth, ir, white_map, intr, cfg.amplitude_k_mm_per_ln)
-        b = np.clip(b, -cfg.amplitude_max_mm, cfg.amplitude_max_mm)
+        clip = cfg.amplitude_max_mm
+        if clip is None:  # in units of the regressor: the same darkness is clipped whatever the sensor's k
+            clip = cfg.amplitude_max_ln * abs(cfg.amplitude_k_mm_per_ln)
+        b = np.clip(b, -clip, clip)
         depth = np.where(depth > 0, depth - b, 0.0)
         amp_mean = float(np.median(b[depth > 0])) if (depth > 0).any() else 0.0
     n_flying = 0
