@@ -86,10 +86,10 @@ def stage_model(ctx: StudyContext, out: StageOutcome) -> None:
         white = None
         if cal is not None and mc.amplitude_correction:
             white = _white_map(ctx, cal, out)
-            if white is not None:
+            if white is not None and k_sigma is not None:  # measured: its uncertainty bounds the scan's own dk
+                cfg = with_measured_amplitude_slope(cfg, AmplitudeSlope(k_amp, k_sigma))
+            elif white is not None:
                 cfg.preprocess.amplitude_k_mm_per_ln = k_amp
-                if k_sigma is not None:  # measured: its uncertainty bounds the scan's own correction dk
-                    cfg = with_measured_amplitude_slope(cfg, AmplitudeSlope(k_amp, k_sigma))
         rdir = d / label
         res = reconstruct_scan(scan, cal, rdir, config=cfg, white_map=white, force=True)
         tm = res.diagnostics.get("timings_s", {})
