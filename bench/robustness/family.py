@@ -175,12 +175,12 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
                timings=res.diagnostics.get("timings_s"),
                verdicts={"views": res.diagnostics["reliability"].get("views"),
                          "loop_pose_bound": res.diagnostics["reliability"].get("loop_pose_bound"),
-                         "edges": [{k: e.get(k) for k in ("source", "target", "verdict", "reason", "fitness")}
+                         "edges": [{k: e.get(k) for k in ("source", "target", "verdict", "reason", "fitness", "method")}
                                    for e in res.edges]},
                scale=res.diagnostics.get("scale"), adjustment=res.diagnostics.get("adjustment"),
                consistency={k: v for k, v in res.diagnostics["consistency"].items() if k != "selection"},
                selection={k: v for k, v in (res.diagnostics["consistency"].get("selection") or {}).items()
-                          if k in ("changed", "dropped", "spread", "ambiguous_with", "reasons")},
+                          if k in ("changed", "dropped", "spread", "ambiguous_with", "reasons", "ir_vetoed")},
                pose_errors=pe.to_dict(),
                plan=res.diagnostics.get("plan"), amplitude_slope=res.diagnostics.get("amplitude_slope"))
     model = Geometry(res.mesh_vertices, res.mesh_triangles, source="model")

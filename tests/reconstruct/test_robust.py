@@ -242,7 +242,11 @@ def test_the_ir_albedo_decides_between_flips_the_geometry_cannot_tell_apart():
                 pg.add(replace(_edge(P, i, i + 1), ir_corr=0.8))
         pg.add(replace(_edge(P, 0, 5), ir_corr=0.8))
         rep = pg.select_hypotheses(2.0, 10.0, 0.05)
-        assert not rep["reasons"] and rep["decided_by_ir"]["n_tied"] == 2, rep
+        assert not rep["reasons"], rep
+        if flipped_primary:  # the flip is chosen first: the two tie, and the IR decides between them
+            assert rep["decided_by_ir"]["n_tied"] == 2 and not rep["ir_vetoed"], rep
+        else:  # the true one is chosen first and lines the pattern up: the IR vetoes the flips at once
+            assert rep["ir_vetoed"] == ["01->02", "03->04"] and "decided_by_ir" not in rep, rep
         res = pg.optimize(0.003)
         for k in range(6):
             np.testing.assert_allclose(res.poses[k], np.linalg.inv(P[0]) @ P[k], atol=1e-6)
@@ -259,3 +263,29 @@ def test_without_albedo_contrast_the_flips_stay_ambiguous():
     pg.add(_edge(P, 0, 5))
     rep = pg.select_hypotheses(2.0, 10.0, 0.05)
     assert any("registration ambiguous" in r for r in rep["reasons"]) and "decided_by_ir" not in rep
+
+
+def test_alternatives_the_pattern_contradicts_are_not_chosen_for_a_trivially_closing_loop():
+    # a painted vase: every edge's pattern-decided yaw (correlation 0.9) carries a small error, so
+    # their loop closes only to ~3 deg / 40 mm; the geometric alternatives put every camera at the
+    # same place on the turned surface (no turn at all), a loop that closes exactly, at a slightly
+    # higher fitness. The pattern contradicts them (correlation 0.0): the selection must keep the
+    # pattern's choice and spread its closure, not turn the cameras into one.
+    from dataclasses import replace
+
+    P = _circle_poses(8)
+    pg = PoseGraphBuilder(8, [f"{k:02d}" for k in range(8)])
+    edges = [(i, i + 1) for i in range(7)] + [(0, 7)]
+    for i, j in edges:
+        e = _edge(P, i, i + 1 if j == i + 1 else j, 0.95)
+        R = np.eye(4)
+        a = np.radians(0.4)
+        R[:3, :3] = [[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]]
+        ir = replace(e, transform=R @ e.transform, ir_corr=0.9,
+                     ir_yaw={"decided": True, "correlation": 0.9, "margin": 0.5})
+        still = replace(e, transform=np.eye(4), fitness=0.99, ir_corr=0.0)
+        pg.add(replace(ir, alternatives=[still]))
+    rep = pg.select_hypotheses(2.0, 10.0, 0.05, spread_deg=6.0, spread_mm=40.0)
+    chosen = [p for p in pg.pairs if p.accepted]
+    assert len(chosen) == 8 and all(p.ir_corr == 0.9 for p in chosen), rep
+    assert len(rep["ir_vetoed"]) == 8 and not rep["changed"], rep

@@ -252,27 +252,42 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
         # the geometry leaves the yaw free: let the painted pattern (IR amplitude) choose it
         sw = ir_yaw_sweep(src, tgt, best.transform, r_final)
         if sw["decided"]:
-            T0 = sw.pop("transform")
-            T = _refine_fine(src, tgt, T0, cfg)
-            fit, rmse = object_fitness(src, tgt, T, r_final)
-            c = ir_agreement(src, tgt, T, r_final)
-            if cfg.ir_icp:
-                # the geometric ICP is free to slide in yaw here: the pattern holds it (measured on a
-                # painted vase at 0.74 m: the geometric refinement left 7.4 degrees, the pattern 1.4)
-                Tp = photometric_icp(src, tgt, T0, tuple(x * 1e-3 for x in cfg.icp_radii_mm[-2:]), cfg.ir_icp_lambda)
-                fit_p, rmse_p = object_fitness(src, tgt, Tp, r_final)
-                cp = ir_agreement(src, tgt, Tp, r_final)
-                if cp is not None and (c is None or cp > c) and fit_p >= fit - 0.005:
-                    T, fit, rmse, c = Tp, fit_p, rmse_p, cp
-            v = vis(T)
-            ok = _passes(fit, rmse, cfg) and v <= cfg.max_see_through
-            best = _pair_result(src, tgt, i, j, T, fit, rmse, v, best.method + "+ir-yaw", ok, r_final, ir_yaw=sw,
-                                ir_corr=c)
-            return _with_ir(replace(best, alternatives=[a for a in out if not _same_pose(a.transform, T)]), src, tgt,
-                            r_final)
-        sw.pop("transform", None)
+            turned = _ir_turned(src, tgt, i, j, sw.pop("transform"), cfg, r_final, vis, best.method + "+ir-yaw", sw)
+            return _with_ir(replace(turned, alternatives=[a for a in out if not _same_pose(a.transform, turned.transform)]),
+                            src, tgt, r_final)
+        cands = sw.pop("candidates", None)
+        if cands:
+            # two yaws line the pattern up better than the geometric choice: both become hypotheses
+            # (the better first) and the loops of the views choose (select_hypotheses); the geometric
+            # ones stay as alternatives, which the pattern then vetoes
+            turned = [_ir_turned(src, tgt, i, j, T0, cfg, r_final, vis, best.method + "+ir-yaw-candidate", sw)
+                      for T0 in cands]
+            turned = [t for t in turned if t.accepted]
+            if turned and (best.ir_corr is None or turned[0].ir_corr is not None and turned[0].ir_corr > best.ir_corr):
+                rest = [a for a in turned[1:] + out if not _same_pose(a.transform, turned[0].transform)]
+                return _with_ir(replace(turned[0], alternatives=rest), src, tgt, r_final)
         best = replace(best, ir_yaw=sw)
     return _with_ir(replace(best, alternatives=out[1:]), src, tgt, r_final)
+
+
+def _ir_turned(src: RegView, tgt: RegView, i: int, j: int, T0: np.ndarray, cfg: RegistrationConfig, r_final: float,
+               vis, method: str, sweep: dict) -> PairResult:
+    """The hypothesis of a yaw the IR pattern chose (``T0``, source -> target), refined: the geometric
+    ICP, and the photometric one where it lines the pattern up better at the same fitness."""
+    T = _refine_fine(src, tgt, T0, cfg)
+    fit, rmse = object_fitness(src, tgt, T, r_final)
+    c = ir_agreement(src, tgt, T, r_final)
+    if cfg.ir_icp:
+        # the geometric ICP is free to slide in yaw here: the pattern holds it (measured on a
+        # painted vase at 0.74 m: the geometric refinement left 7.4 degrees, the pattern 1.4)
+        Tp = photometric_icp(src, tgt, T0, tuple(x * 1e-3 for x in cfg.icp_radii_mm[-2:]), cfg.ir_icp_lambda)
+        fit_p, rmse_p = object_fitness(src, tgt, Tp, r_final)
+        cp = ir_agreement(src, tgt, Tp, r_final)
+        if cp is not None and (c is None or cp > c) and fit_p >= fit - 0.005:
+            T, fit, rmse, c = Tp, fit_p, rmse_p, cp
+    v = vis(T)
+    ok = _passes(fit, rmse, cfg) and v <= cfg.max_see_through
+    return _pair_result(src, tgt, i, j, T, fit, rmse, v, method, ok, r_final, ir_yaw=sweep, ir_corr=c)
 
 
 def _pair_result(src: RegView, tgt: RegView, i: int, j: int, T: np.ndarray, fit: float, rmse_m: float, v: float,
