@@ -22,10 +22,11 @@ def _vase(n: int, rng) -> tuple[np.ndarray, np.ndarray]:
     return p, nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
 
 
-def _views(poses, rng, noise_m, n=30000):
+def _views(poses, rng, noise_m, n=30000, surface=_vase):
+    """Each camera's visible samples of ``surface(n, rng) -> (points, normals)`` with depth noise, as AdjustViews."""
     out = []
     for T in poses:
-        p, nrm = _vase(n, rng)
+        p, nrm = surface(n, rng)
         vis = np.einsum("ij,ij->i", nrm, T[:3, 3] - p) / np.linalg.norm(T[:3, 3] - p, axis=1) > 0.3
         Ti = np.linalg.inv(T)
         pc = p[vis] @ Ti[:3, :3].T + Ti[:3, 3]

@@ -46,6 +46,9 @@ class AdjustResult:
         adjustment with ``dk`` free, and the gain's regression on it (gain per m per ln unit): how
         far the gain moves when ``k`` is wrong, which is how the amplitude coefficient's
         uncertainty enters the gain's (:func:`~tofmetry.reconstruct._verdict.scale_report`)
+    restart : the adjustment restarted from the far side of its solution
+        (:func:`~tofmetry.reconstruct._adjust_restart.restart_probe`: ``deg``, ``mm``, ``view``,
+        ``start_deg``, ``per_view_deg``; ``{"failed": reason}``), or None when not run
     """
 
     poses: np.ndarray
@@ -82,6 +85,7 @@ class AdjustResult:
     amplitude_note: str = "not asked for"
     amplitude_gain_correlation: float = float("nan")
     amplitude_gain_slope: float = float("nan")
+    restart: dict | None = None
 
     def amplitude_report(self) -> dict:
         """The amplitude-bias correction ``dk`` [mm per ln unit] with its standard errors."""
@@ -129,6 +133,7 @@ class AdjustResult:
                 {n: round(float(x), 5) for n, x in zip(names, self.pose_sigma_deg)},
                 "pose_sigma_mm": None if self.pose_sigma_mm is None else
                 {n: round(float(x), 4) for n, x in zip(names, self.pose_sigma_mm)},
+                "restart": self.restart,
                 "pairs": [{"source": names[i], "target": names[j], "n": int(self.pair_counts[i, j]),
                            "rms_mm": round(float(self.pair_rms_mm[i, j]), 3)}
                           for i in range(len(names)) for j in range(len(names)) if self.pair_counts[i, j] > 0]}

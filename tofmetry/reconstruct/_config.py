@@ -206,6 +206,10 @@ class RegistrationConfig(BaseModel):
     max_calibration_mm: float = Field(1.5, gt=0, description="a depth calibration that predicts a larger central error "
                                       "between its stations makes the run unreliable (a calibration that only doubts its prediction "
                                       "is a warning) [mm]")
+    restart_check: bool = Field(True, description="when the global adjustment moved a view by more than half the pose "
+                                "gate, restart it from the pose graph's poses reflected through its solution (moved at "
+                                "least the pose gate); a restart that ends more than half the pose gate away makes the run "
+                                "unreliable: the points leave a direction free (reconstruct._adjust_restart)")
     pose_gate_deg: float = Field(0.5, gt=0, description="pose accuracy the verdict vouches for: rotation [deg]")
     pose_gate_mm: float = Field(3.0, gt=0, description="... and displacement of the object [mm]")
     max_left_out: float = Field(0.25, ge=0, le=1, description="more than this share of the views left out of the "

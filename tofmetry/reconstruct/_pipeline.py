@@ -16,6 +16,7 @@ from scipy.spatial import cKDTree
 from tofmetry._shared.geometry import fit_plane_svd, transform_points
 from tofmetry.errors import EstimationError, InputError, SensorMismatchError
 from tofmetry.reconstruct._adjust import AdjustView, apply_depth_gain, global_adjust
+from tofmetry.reconstruct._adjust_restart import restart_probe
 from tofmetry.reconstruct._adjust_result import (
     AdjustResult,
     keep_amplitude_if_it_explains,
@@ -256,8 +257,8 @@ class ReconstructionPipeline:
                            (r.icp_points, r.icp_normals, r.icp_points, r.icp_normals, r.icp_amp, r.icp_amp)) for r in regs]
         amp_prior = rc.amplitude_k_prior_mm if self.white_map is not None else None
 
-        def run(amplitude_prior_mm: float | None) -> AdjustResult:
-            return global_adjust(av, poses, z_ref, tuple(x * 1e-3 for x in rc.adjust_radii_mm), rc.adjust_iters,
+        def run(amplitude_prior_mm: float | None, start: np.ndarray = poses) -> AdjustResult:
+            return global_adjust(av, start, z_ref, tuple(x * 1e-3 for x in rc.adjust_radii_mm), rc.adjust_iters,
                                  estimate_gain=rc.estimate_depth_gain, gain_prior_sigma=rc.depth_gain_prior,
                                  gain_max_sigma=rc.gain_max_sigma, sigma_inflation=rc.sigma_inflation,
                                  gain_max_abs=None if sg_cal is None else rc.gain_max_calibration_sigmas * sg_cal,
@@ -271,6 +272,9 @@ class ReconstructionPipeline:
                 res = run(None)
                 if amp_prior is not None:
                     res = keep_amplitude_if_it_explains(res, run(amp_prior), rc.amplitude_min_rms_drop)
+                if rc.restart_check and float(np.max(res.moved_deg)) > rc.pose_gate_deg / 2:
+                    res.restart = self._restart(res, poses, av, lambda S: run(
+                        amp_prior if res.amplitude_estimated else None, S).poses)
             except EstimationError as exc:  # keep the pose-graph poses; the reason goes to the diagnostics
                 self.adjust_failure = str(exc)
                 return None
@@ -295,6 +299,17 @@ class ReconstructionPipeline:
                 if on_plane is not None and on_plane.sum() >= 3:  # the support plane moved with its points
                     s.plane = fit_plane_svd(v.points[on_plane], orient=s.plane[:3])
         return res
+
+    def _restart(self, res: AdjustResult, start: np.ndarray, av: list[AdjustView], rerun) -> dict:
+        """:func:`restart_probe` of the adjustment ``res`` started at ``start`` (``rerun``: the same
+        adjustment from other poses), measured on ~5000 of the views' object points; a restart that
+        fails says why (``{"failed": reason}``; the verdict weighs it)."""
+        obj = np.concatenate([v.source @ T[:3, :3].T + T[:3, 3] for v, T in zip(av, res.poses)])
+        obj = obj[:: max(1, len(obj) // 5000)]
+        try:
+            return restart_probe(res.poses, start, rerun, obj, self.cfg.registration.pose_gate_deg)
+        except EstimationError as exc:
+            return {"failed": str(exc)}
 
     def _scale_budget(self, views: list[ViewData], segs: list[Segmentation], poses: np.ndarray, intr, z_ref: float):
         """``(offset_sigma_m, gain_sigma) -> dict``: :func:`scale_budget` on the object points of
