@@ -1,6 +1,6 @@
 """Time an 8-view reconstruction end to end (target: <= 30 s on 2 cores).
 
-``.venv/bin/python -m bench.robustness.timing [--rounds 3] [--frames 10] [--seed 0]``
+``.venv/bin/python -m bench.robustness.timing [--rounds 3] [--frames 10] [--seed 0] [--set STAGE.FIELD=JSON ...]``
 
 The default scan of ``tofmetry simulate scan`` (the balustrade-like object, 8 views at 1 m, 10
 frames per view) and a depth calibration fitted by tofmetry's chain on a 5-station wall dataset
@@ -26,7 +26,12 @@ CHILD = r"""
 import json, sys, time
 t0 = time.perf_counter()
 from tofmetry.pipelines.reconstruct import reconstruct_scan
-res = reconstruct_scan(sys.argv[1], sys.argv[2], sys.argv[3], amplitude_wall=sys.argv[4], force=True)
+from tofmetry.reconstruct import ReconstructionConfig
+from bench.robustness.family import override
+cfg = ReconstructionConfig()
+for item in sys.argv[5:]:
+    cfg = override(cfg, item)
+res = reconstruct_scan(sys.argv[1], sys.argv[2], sys.argv[3], config=cfg, amplitude_wall=sys.argv[4], force=True)
 print(json.dumps({"wall_s": time.perf_counter() - t0, "stages_s": res.diagnostics["timings_s"],
                   "reliable": res.diagnostics["reliable"], "views": len(res.names)}))
 """
@@ -37,6 +42,8 @@ def main(argv=None) -> int:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--frames", type=int, default=10)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--set", action="append", default=[], metavar="STAGE.FIELD=JSON",
+                    help="override one field of the reconstruction config (repeatable; for A/B runs)")
     a = ap.parse_args(argv)
     from tofmetry.simulate import datasets
 
@@ -50,7 +57,8 @@ def main(argv=None) -> int:
     for k in range(a.rounds):
         t = time.perf_counter()
         out = subprocess.run([sys.executable, "-c", CHILD, str(scan), str(work / "cal.npz"), str(work / f"rec{k}"),
-                              str(wall)], capture_output=True, text=True, check=True)
+                              str(wall), *a.set], capture_output=True, text=True, check=True,
+                             env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])})
         r = json.loads(out.stdout.strip().splitlines()[-1])
         r["process_s"] = time.perf_counter() - t
         runs.append(r)
