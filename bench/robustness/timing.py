@@ -26,11 +26,13 @@ CHILD = r"""
 import json, sys, time
 t0 = time.perf_counter()
 from tofmetry.pipelines.reconstruct import reconstruct_scan
-from tofmetry.reconstruct import ReconstructionConfig
-from bench.robustness.family import override
-cfg = ReconstructionConfig()
-for item in sys.argv[5:]:
-    cfg = override(cfg, item)
+cfg = None
+if sys.argv[5:]:  # A/B runs only: the family bench's parser of STAGE.FIELD=JSON (imported only then)
+    from tofmetry.reconstruct import ReconstructionConfig
+    from bench.robustness.family import override
+    cfg = ReconstructionConfig()
+    for item in sys.argv[5:]:
+        cfg = override(cfg, item)
 res = reconstruct_scan(sys.argv[1], sys.argv[2], sys.argv[3], config=cfg, amplitude_wall=sys.argv[4], force=True)
 print(json.dumps({"wall_s": time.perf_counter() - t0, "stages_s": res.diagnostics["timings_s"],
                   "reliable": res.diagnostics["reliable"], "views": len(res.names)}))
