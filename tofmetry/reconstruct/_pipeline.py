@@ -273,7 +273,7 @@ class ReconstructionPipeline:
                 if amp_prior is not None:
                     res = keep_amplitude_if_it_explains(res, run(amp_prior), rc.amplitude_min_rms_drop)
                 if rc.restart_check and float(np.max(res.moved_deg)) > rc.pose_gate_deg / 2:
-                    res.restart = self._restart(res, poses, av, lambda S: run(
+                    res.restart = self._restart(res, poses, regs, lambda S: run(
                         amp_prior if res.amplitude_estimated else None, S).poses)
             except EstimationError as exc:  # keep the pose-graph poses; the reason goes to the diagnostics
                 self.adjust_failure = str(exc)
@@ -300,11 +300,11 @@ class ReconstructionPipeline:
                     s.plane = fit_plane_svd(v.points[on_plane], orient=s.plane[:3])
         return res
 
-    def _restart(self, res: AdjustResult, start: np.ndarray, av: list[AdjustView], rerun) -> dict:
+    def _restart(self, res: AdjustResult, start: np.ndarray, regs: list[RegView], rerun) -> dict:
         """:func:`restart_probe` of the adjustment ``res`` started at ``start`` (``rerun``: the same
-        adjustment from other poses), measured on ~5000 of the views' object points; a restart that
-        fails says why (``{"failed": reason}``; the verdict weighs it)."""
-        obj = np.concatenate([v.source @ T[:3, :3].T + T[:3, 3] for v, T in zip(av, res.poses)])
+        adjustment from other poses), measured on ~5000 of the views' object points (not the ground
+        ring); a restart that fails says why (``{"failed": reason}``; the verdict weighs it)."""
+        obj = np.concatenate([r.obj_points @ T[:3, :3].T + T[:3, 3] for r, T in zip(regs, res.poses)])
         obj = obj[:: max(1, len(obj) // 5000)]
         try:
             return restart_probe(res.poses, start, rerun, obj, self.cfg.registration.pose_gate_deg)
