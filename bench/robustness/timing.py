@@ -55,12 +55,15 @@ def main(argv=None) -> int:
     exe = Path(sys.executable).with_name("tofmetry")
     subprocess.run([str(exe), "calibrate", "depth", str(wall), "--reference-offset-mm", "20", "-o", str(work / "cal.npz")],
                    check=True, capture_output=True)
+    env = dict(os.environ)
+    if a.set:  # the child imports the family bench's STAGE.FIELD=JSON parser: the repository goes first on the path
+        env["PYTHONPATH"] = os.pathsep.join([str(Path(__file__).resolve().parents[2])]
+                                            + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
     runs = []
     for k in range(a.rounds):
         t = time.perf_counter()
         out = subprocess.run([sys.executable, "-c", CHILD, str(scan), str(work / "cal.npz"), str(work / f"rec{k}"),
-                              str(wall), *a.set], capture_output=True, text=True, check=True,
-                             env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])})
+                              str(wall), *a.set], capture_output=True, text=True, check=True, env=env)
         r = json.loads(out.stdout.strip().splitlines()[-1])
         r["process_s"] = time.perf_counter() - t
         runs.append(r)

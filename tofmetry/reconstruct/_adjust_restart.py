@@ -31,7 +31,7 @@ from typing import Callable
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from tofmetry._shared.geometry import rotation_angle_deg
+from tofmetry._shared.geometry import rotation_angle_deg, transform_points
 
 
 def reflected_start(solution: np.ndarray, start: np.ndarray, min_deg: float = 0.0) -> np.ndarray:
@@ -88,8 +88,7 @@ def restart_probe(solution: np.ndarray, start: np.ndarray, rerun: Callable[[np.n
     for v in range(len(J)):
         E = R2[v] @ np.linalg.inv(J[v])  # world-frame difference (left increment)
         deg.append(rotation_angle_deg(E))
-        mm.append(float(np.linalg.norm(pts @ (E[:3, :3] - np.eye(3)).T + E[:3, 3], axis=1).max()) * 1e3
-                  if len(pts) else 0.0)
+        mm.append(float(np.linalg.norm(transform_points(pts, E) - pts, axis=1).max()) * 1e3 if len(pts) else 0.0)
     k = int(np.argmax(deg))
     return {"deg": round(float(deg[k]), 4), "mm": round(float(max(mm)), 3), "view": k,
             "start_deg": round(float(max(rotation_angle_deg(S[v] @ np.linalg.inv(J[v])) for v in range(len(J)))), 4),

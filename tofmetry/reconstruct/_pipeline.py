@@ -304,7 +304,7 @@ class ReconstructionPipeline:
         """:func:`restart_probe` of the adjustment ``res`` started at ``start`` (``rerun``: the same
         adjustment from other poses), measured on ~5000 of the views' object points (not the ground
         ring); a restart that fails says why (``{"failed": reason}``; the verdict weighs it)."""
-        obj = np.concatenate([r.obj_points @ T[:3, :3].T + T[:3, 3] for r, T in zip(regs, res.poses)])
+        obj = np.concatenate([transform_points(r.obj_points, T) for r, T in zip(regs, res.poses)])
         obj = obj[:: max(1, len(obj) // 5000)]
         try:
             return restart_probe(res.poses, start, rerun, obj, self.cfg.registration.pose_gate_deg)

@@ -219,9 +219,10 @@ def _judge_move(adjustment: dict, names: list[str], pose_gate_deg: float, pose_g
     * A move beyond ``pose_gate_deg`` is a reason even when the restart came back: the restart shows
       that the points determine the joint fit locally, not that they are consistent with the truth.
       Measured on the family (2026-11-27): clearing such moves freed seven right runs (domes, a box, a
-      rocker arm, bunnies, a fandisk: the pose graph had been off) but let two plaques through, 1.11 deg
-      / 4.1 mm and 0.38 deg / 4.2 mm off, whose registration thins the slab consistently in every pair
-      (a stable wrong solution: restarts came back to 0.25 and 0.03 deg). The reason then says that the
+      rocker arm, bunnies, a fandisk: the pose graph had been off) but let three wrong runs through: an
+      igea 0.58 deg off and two plaques, 1.11 deg / 4.1 mm and 0.38 deg / 4.2 mm off, whose registration
+      thins the slab consistently in every pair (a stable wrong solution: restarts came back to 0.25 and
+      0.03 deg). The reason then says that the
       fit is determined, so that the disagreement lies between the pairs and the joint fit.
     * A failed restart is a reason when the move is beyond the gate, a warning below it.
     """
