@@ -104,6 +104,10 @@ def drift_case(seed: int, work: Path, errors: str = "all", noise_seed: int | Non
             "max_mm": round(float(np.linalg.norm(disp, axis=1).max()), 3), "max_deg": round(max(rot), 4),
             "rot_deg": round(float(pe.rot_deg.max()), 4), "object_mm": round(float(pe.object_mm.max()), 3),
             "truly_wrong": bool(pe.rot_deg.max() > GATE_DEG or pe.object_mm.max() > GATE_MM),
+            "range_curve_mm": None if res.range_curve_m is None else np.round(np.asarray(res.range_curve_m) * 1e3, 4).tolist(),
+            "range_curve_sigma_data_mm": None if res.range_curve_sigma_data_m is None else
+            np.round(np.asarray(res.range_curve_sigma_data_m) * 1e3, 4).tolist(),
+            "range_curve_note": getattr(res, "range_curve_note", None),
             "seconds": round(time.perf_counter() - t0, 1)}
 
 
