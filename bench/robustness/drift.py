@@ -47,8 +47,13 @@ def keep_errors(draw, errors: str):
     """``draw`` with only the error terms ``errors`` names (see the module docstring)."""
     if errors == "all":
         return draw
+    from tofmetry.simulate.errors import TERMS
+
     em = draw.sensor.errors
     keep = {"quantize"} | ({"noise"} if errors == "noise" else set() if errors == "clean" else set(errors.split(",")))
+    if keep - set(TERMS):
+        raise SystemExit(f"--errors {errors!r}: unknown term(s) {sorted(keep - set(TERMS))}; expected all, clean, "
+                         f"noise or a comma list of {', '.join(TERMS)}")
     draw.sensor = draw.sensor.with_errors(em.without(*[t for t in em.enabled if t not in keep]))
     return draw
 
