@@ -18,11 +18,11 @@ at the object's centre from view 0 along the object's principal axes (largest ex
 only some error terms of the sensor (``clean``: none but the 1 mm quantisation; ``noise``: the
 temporal noise as well; a comma list of :data:`tofmetry.simulate.errors.TERMS`; default: all).
 
-Measured (2026-11-27, rows in ``bench/results/object_drift_from_truth_rows.jsonl``), 16 draws of the
-family with every error term on: the fit ends 0.03-1.77 deg / 0.32-3.53 mm from the truth, beyond the gate on 4
-(a box 0.55 deg, a vase 1.77 deg about its axis, a rocker arm 0.79 deg, a plaque 0.72 deg / 3.5 mm). On 9 draws
-the full chain (the family run of the same seed) ends within 0.015 deg of where this one does: their pose error
-is the joint fit's own, not the registration's. Error terms of the box, the rocker arm and the plaque: without any (1 mm
+Measured (2026-11-27, rows in ``bench/results/object_drift_from_truth_rows.jsonl``), 28 family seeds
+(27 of draws 17-18, one of draw 15) with every error term on: the fit ends 0.03-1.77 deg / 0.32-3.53 mm from the truth, beyond
+the gate on 8 (four plaques, a box, a vase about its axis, a rocker arm, a pebble), and on 16 the full chain
+(the family run of the same seed) ends within 0.015 deg of where this one does: their pose error is the joint
+fit's own, not the registration's. Error terms of the box, the rocker arm and the plaque: without any (1 mm
 quantisation only) 0.03 / 0.04 / 0.25 deg; noise alone 0.12 / 0.16 / 0.14 deg; noise and the calibration's
 residual range and per-pixel error (``noise,wiggling,deformation``) 0.49 / 0.44 / 0.30 deg; noise and the
 amplitude bias 0.13 / 0.24 / 0.31 deg.
