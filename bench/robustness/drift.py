@@ -65,15 +65,14 @@ def drift_case(seed: int, work: Path, errors: str = "all", noise_seed: int | Non
     from tofmetry.io import ScanDataset, read_json
     from tofmetry.pipelines.amplitude_slope import amplitude_slope_from_boards
     from tofmetry.pipelines.reconstruct import with_measured_amplitude_slope
-    from tofmetry.reconstruct import ReconstructionConfig, ReconstructionPipeline
+    from tofmetry.reconstruct import ReconstructionConfig, ReconstructionPipeline, rotation_angle_deg
     from tofmetry.simulate import datasets
 
     t0 = time.perf_counter()
     d = keep_errors(draw_case(seed), errors)
     cal, white, _ = calibrate_sensor(d.sensor, seed)
     scan_dir = work / f"scan-{seed}"
-    mesh = (d.object.vertices, d.object.triangles) + ((d.object.albedo,) if d.object.albedo is not None else ())
-    datasets.scan(scan_dir, n_frames=n_frames, mesh=mesh, poses=d.path.poses, sensor=d.sensor,
+    datasets.scan(scan_dir, n_frames=n_frames, mesh=d.mesh, poses=d.path.poses, sensor=d.sensor,
                   seed=seed if noise_seed is None else noise_seed, force=True, info=d.describe())
     boards = board_captures(d.sensor, seed, work)
     cfg = with_measured_amplitude_slope(config or ReconstructionConfig(), amplitude_slope_from_boards(boards, cal))
@@ -96,8 +95,7 @@ def drift_case(seed: int, work: Path, errors: str = "all", noise_seed: int | Non
         P, S = res.poses[k], start[k]
         e = W[0][:3, :3] @ ((P[:3, :3] @ ck + P[:3, 3]) - (S[:3, :3] @ ck + S[:3, 3]))
         disp.append(axes @ e * 1e3)
-        R = P[:3, :3] @ S[:3, :3].T
-        rot.append(float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1)))))
+        rot.append(rotation_angle_deg(P @ np.linalg.inv(S)))
     disp = np.array(disp)
     pe = pose_errors(res.poses, W, V)  # as the family judges a run: the whole set aligned on the object
     shutil.rmtree(scan_dir, ignore_errors=True)

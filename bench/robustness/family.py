@@ -73,6 +73,12 @@ class Draw:
     path: object
     sensor: object
 
+    @property
+    def mesh(self) -> tuple:
+        """The object as ``datasets.scan`` takes it: (vertices, triangles[, albedo per triangle])."""
+        o = self.object
+        return (o.vertices, o.triangles) + ((o.albedo,) if o.albedo is not None else ())
+
     def describe(self) -> dict:
         return {"seed": self.seed, "object": self.object.to_dict(), "path": self.path.to_dict(),
                 "sensor_seed": self.sensor.seed}
@@ -147,8 +153,7 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
                           .get("predicted"), "warnings": len(cal.prediction.get("warnings", []))}
     scan_dir = work / f"scan-{seed}"
     t1 = time.perf_counter()
-    mesh = (d.object.vertices, d.object.triangles) + ((d.object.albedo,) if d.object.albedo is not None else ())
-    datasets.scan(scan_dir, n_frames=n_frames, mesh=mesh, poses=d.path.poses,
+    datasets.scan(scan_dir, n_frames=n_frames, mesh=d.mesh, poses=d.path.poses,
                   sensor=d.sensor, seed=seed, force=True, info=d.describe())
     t2 = time.perf_counter()
     row["simulate_s"] = round(t2 - t1, 1)

@@ -66,8 +66,7 @@ def ablate(seed: int, variant: str, n_frames: int = 5) -> dict:
     sensor = sensor_variant(d.sensor, variant)
     cal, white, _ = calibrate_sensor(sensor, seed)
     scan_dir = Path(tempfile.mkdtemp(prefix="tof-gain-")) / "scan"
-    mesh = (d.object.vertices, d.object.triangles) + ((d.object.albedo,) if d.object.albedo is not None else ())
-    datasets.scan(scan_dir, n_frames=n_frames, mesh=mesh, poses=d.path.poses, sensor=sensor, seed=seed, force=True)
+    datasets.scan(scan_dir, n_frames=n_frames, mesh=d.mesh, poses=d.path.poses, sensor=sensor, seed=seed, force=True)
     ds = ScanDataset(scan_dir)
     views, segs, regs, _ = ReconstructionPipeline(ds, cal, ReconstructionConfig(), white_map=white).load_views()
     by = {v["name"]: np.array(v["camera_to_world"]) for v in read_json(scan_dir / "truth.json")["views"]}
