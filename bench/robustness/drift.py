@@ -111,6 +111,8 @@ def drift_case(seed: int, work: Path, errors: str = "all", noise_seed: int | Non
             "range_curve_sigma_data_mm": None if res.range_curve_sigma_data_m is None else
             np.round(np.asarray(res.range_curve_sigma_data_m) * 1e3, 4).tolist(),
             "range_curve_note": getattr(res, "range_curve_note", None),
+            "calibration_pose": res.calibration_pose,
+            "image_tilt": res.tilt_report(),
             "seconds": round(time.perf_counter() - t0, 1)}
 
 
@@ -143,7 +145,12 @@ def main(argv=None) -> int:
             views = " ".join("[" + " ".join(f"{x:+.2f}" for x in v) + "]" for v in r["displacement_mm"])
             print(f"seed {s}: {r['object']} ({r['path']}, {r['n_views']} views, extent {r['extent_mm']} mm), "
                   f"errors {a.errors}: pose error {r['rot_deg']:.3f} deg / {r['object_mm']:.2f} mm at the object"
-                  f"{' (beyond the gate)' if r['truly_wrong'] else ''}; from view 0: {r['max_mm']:.2f} mm / "
+                  f"{' (beyond the gate)' if r['truly_wrong'] else ''}"
+                  + (f"; the calibration's residual predicts {r['calibration_pose']['rot_deg']['p50']:.3f} / "
+                     f"{r['calibration_pose']['rot_deg']['p90']:.3f} deg, {r['calibration_pose']['object_mm']['p50']:.2f} / "
+                     f"{r['calibration_pose']['object_mm']['p90']:.2f} mm (p50 / p90)" if r["calibration_pose"] else "")
+                  + f"; image tilt {r['image_tilt']['note']} {r['image_tilt']['ab_mm']}"
+                  + f"; from view 0: {r['max_mm']:.2f} mm / "
                   f"{r['max_deg']:.3f} deg, per view {views}", flush=True)
     finally:
         shutil.rmtree(work, ignore_errors=True)

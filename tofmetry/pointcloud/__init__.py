@@ -7,9 +7,10 @@ from tofmetry.pointcloud._project import (
     depth_to_xyz_image,
     sample_colors,
 )
+from tofmetry.pointcloud._smooth import project_to_local_planes
 from tofmetry.pointcloud._temporal import RunningDepthStats, TemporalStats, robust_mean_depth, temporal_stats
 
 __all__ = [
     "ColourSample", "colour_points", "colour_zbuffer", "amplitude_colors", "depth_to_points", "depth_to_xyz_image", "sample_colors",
-    "RunningDepthStats", "TemporalStats", "robust_mean_depth", "temporal_stats",
+    "project_to_local_planes", "RunningDepthStats", "TemporalStats", "robust_mean_depth", "temporal_stats",
 ]

@@ -35,182 +35,29 @@ the fixed 6.7, 0.55 mm with the true k).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
-from scipy.spatial import cKDTree
 
 from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.errors import EstimationError, InputError
+from tofmetry.reconstruct._adjust_field import DepthFieldPrior, pose_spread
 from tofmetry.reconstruct._adjust_prior import pose_prior_terms
 from tofmetry.reconstruct._adjust_result import AdjustResult
 from tofmetry.reconstruct._adjust_sigma import curve_sigmas, gain_sigmas, pose_sigmas
-from tofmetry.reconstruct._range_curve import range_basis
+from tofmetry.reconstruct._adjust_terms import (
+    AdjustView,
+    _correlation_with_gain,
+    _correspondences,
+    _exp_se3,
+    _normal_equations,
+    apply_depth_gain,
+)
+
+__all__ = ["AdjustView", "TILT_MAX_PRIORS", "apply_depth_gain", "global_adjust"]
 
 
-@dataclass
-class AdjustView:
-    """Clouds of one view for the adjustment (camera frame, metres).
-
-    Attributes
-    ----------
-    source : (M, 3) points matched against the other views (e.g. the 5 mm voxel cloud)
-    source_normals : (M, 3) their unit normals (correspondences must agree in orientation)
-    target : (K, 3) the view's surface the others are matched to (e.g. the 2.5 mm voxel cloud)
-    target_normals : (K, 3) unit normals of ``target``
-    source_amp, target_amp : (M,), (K,) ``ln(A_white / A)`` of each point (the amplitude-bias
-        regressor, dimensionless; 0 where unknown), or None: no amplitude-bias estimation
-    """
-
-    source: np.ndarray
-    source_normals: np.ndarray
-    target: np.ndarray
-    target_normals: np.ndarray
-    source_amp: np.ndarray | None = None
-    target_amp: np.ndarray | None = None
-
-
-def apply_depth_gain(points: np.ndarray, gain: float, z_ref_m: float) -> np.ndarray:
-    """Move camera-frame points along their rays: ``Z -> Z + gain (Z - z_ref)``.
-
-    Parameters
-    ----------
-    points : (N, 3) [m], camera frame (Z > 0)
-    gain : dimensionless; z_ref_m : [m]
-
-    Returns
-    -------
-    (N, 3) [m]
-    """
-    z = points[:, 2:3]
-    return points * (1.0 + gain * (z - z_ref_m) / z)
-
-
-def _exp_se3(xi: np.ndarray) -> np.ndarray:
-    """4x4 from a 6-vector (rotation vector, translation) - left update."""
-    w, t = xi[:3], xi[3:]
-    th = np.linalg.norm(w)
-    K = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
-    if th < 1e-12:
-        R = np.eye(3) + K
-    else:
-        R = np.eye(3) + np.sin(th) / th * K + (1 - np.cos(th)) / th ** 2 * K @ K
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, t
-    return T
-
-
-def _world(views: list[AdjustView], P: np.ndarray, g: float, z_ref_m: float, which: str, curve=None,
-           amp: float | None = None):
-    """World points, normals, d(point)/d(gain) and d(point)/d(depth-error coefficients) ((M, 3, E):
-    the range curve's, then the amplitude bias's) of every view's ``source`` or ``target`` cloud;
-    ``curve`` = (coefficients [m], half span [m]) or None; ``amp`` = ``dk`` [m] or None (off)."""
-    pts, nrm, dg, dc = [], [], [], []
-    for v, T in zip(views, P):
-        R, t = T[:3, :3], T[:3, 3]
-        c, n = (v.source, v.source_normals) if which == "source" else (v.target, v.target_normals)
-        z = c[:, 2:3]
-        p = apply_depth_gain(c, g, z_ref_m)
-        cols = []  # Z displacement per unit of each coefficient [m / m]
-        if curve is not None and len(curve[0]):
-            B = range_basis(c[:, 2], z_ref_m, curve[1], len(curve[0]) + 1)  # (M, D)
-            p = p + c * (B @ curve[0])[:, None] / z
-            cols.append(B)
-        if amp is not None:
-            L = v.source_amp if which == "source" else v.target_amp
-            p = p - c * (amp * L)[:, None] / z
-            cols.append(-L[:, None])
-        B = np.hstack(cols) if cols else np.zeros((len(c), 0))
-        dc.append(np.einsum("mk,md->mkd", (c / z) @ R.T, B))
-        pts.append(p @ R.T + t)
-        nrm.append(n @ R.T)
-        dg.append((c * ((z - z_ref_m) / z)) @ R.T)
-    return pts, nrm, dg, dc
-
-
-def _correspondences(views, P, g, z_ref_m, r, cos_max, pairs=None, curve=None,
-                     amp=None) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
-    """(i, j, source indices of view i, target indices of view j): nearest target point within ``r``
-    with normals agreeing within ``arccos(cos_max)``; only ``pairs`` when given."""
-    src, srcn, _, _ = _world(views, P, g, z_ref_m, "source", curve, amp)
-    tgt, tgtn, _, _ = _world(views, P, g, z_ref_m, "target", curve, amp)
-    trees = [cKDTree(t) for t in tgt]
-    out = []
-    V = len(views)
-    for i in range(V):
-        for j in range(V):
-            if i == j or (pairs is not None and (i, j) not in pairs):
-                continue
-            d, idx = trees[j].query(src[i], distance_upper_bound=r)
-            ok = np.flatnonzero(np.isfinite(d))
-            if len(ok) == 0:
-                continue
-            qi = idx[ok]
-            agree = np.einsum("ij,ij->i", tgtn[j][qi], srcn[i][ok]) >= cos_max
-            if agree.sum() >= 10:
-                out.append((i, j, ok[agree], qi[agree]))
-    return out
-
-
-def _normal_equations(views, P, g, z_ref_m, corr, huber_m, estimate_gain, curve=None, amp=None):
-    """Gauss-Newton normal equations of all correspondences (view 0 fixed; unknowns: poses, then
-    the ``D`` range-curve coefficients when ``curve`` is given, then ``dk`` when ``amp`` is given,
-    last the gain).
-
-    Residual: ``n . (p - q)`` with ``n`` the normalised sum of both points' normals (held fixed
-    in the linearisation)."""
-    V = len(views)
-    D = (0 if curve is None else len(curve[0])) + (amp is not None)
-    npar = 6 * (V - 1) + D + 1
-    src, srcn, dsrc, csrc = _world(views, P, g, z_ref_m, "source", curve, amp)
-    tgt, tgtn, dtgt, ctgt = _world(views, P, g, z_ref_m, "target", curve, amp)
-    H = np.zeros((npar, npar))
-    b = np.zeros(npar)
-    sw = swr2 = 0.0
-    counts = np.zeros((V, V), np.int64)
-    pair_rms = np.full((V, V), np.nan)
-    for i, j, si, qi in corr:
-        p, q = src[i][si], tgt[j][qi]
-        # symmetric point-to-plane (sum of both normals; Rusinkiewicz 2019): converges in about half
-        # the iterations of the target-normal form here (measured 6 vs 13 outer iterations)
-        n = tgtn[j][qi] + srcn[i][si]
-        n = n / np.linalg.norm(n, axis=1, keepdims=True)
-        e = np.einsum("ij,ij->i", n, p - q)
-        counts[i, j] = len(e)
-        pair_rms[i, j] = float(np.sqrt(np.mean(e ** 2))) * 1e3
-        w = np.where(np.abs(e) <= huber_m, 1.0, huber_m / np.maximum(np.abs(e), 1e-15))
-        # local Jacobian columns: [rot_i (3), trans_i (3), rot_j (3), trans_j (3), gain]
-        J = np.empty((len(e), 13 + D))
-        J[:, 0:3] = np.cross(p, n)
-        J[:, 3:6] = n
-        J[:, 6:9] = -np.cross(q, n)
-        J[:, 9:12] = -n
-        J[:, 12] = np.einsum("ij,ij->i", n, dsrc[i][si] - dtgt[j][qi]) if estimate_gain else 0.0
-        if D:
-            J[:, 13:] = np.einsum("mk,mkd->md", n, csrc[i][si] - ctgt[j][qi])
-        Jw = J * w[:, None]
-        cols = np.r_[np.arange(6 * (i - 1), 6 * i) if i > 0 else np.full(6, -1),
-                     np.arange(6 * (j - 1), 6 * j) if j > 0 else np.full(6, -1), npar - 1,
-                     np.arange(6 * (V - 1), 6 * (V - 1) + D)]
-        keep = cols >= 0
-        c = cols[keep]
-        H[np.ix_(c, c)] += (Jw.T @ J)[np.ix_(keep, keep)]
-        b[c] += (Jw.T @ e)[keep]
-        sw += w.sum()
-        swr2 += (w * e ** 2).sum()
-    return H, b, swr2 / max(sw, 1e-12), counts, pair_rms, sw
-
-
-def _correlation_with_gain(H: np.ndarray, index: int) -> tuple[float, float]:
-    """Correlation of unknown ``index`` with the gain (last) from the data-only normal matrix, and
-    the gain's regression on it, ``C[g, i] / C[i, i]``: how far the gain estimate moves per unit
-    of error in that unknown when it is held at a wrong value."""
-    try:
-        C = np.linalg.inv(H + np.eye(len(H)) * 1e-12 * np.trace(H) / len(H))
-    except np.linalg.LinAlgError:
-        return float("nan"), float("nan")
-    return (float(C[index, -1] / np.sqrt(max(C[index, index] * C[-1, -1], 1e-300))),
-            float(C[index, -1] / max(C[index, index], 1e-300)))
+#: an image tilt estimated beyond this many prior standard deviations is refused (it traded with the
+#: poses: measured -46 and -39 mm per unit on a vase and a plaque whose sensors had 8 and 4)
+TILT_MAX_PRIORS = 3.0
 
 
 def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, radii_m: tuple[float, ...] = (0.006, 0.003),
@@ -220,7 +67,8 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                   sigma_inflation: float = 1.0, gain_max_abs: float | None = None,
                   systematic_m: float = 0.0, curve_degree: int = 0, curve_prior_m: float = 5e-4,
                   curve_half_span_m: float | None = None, amplitude_prior_m: float | None = None,
-                  pose_prior_deg: float | None = None, pose_prior_m: float | None = None) -> AdjustResult:
+                  pose_prior_deg: float | None = None, pose_prior_m: float | None = None,
+                  depth_field: DepthFieldPrior | None = None, tilt_prior_m: float | None = None) -> AdjustResult:
     """Jointly refine all poses (view 0 fixed) and, optionally, the depth gain.
 
     Each outer iteration matches every view's ``source`` points (gain-corrected, to world) to
@@ -274,6 +122,14 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         world points), weighed against the data at their inflated uncertainty
         (:mod:`tofmetry.reconstruct._adjust_prior`): it holds the directions the points leave free
         (the axis of a surface of revolution). None: no prior
+    depth_field : the size of the per-pixel depth residual the calibration leaves; the poses' spread
+        under such fields, propagated through the final normal equations, is returned as
+        :attr:`AdjustResult.calibration_pose` (:mod:`tofmetry.reconstruct._adjust_field`). None: not predicted
+    tilt_prior_m : prior standard deviation of a depth error linear in the image position,
+        ``Z -> Z + a x + b y`` (``x = X / Z``, ``y = Y / Z``) [m per unit]: a calibration from walls
+        of unknown orientation cannot tell it from the walls' tilt and leaves it in. Estimated,
+        like ``dk``, only when the data alone determine both coefficients better than this prior;
+        None: not estimated
 
     Returns
     -------
@@ -294,6 +150,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         raise InputError("global adjustment: the initial poses are not all finite")
     P = poses.copy()
     g = 0.0
+    asked_gain = estimate_gain
     prior_on = pose_prior_deg is not None and pose_prior_m is not None
     centre = (np.concatenate([v.source @ T[:3, :3].T + T[:3, 3] for v, T in zip(views, poses)]).mean(0)
               if prior_on else None)
@@ -328,6 +185,16 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                                            else "not available: a view carries no amplitude regressor")
     a_k, amp_sd, amp_var, amp_corr, amp_slope = 0.0, float("nan"), float("nan"), float("nan"), float("nan")
     amp_checked = False
+    # image tilt: (a, b) [m per unit of x / z, y / z], active flag
+    tilt_on = tilt_prior_m is not None
+    tilt_note = "estimated" if tilt_on else "not asked for"
+    t_xy, tilt_sd, tilt_cov = np.zeros(2), np.full(2, np.nan), np.zeros((2, 2))
+    tilt_checked = False
+    # zero at the views' mean image position: otherwise a tilt over an object off the image centre acts
+    # as a depth offset there, and takes up the offset that noise gives nearest-neighbour pairs on
+    # curved surfaces (measured: -1.8 mm per unit on a noisy synthetic ring scan whose truth is 0)
+    tilt_centre = (np.concatenate([v.source[:, :2] / v.source[:, 2:3] for v in views]).mean(0) if tilt_on
+                   else np.zeros(2))
 
     def cv():
         return (c_curve, curve_half_span_m) if curve_on else None
@@ -335,8 +202,11 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
     def ampv():
         return a_k if amp_on else None
 
+    def tv():
+        return (t_xy, tilt_centre) if tilt_on else None
+
     def n_extra():
-        return (D if curve_on else 0) + int(amp_on)
+        return (D if curve_on else 0) + int(amp_on) + 2 * int(tilt_on)
 
     def without_curve(H):
         if not n_extra():
@@ -347,7 +217,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
     for it, r in enumerate(schedule, start=1):
         if r != prev_r:
             pairs, prev_r = None, r
-        corr = _correspondences(views, P, g, z_ref_m, r, cos_max, pairs, cv(), ampv())
+        corr = _correspondences(views, P, g, z_ref_m, r, cos_max, pairs, cv(), ampv(), tv())
         pairs = {(i, j) for i, j, _, _ in corr}
         if sum(len(c[2]) for c in corr) < 6 * V:
             raise EstimationError(f"global adjustment: too few correspondences between the views at {r * 1e3:.1f} mm "
@@ -355,10 +225,13 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         k = huber_m if huber_m is not None else r / 3.0
         P_start = P.copy()
         for _ in range(inner_iters):
-            H, b, s2, counts, pair_rms, sw = _normal_equations(views, P, g, z_ref_m, corr, k, estimate_gain, cv(), ampv())
+            H, b, s2, counts, pair_rms, sw = _normal_equations(views, P, g, z_ref_m, corr, k, estimate_gain, cv(), ampv(), tv())
             check = it == 1 or (r == radii_m[-1] and it == len(schedule) - n_last + 1)
-            if check and ((curve_on and not curve_checked) or (amp_on and not amp_checked)):
+            if check and ((curve_on and not curve_checked) or (amp_on and not amp_checked)
+                          or (tilt_on and not tilt_checked)):
                 sd = curve_sigmas(H, s2, sigma_inflation, n_extra(), estimate_gain)
+                i_amp = D if curve_on else 0
+                i_tilt = i_amp + int(amp_on)
                 off = False
                 if curve_on and not curve_checked:
                     curve_sd, curve_checked = sd[:D], r == radii_m[-1]
@@ -368,16 +241,23 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                                       + f" mm (prior +-{curve_prior_m * 1e3:.3f} mm); kept at 0")
                         curve_on, c_curve, off = False, np.zeros(D), True
                 if amp_on and not amp_checked:
-                    amp_sd, amp_checked = float(sd[-1]), r == radii_m[-1]
+                    amp_sd, amp_checked = float(sd[i_amp]), r == radii_m[-1]
                     amp_corr, amp_slope = (_correlation_with_gain(H, 6 * (V - 1) + (D if curve_on else 0))
                                            if estimate_gain else (0.0, 0.0))
                     if not amp_sd < amplitude_prior_m:
                         amp_note = (f"not observable: the views determine dk only to +-{amp_sd * 1e3:.2f} mm per ln "
                                     f"unit (prior +-{amplitude_prior_m * 1e3:.2f}); kept at 0")
                         amp_on, a_k, off = False, 0.0, True
+                if tilt_on and not tilt_checked:
+                    tilt_sd, tilt_checked = sd[i_tilt:i_tilt + 2], r == radii_m[-1]
+                    if not np.all(tilt_sd < tilt_prior_m):
+                        tilt_note = ("not observable: the views determine it only to +-"
+                                     + ", ".join(f"{x * 1e3:.2f}" for x in tilt_sd)
+                                     + f" mm per unit (prior +-{tilt_prior_m * 1e3:.2f}); kept at 0")
+                        tilt_on, t_xy, off = False, np.zeros(2), True
                 if off:
                     H, b, s2, counts, pair_rms, sw = _normal_equations(views, P, g, z_ref_m, corr, k, estimate_gain,
-                                                                       cv(), ampv())
+                                                                       cv(), ampv(), tv())
             H_data = without_curve(H).copy()
             if estimate_gain:
                 sigma_data, sigma_sys = gain_sigmas(H_data, s2, sw, sigma_inflation, systematic_m)
@@ -389,7 +269,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                     note = (f"not observable: the views determine it only to +-{100 * sigma_data:.2f} % "
                             f"(> {100 * gain_max_sigma:.2f} %); kept at 0")
                     estimate_gain, g = False, 0.0
-                    H, b, s2, counts, pair_rms, sw = _normal_equations(views, P, g, z_ref_m, corr, k, False, cv(), ampv())
+                    H, b, s2, counts, pair_rms, sw = _normal_equations(views, P, g, z_ref_m, corr, k, False, cv(), ampv(), tv())
                     H_data = without_curve(H).copy()
             if estimate_gain:
                 H[-1, -1] += s2 / gain_prior_sigma ** 2  # prior g ~ N(0, sigma) in residual units
@@ -405,6 +285,10 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                 # prior dk ~ N(0, amplitude_prior_m), against the data at their inflated uncertainty
                 H[ai, ai] += s2 * sigma_inflation ** 2 / amplitude_prior_m ** 2
                 b[ai] += s2 * sigma_inflation ** 2 / amplitude_prior_m ** 2 * a_k
+            if tilt_on:
+                ti = 6 * (V - 1) + (D if curve_on else 0) + int(amp_on) + np.arange(2)
+                H[ti, ti] += s2 * sigma_inflation ** 2 / tilt_prior_m ** 2  # prior a, b ~ N(0, tilt_prior_m)
+                b[ti] += s2 * sigma_inflation ** 2 / tilt_prior_m ** 2 * t_xy
             if prior_on:
                 Hp, bp = pose_prior_terms(P, poses, centre, np.radians(pose_prior_deg), pose_prior_m,
                                           s2 * sigma_inflation ** 2)
@@ -412,12 +296,16 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                 b[:len(bp)] += bp
             n_all = len(H)
             H += np.eye(n_all) * 1e-12 * np.trace(H) / n_all  # numerical damping only
+            H_solve = H
             dx = -np.linalg.solve(H, b)
             for v in range(1, V):
                 P[v] = _exp_se3(dx[6 * (v - 1):6 * v]) @ P[v]
             if curve_on:
                 c_curve = c_curve + dx[cc]
                 curve_cov = np.linalg.inv(H)[np.ix_(cc, cc)] * s2 * sigma_inflation ** 2
+            if tilt_on:
+                t_xy = t_xy + dx[ti]
+                tilt_cov = np.linalg.inv(H)[np.ix_(ti, ti)] * s2 * sigma_inflation ** 2
             if amp_on:
                 a_k += float(dx[ai])
                 amp_var = float(np.linalg.inv(H)[ai, ai]) * s2 * sigma_inflation ** 2
@@ -438,12 +326,23 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         E = np.linalg.inv(poses[v]) @ P[v]
         moved_deg[v] = rotation_angle_deg(E)
         moved_mm[v] = np.linalg.norm(E[:3, 3]) * 1e3
+    if tilt_on and np.max(np.abs(t_xy)) > TILT_MAX_PRIORS * tilt_prior_m:
+        fixed = global_adjust(views, poses, z_ref_m, radii_m, iters_per_radius, inner_iters, huber_m, asked_gain,
+                              gain_prior_sigma, max_normal_deg, tol_deg, tol_m, gain_max_sigma, sigma_inflation,
+                              gain_max_abs, systematic_m, curve_degree, curve_prior_m, curve_half_span_m,
+                              amplitude_prior_m, pose_prior_deg, pose_prior_m, depth_field, None)
+        fixed.image_tilt_sigma_data_m = tilt_sd
+        fixed.image_tilt_note = ("implausible: the views ask for " + ", ".join(f"{x * 1e3:+.1f}" for x in t_xy)
+                                 + f" mm per unit, beyond {TILT_MAX_PRIORS:g} x its prior (+-{tilt_prior_m * 1e3:.1f}): "
+                                 "it trades with the poses on this object; kept at 0")
+        return fixed
     if estimate_gain and gain_max_abs is not None and abs(g) > gain_max_abs:
         fixed = global_adjust(views, poses, z_ref_m, radii_m, iters_per_radius, inner_iters, huber_m, False,
                               gain_prior_sigma, max_normal_deg, tol_deg, tol_m, None, sigma_inflation,
                               curve_degree=curve_degree, curve_prior_m=curve_prior_m,
                               curve_half_span_m=curve_half_span_m, amplitude_prior_m=amplitude_prior_m,
-                              pose_prior_deg=pose_prior_deg, pose_prior_m=pose_prior_m)
+                              pose_prior_deg=pose_prior_deg, pose_prior_m=pose_prior_m, depth_field=depth_field,
+                              tilt_prior_m=tilt_prior_m)
         fixed.gain_sigma_data, fixed.gain_sigma_systematic = sigma_data, sigma_sys
         fixed.gain_refused, fixed.gain_max_abs = float(g), float(gain_max_abs)
         if np.isfinite(amp_slope):  # the gain's trade with dk, from this run where the gain was free
@@ -456,6 +355,20 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         note = f"estimated: the views determine it to +-{100 * sigma_data:.3f} %"
     res = AdjustResult(P, g, sigma_g, z_ref_m, it, np.array(rms_hist), counts, pair_rms, moved_deg, moved_mm, converged,
                        estimate_gain, sigma_data, note, sig_deg, sig_mm, sigma_sys)
+    if depth_field is not None:
+        F = _normal_equations(views, P, g, z_ref_m, corr, k, estimate_gain, cv(), ampv(), tv(),
+                              depth_field.basis)[-1]
+        resp = -np.linalg.solve(H_solve, F)[:6 * (V - 1)]
+        obj = np.concatenate([v.source @ T[:3, :3].T + T[:3, 3] for v, T in zip(views, P)])
+        res.calibration_pose = pose_spread(resp, depth_field.coefficient_sigmas(), V, obj) | {
+            "offset_sigma_mm": round(depth_field.offset_sigma_m * 1e3, 4),
+            "shape_rms_mm": round(depth_field.shape_rms_m * 1e3, 4), "degree": depth_field.degree}
+    res.image_tilt_m, res.image_tilt_estimated = (t_xy.copy(), True) if tilt_on else (np.zeros(2), False)
+    res.image_tilt_centre = tilt_centre.copy()
+    res.image_tilt_sigma_m = np.sqrt(np.clip(np.diag(tilt_cov), 0, None)) if tilt_on else np.full(2, np.nan)
+    res.image_tilt_sigma_data_m = tilt_sd
+    res.image_tilt_note = ("estimated: the views determine it to +-" + ", ".join(f"{x * 1e3:.2f}" for x in tilt_sd)
+                           + " mm per unit (data alone)") if tilt_on else tilt_note
     res.amplitude_dk_m, res.amplitude_estimated = (a_k, True) if amp_on else (0.0, False)
     res.amplitude_dk_sigma_m = float(np.sqrt(max(amp_var, 0.0))) if amp_on else float("nan")
     res.amplitude_dk_sigma_data_m = amp_sd

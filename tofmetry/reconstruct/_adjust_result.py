@@ -49,6 +49,13 @@ class AdjustResult:
     restart : the adjustment restarted from the far side of its solution
         (:func:`~tofmetry.reconstruct._adjust_restart.restart_probe`: ``deg``, ``mm``, ``view``,
         ``start_deg``, ``per_view_deg``; ``{"failed": reason}``), or None when not run
+    image_tilt_m, image_tilt_sigma_m, image_tilt_sigma_data_m, image_tilt_estimated, image_tilt_note :
+        the depth error linear in the image position, ``Z -> Z + a x + b y`` ((a, b) [m per unit of
+        ``x / z``, ``y / z``]; ``tilt_prior_m`` of :func:`~tofmetry.reconstruct._adjust.global_adjust`)
+    calibration_pose : how far the calibration's per-pixel residual can move the poses
+        (:func:`~tofmetry.reconstruct._adjust_field.pose_spread`: worst view's rotation [deg] and
+        object displacement [mm], p50 and p90 over random fields of the calibration's size), or
+        None when not predicted
     """
 
     poses: np.ndarray
@@ -86,6 +93,13 @@ class AdjustResult:
     amplitude_gain_correlation: float = float("nan")
     amplitude_gain_slope: float = float("nan")
     restart: dict | None = None
+    calibration_pose: dict | None = None
+    image_tilt_m: np.ndarray | None = None
+    image_tilt_sigma_m: np.ndarray | None = None
+    image_tilt_sigma_data_m: np.ndarray | None = None
+    image_tilt_estimated: bool = False
+    image_tilt_note: str = "not asked for"
+    image_tilt_centre: np.ndarray | None = None
 
     def amplitude_report(self) -> dict:
         """The amplitude-bias correction ``dk`` [mm per ln unit] with its standard errors."""
@@ -117,6 +131,13 @@ class AdjustResult:
                 "sigma_data_mm": None if self.range_curve_sigma_data_m is None else r6(self.range_curve_sigma_data_m),
                 "z_mm": [round(float(x) * 1e3, 1) for x in z], "dz_mm": r6(dz), "dz_sigma_mm": r6(sd)}
 
+    def tilt_report(self) -> dict:
+        """The image tilt ``(a, b)`` [mm per unit of x / z, y / z] with its standard errors."""
+        r = lambda a: None if a is None else [round(float(x) * 1e3, 4) if np.isfinite(x) else None for x in a]
+        return {"estimated": bool(self.image_tilt_estimated), "note": self.image_tilt_note,
+                "ab_mm": r(self.image_tilt_m), "sigma_mm": r(self.image_tilt_sigma_m),
+                "sigma_data_mm": r(self.image_tilt_sigma_data_m)}
+
     def to_dict(self, names: list[str] | None = None) -> dict:
         names = names or [str(k) for k in range(len(self.poses))]
         return {"depth_gain": float(self.depth_gain), "depth_gain_sigma": float(self.depth_gain_sigma),
@@ -133,7 +154,7 @@ class AdjustResult:
                 {n: round(float(x), 5) for n, x in zip(names, self.pose_sigma_deg)},
                 "pose_sigma_mm": None if self.pose_sigma_mm is None else
                 {n: round(float(x), 4) for n, x in zip(names, self.pose_sigma_mm)},
-                "restart": self.restart,
+                "restart": self.restart, "calibration_pose": self.calibration_pose, "image_tilt": self.tilt_report(),
                 "pairs": [{"source": names[i], "target": names[j], "n": int(self.pair_counts[i, j]),
                            "rms_mm": round(float(self.pair_rms_mm[i, j]), 3)}
                           for i in range(len(names)) for j in range(len(names)) if self.pair_counts[i, j] > 0]}

@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from tofmetry.reconstruct._adjust_field import DepthFieldPrior
+
 
 def calibration_central_mm(calibration_prediction: dict | None) -> float | None:
     """The calibration's predicted central error between its stations [mm]; None without one."""
@@ -145,3 +147,32 @@ def calibration_gain_sigma(calibration_prediction: dict | None) -> float | None:
 def station_spacing_mm(calibration_prediction: dict) -> float:
     centres = sorted(f["center_mm"] for f in calibration_prediction.get("folds", []) if "center_mm" in f)
     return float(np.median(np.diff(centres))) if len(centres) > 1 else 250.0
+
+
+def depth_field_prior(calibration_prediction: dict | None, depth_span_mm, intr, degree: int = 3,
+                      tilt_sigma_mm: float = 0.0) -> DepthFieldPrior | None:
+    """The per-pixel depth residual the calibration leaves where the object lies, as the global
+    adjustment's :class:`~tofmetry.reconstruct._adjust_field.DepthFieldPrior`: its central error
+    (:func:`local_prediction`) and the largest per-pixel systematic RMS (``rms_systematic_mm``) of
+    the same folds. None without a prediction with folds.
+
+    Parameters
+    ----------
+    calibration_prediction : the calibration's ``prediction`` dict, or None
+    depth_span_mm : (lo, hi) depths Z the object's points span [mm]
+    intr : Intrinsics of the depth image (the field of view in normalised coordinates)
+    tilt_sigma_mm : size of a term linear in the image position that the calibration did not
+        calibrate [mm per unit of x / z] (0 when its ``tilt_calibrated`` is true)
+    """
+    local = (local_prediction(calibration_prediction, depth_span_mm) or {}).get("local")
+    if not local:
+        return None
+    lo, hi = local["stations_mm"][0], local["stations_mm"][-1]
+    rms = [float(f["rms_systematic_mm"]) for f in calibration_prediction.get("folds", [])
+           if isinstance(f, dict) and lo <= f.get("center_mm", np.nan) <= hi
+           and np.isfinite(f.get("rms_systematic_mm", np.nan))]
+    if not rms:
+        return None
+    return DepthFieldPrior((intr.width / 2 / intr.fx, intr.height / 2 / intr.fy), local["central_abs_mm"] * 1e-3,
+                           max(rms) * 1e-3, degree,
+                           0.0 if calibration_prediction.get("tilt_calibrated") else tilt_sigma_mm * 1e-3)

@@ -190,6 +190,28 @@ class RegistrationConfig(BaseModel):
                                                "different incidences by two views disagrees unless k is the sensor's. "
                                                "Prior standard deviation of dk [mm per ln unit]; estimated only when "
                                                "the views determine it better. None: off")
+    image_tilt_prior_mm: float | None = Field(None, gt=0, description="opt-in. When the depth calibration did not "
+                                              "calibrate a depth error linear in the image position (walls of unknown "
+                                              "orientation cannot show it; or no calibration), the global adjustment "
+                                              "estimates it, Z -> Z + a x + b y (x = X / Z, y = Y / Z). Such a term rotates "
+                                              "every view's points by ~a / Z rad in its own frame, which the views "
+                                              "only show through its shear: left in, it puts the poses up to 0.5 deg "
+                                              "off (family draws 414861560, 1723591326). Prior standard deviation "
+                                              "of a and b [mm per unit of x / z; 10 mm ~ 0.6 deg at 1 m]; estimated only "
+                                              "when the views determine both better. Off by default: the noise of the "
+                                              "nearest-neighbour pairs biases b (measured -12 mm per unit on a family "
+                                              "bunny whose sensor had none, 0.32 -> 0.62 deg). None: off")
+    adjust_target_smooth_k: int = Field(12, ge=0, description="the global adjustment matches each view's points "
+                                        "to the other views' clouds projected on their local planes (k nearest "
+                                        "neighbours; tofmetry.pointcloud.project_to_local_planes): nearest points in "
+                                        "two noisy clouds pull the surfaces together (a plaque started at its true "
+                                        "poses, noise only: 3.1 -> 1.1 mm at the object). 0: raw targets")
+    uncalibrated_tilt_mm: float = Field(10.0, ge=0, description="size (1 sigma) of a depth error linear in the "
+                                        "image position assumed when the calibration did not calibrate it [mm per unit "
+                                        "of x / z]: it enters the poses' predicted spread under the calibration's residual "
+                                        "(the adjustment's calibration_pose). Family sensors carry 0-15 mm; the first-order "
+                                        "prediction from a sensor's true tilt matched where the joint fit started at the "
+                                        "true poses ends (0.505 vs 0.552 deg, 0.450 vs 0.472 deg)")
     amplitude_k_sigma_mm: float = Field(2.0, gt=0, description="uncertainty (1 sigma) of the amplitude-bias "
                                         "coefficient k [mm per ln unit] in the model's predicted scale uncertainty, "
                                         "directly (the scale budget) and through the self-calibrated gain it trades "

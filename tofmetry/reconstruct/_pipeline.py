@@ -15,6 +15,7 @@ from scipy.spatial import cKDTree
 
 from tofmetry._shared.geometry import fit_plane_svd, transform_points
 from tofmetry.errors import EstimationError, InputError, SensorMismatchError
+from tofmetry.pointcloud import project_to_local_planes
 from tofmetry.reconstruct._adjust import AdjustView, apply_depth_gain, global_adjust
 from tofmetry.reconstruct._adjust_restart import restart_probe
 from tofmetry.reconstruct._adjust_result import (
@@ -25,6 +26,7 @@ from tofmetry.reconstruct._amplitude import amplitude_log_ratio
 from tofmetry.reconstruct._calibration_support import (
     calibration_central_mm,
     calibration_gain_sigma,
+    depth_field_prior,
     extrapolated_points,
     extrapolation_warning,
     local_prediction,
@@ -255,9 +257,19 @@ class ReconstructionPipeline:
         av = [AdjustView(*(r.mid_points, r.mid_normals, r.icp_points, r.icp_normals, r.mid_amp, r.icp_amp)
                            if r.mid_points is not None else
                            (r.icp_points, r.icp_normals, r.icp_points, r.icp_normals, r.icp_amp, r.icp_amp)) for r in regs]
+        if rc.adjust_target_smooth_k:  # the targets without their noise (tofmetry.pointcloud._smooth)
+            for a in av:
+                a.target = project_to_local_planes(a.target, rc.adjust_target_smooth_k)
         amp_prior = rc.amplitude_k_prior_mm if self.white_map is not None else None
+        z_obj = _object_depths_m(views, segs) * 1e3
+        field = None if self.cal is None or not len(z_obj) else depth_field_prior(
+            self.cal.prediction or {}, tuple(np.percentile(z_obj, (5, 95))), regs[0].intr,
+            tilt_sigma_mm=rc.uncalibrated_tilt_mm)
 
-        def run(amplitude_prior_mm: float | None, start: np.ndarray = poses) -> AdjustResult:
+        tilt_prior = None if rc.image_tilt_prior_mm is None or (
+            self.cal is not None and (self.cal.prediction or {}).get("tilt_calibrated")) else rc.image_tilt_prior_mm * 1e-3
+
+        def run(amplitude_prior_mm: float | None, start: np.ndarray = poses, predict: bool = True) -> AdjustResult:
             return global_adjust(av, start, z_ref, tuple(x * 1e-3 for x in rc.adjust_radii_mm), rc.adjust_iters,
                                  estimate_gain=rc.estimate_depth_gain, gain_prior_sigma=rc.depth_gain_prior,
                                  gain_max_sigma=rc.gain_max_sigma, sigma_inflation=rc.sigma_inflation,
@@ -265,7 +277,8 @@ class ReconstructionPipeline:
                                  systematic_m=e_sys * 1e-3, curve_degree=rc.range_curve_degree,
                                  curve_prior_m=self._curve_prior_mm() * 1e-3,
                                  amplitude_prior_m=None if amplitude_prior_mm is None else amplitude_prior_mm * 1e-3,
-                                 pose_prior_deg=prior_deg, pose_prior_m=None if prior_mm is None else prior_mm * 1e-3)
+                                 pose_prior_deg=prior_deg, pose_prior_m=None if prior_mm is None else prior_mm * 1e-3,
+                                 depth_field=field if predict else None, tilt_prior_m=tilt_prior)
 
         with self.progress("global adjustment", None):
             try:
@@ -274,13 +287,15 @@ class ReconstructionPipeline:
                     res = keep_amplitude_if_it_explains(res, run(amp_prior), rc.amplitude_min_rms_drop)
                 if rc.restart_check and float(np.max(res.moved_deg)) > rc.pose_gate_deg / 2:
                     res.restart = self._restart(res, poses, regs, lambda S: run(
-                        amp_prior if res.amplitude_estimated else None, S).poses)
+                        amp_prior if res.amplitude_estimated else None, S, False).poses)
             except EstimationError as exc:  # keep the pose-graph poses; the reason goes to the diagnostics
                 self.adjust_failure = str(exc)
                 return None
         curve = res.range_curve_m if res.range_curve_estimated else None
         dk_mm = res.amplitude_dk_m * 1e3 if res.amplitude_estimated else 0.0
-        if res.depth_gain != 0.0 or curve is not None or dk_mm != 0.0:
+        tilt = res.image_tilt_m if res.image_tilt_estimated else None
+        rays = None if tilt is None else regs[0].intr.ray_table()
+        if res.depth_gain != 0.0 or curve is not None or dk_mm != 0.0 or tilt is not None:
             thr = self.cfg.segment.plane_threshold_mm * 1e-3
             h = res.range_curve_half_span_m
             for v, s in zip(views, segs):
@@ -296,6 +311,10 @@ class ReconstructionPipeline:
                     L = amplitude_log_ratio(d0, v.ir, self.white_map, regs[0].intr)
                     v.points = v.points - p0 * (dk_mm * 1e-3 * L.ravel()[v.index] / p0[:, 2])[:, None]
                     v.depth_mm = np.where(d0 > 0, v.depth_mm - dk_mm * L, 0.0)
+                if tilt is not None:  # Z -> Z + a (x - x0) + b (y - y0), (x, y) the pixel's ray
+                    c0 = res.image_tilt_centre
+                    v.points = v.points + p0 * ((((p0[:, :2] / p0[:, 2:3]) - c0) @ tilt) / p0[:, 2])[:, None]
+                    v.depth_mm = np.where(d0 > 0, v.depth_mm + 1e3 * ((rays - c0) @ tilt), 0.0)
                 if on_plane is not None and on_plane.sum() >= 3:  # the support plane moved with its points
                     s.plane = fit_plane_svd(v.points[on_plane], orient=s.plane[:3])
         return res
