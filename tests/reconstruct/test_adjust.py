@@ -46,17 +46,22 @@ def _scene(n: int, rng) -> tuple[np.ndarray, np.ndarray]:
     return np.vstack([pe[keep], pg]), np.vstack([ne[keep], np.tile([0, 0, 1.0], (len(pg), 1))])
 
 
+def _visible(T, rng, n):
+    """A view's own random samples of the scene's surface it sees (incidence below ~75 deg), in its
+    camera frame: points (M, 3) [m] and unit normals (M, 3)."""
+    p, nrm = _scene(n, rng)
+    c = T[:3, 3]
+    vis = np.einsum("ij,ij->i", nrm, c - p) / np.linalg.norm(c - p, axis=1) > 0.25
+    Ti = np.linalg.inv(T)
+    return p[vis] @ Ti[:3, :3].T + Ti[:3, 3], nrm[vis] @ Ti[:3, :3].T
+
+
 def _views(poses, gain, z_ref, rng, n=20000):
     """Each view: its own random samples of the visible surface, in its camera frame, with the
     depth distorted so that the gain correction ``z + gain (z - z_ref)`` restores it."""
     out = []
     for T in poses:
-        p, nrm = _scene(n, rng)
-        c = T[:3, 3]
-        vis = np.einsum("ij,ij->i", nrm, c - p) / np.linalg.norm(c - p, axis=1) > 0.25
-        Ti = np.linalg.inv(T)
-        pc = p[vis] @ Ti[:3, :3].T + Ti[:3, 3]
-        nc = nrm[vis] @ Ti[:3, :3].T
+        pc, nc = _visible(T, rng, n)
         z = pc[:, 2:3]
         zm = (z + gain * z_ref) / (1 + gain)  # measured depth
         pm = pc * zm / z

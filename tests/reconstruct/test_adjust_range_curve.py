@@ -14,7 +14,7 @@ from tofmetry.reconstruct._range_curve import (
     range_curve_sigma_m,
 )
 
-from .test_adjust import _errors, _look_at, _perturb, _scene
+from .test_adjust import _errors, _look_at, _perturb, _visible
 
 Z_REF, HALF = 1.0, 0.35  # [m]: the views' depths span 0.65 .. 1.35 m
 TRUE_C = np.array([1.5e-3, -1.0e-3])  # Legendre terms 2, 3 [m]: up to ~2.5 mm at the ends of the span
@@ -40,12 +40,7 @@ def _views(poses, coeffs, rng, n=20000):
     from tofmetry.reconstruct import AdjustView
     out = []
     for T in poses:
-        p, nrm = _scene(n, rng)
-        c = T[:3, 3]
-        vis = np.einsum("ij,ij->i", nrm, c - p) / np.linalg.norm(c - p, axis=1) > 0.25
-        Ti = np.linalg.inv(T)
-        pc = p[vis] @ Ti[:3, :3].T + Ti[:3, 3]
-        nc = nrm[vis] @ Ti[:3, :3].T
+        pc, nc = _visible(T, rng, n)
         zt = pc[:, 2]
         zm = zt.copy()
         for _ in range(20):  # solve zm + dz(zm) = zt (dz is a few mm: a contraction)

@@ -9,7 +9,7 @@ import pytest
 from tofmetry.reconstruct import AdjustView, global_adjust
 from tofmetry.reconstruct._adjust_field import DepthFieldPrior, pose_spread
 
-from .test_adjust import _errors, _perturb, _scene, ring  # noqa: F401 (the fixture)
+from .test_adjust import _errors, _perturb, _visible, ring  # noqa: F401 (the fixture)
 
 TRUE_AB = np.array([8e-3, -6e-3])  # [m per unit of x / z]: 8 and 6 mm at 45 deg off the axis
 
@@ -20,12 +20,7 @@ def _views(poses, ab, rng, n=20000):
     constant along the ray)."""
     out = []
     for T in poses:
-        p, nrm = _scene(n, rng)
-        c = T[:3, 3]
-        vis = np.einsum("ij,ij->i", nrm, c - p) / np.linalg.norm(c - p, axis=1) > 0.25
-        Ti = np.linalg.inv(T)
-        pc = p[vis] @ Ti[:3, :3].T + Ti[:3, 3]
-        nc = nrm[vis] @ Ti[:3, :3].T
+        pc, nc = _visible(T, rng, n)
         zt = pc[:, 2]
         zm = zt - (pc[:, :2] / zt[:, None]) @ ab
         pm = pc * (zm / zt)[:, None]
