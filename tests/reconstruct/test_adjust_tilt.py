@@ -107,3 +107,25 @@ def test_field_prior_rms_matches_its_parts():
     B = p.basis(pts)
     ms = np.mean((B * p.coefficient_sigmas()) ** 2) * B.shape[1]
     assert ms == pytest.approx(0.3e-3 ** 2 + 0.5e-3 ** 2, rel=0.05)
+
+
+def test_field_prior_from_a_calibrations_folds():
+    """The prior takes the largest central error and per-pixel systematic RMS of the folds where the
+    object lies (one fold inside 830-994 mm, so the stations either side join it: 716, 966, 1214 mm;
+    their centres are not on the 0.1 mm grid the local stations are rounded to), the image's half
+    field of view, and the uncalibrated tilt only when the calibration did not calibrate it."""
+    from tofmetry.reconstruct._calibration_support import depth_field_prior
+    from tofmetry.sensor import CameraIntrinsics
+
+    folds = [{"center_mm": c, "central_mm": e, "rms_systematic_mm": r}
+             for c, e, r in ((715.98, 0.1, 0.2), (965.98, -0.14, 0.06), (1213.72, 0.2, 0.19), (1460.31, 0.4, 0.5))]
+    pred = {"folds": folds, "interpolation": {"central_abs_mm": {"predicted": 0.3}}, "tilt_calibrated": False}
+    intr = CameraIntrinsics(512, 424, 365.0, 365.0, 256.0, 212.0)
+    p = depth_field_prior(pred, (830.0, 994.0), intr, tilt_sigma_mm=10.0)
+    assert p is not None
+    assert p.offset_sigma_m == pytest.approx(0.2e-3)
+    assert p.shape_rms_m == pytest.approx(0.2e-3)  # not the 0.5 mm of the fold at 1460 mm
+    assert p.half_extent == pytest.approx((256 / 365.0, 212 / 365.0))
+    assert p.tilt_sigma_m == pytest.approx(10e-3)
+    assert depth_field_prior(pred | {"tilt_calibrated": True}, (830.0, 994.0), intr, tilt_sigma_mm=10.0).tilt_sigma_m == 0
+    assert depth_field_prior(None, (830.0, 994.0), intr) is None

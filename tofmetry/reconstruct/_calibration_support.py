@@ -167,7 +167,7 @@ def depth_field_prior(calibration_prediction: dict | None, depth_span_mm, intr, 
     local = (local_prediction(calibration_prediction, depth_span_mm) or {}).get("local")
     if not local:
         return None
-    lo, hi = local["stations_mm"][0], local["stations_mm"][-1]
+    lo, hi = local["stations_mm"][0] - 0.05, local["stations_mm"][-1] + 0.05  # they are rounded to 0.1 mm
     rms = [float(f["rms_systematic_mm"]) for f in calibration_prediction.get("folds", [])
            if isinstance(f, dict) and lo <= f.get("center_mm", np.nan) <= hi
            and np.isfinite(f.get("rms_systematic_mm", np.nan))]
