@@ -52,7 +52,7 @@ from tofmetry.reconstruct._adjust_terms import (
     apply_depth_gain,
 )
 
-__all__ = ["AdjustView", "TILT_MAX_PRIORS", "apply_depth_gain", "global_adjust"]
+__all__ = ["AdjustView", "TILT_MAX_PRIORS", "apply_depth_gain", "calibration_pose", "global_adjust"]
 
 
 #: an image tilt estimated beyond this many prior standard deviations is refused (it traded with the
@@ -123,8 +123,8 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         (:mod:`tofmetry.reconstruct._adjust_prior`): it holds the directions the points leave free
         (the axis of a surface of revolution). None: no prior
     depth_field : the size of the per-pixel depth residual the calibration leaves; the poses' spread
-        under such fields, propagated through the final normal equations, is returned as
-        :attr:`AdjustResult.calibration_pose` (:mod:`tofmetry.reconstruct._adjust_field`). None: not predicted
+        under such fields (:func:`calibration_pose`) is returned as :attr:`AdjustResult.calibration_pose`.
+        None: not predicted here (:func:`calibration_pose` can be asked for later)
     tilt_prior_m : prior standard deviation of a depth error linear in the image position,
         ``Z -> Z + a x + b y`` (``x = X / Z``, ``y = Y / Z``) [m per unit]: a calibration from walls
         of unknown orientation cannot tell it from the walls' tilt and leaves it in. Estimated,
@@ -355,14 +355,9 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         note = f"estimated: the views determine it to +-{100 * sigma_data:.3f} %"
     res = AdjustResult(P, g, sigma_g, z_ref_m, it, np.array(rms_hist), counts, pair_rms, moved_deg, moved_mm, converged,
                        estimate_gain, sigma_data, note, sig_deg, sig_mm, sigma_sys)
+    res.final_state = (views, P.copy(), g, z_ref_m, corr, k, estimate_gain, cv(), ampv(), tv(), H_solve)
     if depth_field is not None:
-        F = _normal_equations(views, P, g, z_ref_m, corr, k, estimate_gain, cv(), ampv(), tv(),
-                              depth_field.basis)[-1]
-        resp = -np.linalg.solve(H_solve, F)[:6 * (V - 1)]
-        obj = np.concatenate([v.source @ T[:3, :3].T + T[:3, 3] for v, T in zip(views, P)])
-        res.calibration_pose = pose_spread(resp, depth_field.coefficient_sigmas(), V, obj) | {
-            "offset_sigma_mm": round(depth_field.offset_sigma_m * 1e3, 4),
-            "shape_rms_mm": round(depth_field.shape_rms_m * 1e3, 4), "degree": depth_field.degree}
+        res.calibration_pose = calibration_pose(res, depth_field)
     res.image_tilt_m, res.image_tilt_estimated = (t_xy.copy(), True) if tilt_on else (np.zeros(2), False)
     res.image_tilt_centre = tilt_centre.copy()
     res.image_tilt_sigma_m = np.sqrt(np.clip(np.diag(tilt_cov), 0, None)) if tilt_on else np.full(2, np.nan)
@@ -388,3 +383,25 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                                 + ", ".join(f"{x * 1e3:.3f}" for x in curve_sd) + " mm (data alone)") \
             if curve_on else curve_note
     return res
+
+
+def calibration_pose(res: AdjustResult, depth_field: DepthFieldPrior) -> dict:
+    """The poses' spread of the adjustment ``res`` under random depth fields of ``depth_field``'s
+    size (:func:`~tofmetry.reconstruct._adjust_field.pose_spread`), propagated through the normal
+    equations it ended with (:attr:`AdjustResult.final_state`): one more pass over its final
+    correspondences (~0.5 s on 8 views). Asked for on the adjustment a pipeline keeps, not on each
+    run it tries.
+
+    Returns
+    -------
+    dict of :func:`~tofmetry.reconstruct._adjust_field.pose_spread` with the prior's size
+    (``offset_sigma_mm``, ``shape_rms_mm``, ``degree``)
+    """
+    views, P, g, z_ref_m, corr, k, estimate_gain, curve, amp, tilt, H_solve = res.final_state
+    V = len(views)
+    F = _normal_equations(views, P, g, z_ref_m, corr, k, estimate_gain, curve, amp, tilt, depth_field.basis)[-1]
+    resp = -np.linalg.solve(H_solve, F)[:6 * (V - 1)]
+    obj = np.concatenate([v.source @ T[:3, :3].T + T[:3, 3] for v, T in zip(views, P)])
+    return pose_spread(resp, depth_field.coefficient_sigmas(), V, obj) | {
+        "offset_sigma_mm": round(depth_field.offset_sigma_m * 1e3, 4),
+        "shape_rms_mm": round(depth_field.shape_rms_m * 1e3, 4), "degree": depth_field.degree}

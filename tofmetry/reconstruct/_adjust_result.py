@@ -3,7 +3,7 @@ choice between the adjustments with and without the amplitude-bias correction.""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -56,6 +56,9 @@ class AdjustResult:
         (:func:`~tofmetry.reconstruct._adjust_field.pose_spread`: worst view's rotation [deg] and
         object displacement [mm], p50 and p90 over random fields of the calibration's size), or
         None when not predicted
+    final_state : what :func:`~tofmetry.reconstruct._adjust.calibration_pose` needs of the last
+        Gauss-Newton step (views, poses, depth terms, correspondences, the solved normal matrix);
+        not reported
     """
 
     poses: np.ndarray
@@ -94,6 +97,7 @@ class AdjustResult:
     amplitude_gain_slope: float = float("nan")
     restart: dict | None = None
     calibration_pose: dict | None = None
+    final_state: tuple | None = field(default=None, repr=False, compare=False)
     image_tilt_m: np.ndarray | None = None
     image_tilt_sigma_m: np.ndarray | None = None
     image_tilt_sigma_data_m: np.ndarray | None = None

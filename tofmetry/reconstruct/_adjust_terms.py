@@ -51,6 +51,21 @@ def apply_depth_gain(points: np.ndarray, gain: float, z_ref_m: float) -> np.ndar
     return points * (1.0 + gain * (z - z_ref_m) / z)
 
 
+def image_tilt_m(xy: np.ndarray, ab: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """Depth change of the image tilt ``a (x - x0) + b (y - y0)`` [m].
+
+    Parameters
+    ----------
+    xy : (..., 2) normalised image coordinates (``X / Z``, ``Y / Z``, or a ray table)
+    ab : (2,) [m per unit]; centre : (2,) ``(x0, y0)``, where the tilt is zero
+
+    Returns
+    -------
+    (...) [m], to add to Z
+    """
+    return (np.asarray(xy) - centre) @ ab
+
+
 def _exp_se3(xi: np.ndarray) -> np.ndarray:
     """4x4 from a 6-vector (rotation vector, translation) - left update."""
     w, t = xi[:3], xi[3:]
@@ -88,9 +103,8 @@ def _world(views: list[AdjustView], P: np.ndarray, g: float, z_ref_m: float, whi
             p = p - c * (amp * L)[:, None] / z
             cols.append(-L[:, None])
         if tilt is not None:  # Z -> Z + a (x - x0) + b (y - y0) (x = X / Z, y = Y / Z: the position in the image)
-            xy = c[:, :2] / z - tilt[1]
-            p = p + c * (xy @ tilt[0])[:, None] / z
-            cols.append(xy)
+            p = p + c * image_tilt_m(c[:, :2] / z, *tilt)[:, None] / z
+            cols.append(c[:, :2] / z - tilt[1])
         B = np.hstack(cols) if cols else np.zeros((len(c), 0))
         dc.append(np.einsum("mk,md->mkd", (c / z) @ R.T, B))
         pts.append(p @ R.T + t)

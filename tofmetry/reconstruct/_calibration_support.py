@@ -56,22 +56,12 @@ def local_prediction(calibration_prediction: dict | None, depth_span_mm) -> dict
     """
     if not calibration_prediction:
         return calibration_prediction
-    folds = sorted((float(f["center_mm"]), abs(float(f["central_mm"])))
-                   for f in calibration_prediction.get("folds", [])
-                   if isinstance(f, dict) and np.isfinite(f.get("center_mm", np.nan))
-                   and np.isfinite(f.get("central_mm", np.nan)))
-    if len(folds) < 2 or depth_span_mm is None:
+    sel = _local_folds(calibration_prediction, depth_span_mm)
+    if sel is None:
         return calibration_prediction
     lo, hi = (float(x) for x in depth_span_mm)
-    sel = [f for f in folds if lo <= f[0] <= hi]
-    if len(sel) < 2:
-        below = [f for f in folds if f[0] < lo]
-        above = [f for f in folds if f[0] > hi]
-        sel = sorted(set(sel + below[-1:] + above[:1]))
-    if len(sel) < 2:  # the span lies beyond the outermost folds: the nearest two
-        sel = sorted(sorted(folds, key=lambda f: min(abs(f[0] - lo), abs(f[0] - hi)))[:2])
-    centres = [c for c, _ in sel]
-    e = max(v for _, v in sel)
+    centres = [float(f["center_mm"]) for f in sel]
+    e = max(abs(float(f["central_mm"])) for f in sel)
     spacing = float(np.median(np.diff(centres)))
     out = dict(calibration_prediction)
     interp = dict(out.get("interpolation") or {})
@@ -83,6 +73,28 @@ def local_prediction(calibration_prediction: dict | None, depth_span_mm) -> dict
     out["local"] = {"span_mm": [round(lo, 1), round(hi, 1)], "stations_mm": [round(c, 1) for c in centres],
                     "central_abs_mm": round(e, 4), "spacing_mm": spacing}
     return out
+
+
+def _local_folds(calibration_prediction: dict, depth_span_mm) -> list[dict] | None:
+    """The interpolation folds :func:`local_prediction` judges a scan by, sorted by depth: those
+    whose left-out station lies within ``depth_span_mm`` (the two bracketing it when fewer than two
+    lie inside, the nearest two when it lies beyond them all); None with fewer than two folds with
+    a finite centre and central error, or without a span."""
+    folds = sorted((f for f in calibration_prediction.get("folds", [])
+                    if isinstance(f, dict) and np.isfinite(f.get("center_mm", np.nan))
+                    and np.isfinite(f.get("central_mm", np.nan))), key=lambda f: float(f["center_mm"]))
+    if len(folds) < 2 or depth_span_mm is None:
+        return None
+    lo, hi = (float(x) for x in depth_span_mm)
+    c = [float(f["center_mm"]) for f in folds]
+    keep = {k for k in range(len(folds)) if lo <= c[k] <= hi}
+    if len(keep) < 2:
+        below = [k for k in range(len(folds)) if c[k] < lo]
+        above = [k for k in range(len(folds)) if c[k] > hi]
+        keep |= set(below[-1:] + above[:1])
+    if len(keep) < 2:  # the span lies beyond the outermost folds: the nearest two
+        keep = set(sorted(range(len(folds)), key=lambda k: min(abs(c[k] - lo), abs(c[k] - hi)))[:2])
+    return [folds[k] for k in sorted(keep)]
 
 
 def extrapolation_error_mm(calibration_prediction: dict | None) -> float:
@@ -164,15 +176,11 @@ def depth_field_prior(calibration_prediction: dict | None, depth_span_mm, intr, 
     tilt_sigma_mm : size of a term linear in the image position that the calibration did not
         calibrate [mm per unit of x / z] (0 when its ``tilt_calibrated`` is true)
     """
-    local = (local_prediction(calibration_prediction, depth_span_mm) or {}).get("local")
-    if not local:
-        return None
-    lo, hi = local["stations_mm"][0] - 0.05, local["stations_mm"][-1] + 0.05  # they are rounded to 0.1 mm
-    rms = [float(f["rms_systematic_mm"]) for f in calibration_prediction.get("folds", [])
-           if isinstance(f, dict) and lo <= f.get("center_mm", np.nan) <= hi
-           and np.isfinite(f.get("rms_systematic_mm", np.nan))]
+    sel = _local_folds(calibration_prediction, depth_span_mm) if calibration_prediction else None
+    rms = [float(f["rms_systematic_mm"]) for f in sel or [] if np.isfinite(f.get("rms_systematic_mm", np.nan))]
     if not rms:
         return None
-    return DepthFieldPrior((intr.width / 2 / intr.fx, intr.height / 2 / intr.fy), local["central_abs_mm"] * 1e-3,
+    central = max(abs(float(f["central_mm"])) for f in sel)
+    return DepthFieldPrior((intr.width / 2 / intr.fx, intr.height / 2 / intr.fy), central * 1e-3,
                            max(rms) * 1e-3, degree,
                            0.0 if calibration_prediction.get("tilt_calibrated") else tilt_sigma_mm * 1e-3)

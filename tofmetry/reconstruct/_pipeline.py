@@ -16,7 +16,8 @@ from scipy.spatial import cKDTree
 from tofmetry._shared.geometry import fit_plane_svd, transform_points
 from tofmetry.errors import EstimationError, InputError, SensorMismatchError
 from tofmetry.pointcloud import project_to_local_planes
-from tofmetry.reconstruct._adjust import AdjustView, apply_depth_gain, global_adjust
+from tofmetry.reconstruct._adjust import AdjustView, apply_depth_gain, calibration_pose, global_adjust
+from tofmetry.reconstruct._adjust_terms import image_tilt_m
 from tofmetry.reconstruct._adjust_restart import restart_probe
 from tofmetry.reconstruct._adjust_result import (
     AdjustResult,
@@ -53,6 +54,13 @@ def _no_progress(description: str, total: int | None):
 def _object_depths_m(views, segs) -> np.ndarray:
     """(N,) depths Z [m] of the segmented object points of all views."""
     return np.concatenate([v.points[s.object_mask, 2] for v, s in zip(views, segs)])
+
+
+def _object_depth_span_mm(views, segs) -> tuple[float, float] | None:
+    """5th-95th percentile of the segmented object points' depths Z over all views [mm]; None
+    without object points."""
+    z = _object_depths_m(views, segs) * 1e3
+    return tuple(float(x) for x in np.percentile(z, (5, 95))) if len(z) else None
 
 
 def _median_object_depth_m(views, segs) -> float:
@@ -261,15 +269,14 @@ class ReconstructionPipeline:
             for a in av:
                 a.target = project_to_local_planes(a.target, rc.adjust_target_smooth_k)
         amp_prior = rc.amplitude_k_prior_mm if self.white_map is not None else None
-        z_obj = _object_depths_m(views, segs) * 1e3
-        field = None if self.cal is None or not len(z_obj) else depth_field_prior(
-            self.cal.prediction or {}, tuple(np.percentile(z_obj, (5, 95))), regs[0].intr,
+        field = None if self.cal is None else depth_field_prior(
+            self.cal.prediction or {}, _object_depth_span_mm(views, segs), regs[0].intr,
             tilt_sigma_mm=rc.uncalibrated_tilt_mm)
 
         tilt_prior = None if rc.image_tilt_prior_mm is None or (
             self.cal is not None and (self.cal.prediction or {}).get("tilt_calibrated")) else rc.image_tilt_prior_mm * 1e-3
 
-        def run(amplitude_prior_mm: float | None, start: np.ndarray = poses, predict: bool = True) -> AdjustResult:
+        def run(amplitude_prior_mm: float | None, start: np.ndarray = poses) -> AdjustResult:
             return global_adjust(av, start, z_ref, tuple(x * 1e-3 for x in rc.adjust_radii_mm), rc.adjust_iters,
                                  estimate_gain=rc.estimate_depth_gain, gain_prior_sigma=rc.depth_gain_prior,
                                  gain_max_sigma=rc.gain_max_sigma, sigma_inflation=rc.sigma_inflation,
@@ -278,7 +285,7 @@ class ReconstructionPipeline:
                                  curve_prior_m=self._curve_prior_mm() * 1e-3,
                                  amplitude_prior_m=None if amplitude_prior_mm is None else amplitude_prior_mm * 1e-3,
                                  pose_prior_deg=prior_deg, pose_prior_m=None if prior_mm is None else prior_mm * 1e-3,
-                                 depth_field=field if predict else None, tilt_prior_m=tilt_prior)
+                                 tilt_prior_m=tilt_prior)
 
         with self.progress("global adjustment", None):
             try:
@@ -287,7 +294,9 @@ class ReconstructionPipeline:
                     res = keep_amplitude_if_it_explains(res, run(amp_prior), rc.amplitude_min_rms_drop)
                 if rc.restart_check and float(np.max(res.moved_deg)) > rc.pose_gate_deg / 2:
                     res.restart = self._restart(res, poses, regs, lambda S: run(
-                        amp_prior if res.amplitude_estimated else None, S, False).poses)
+                        amp_prior if res.amplitude_estimated else None, S).poses)
+                if field is not None:  # once, on the adjustment kept
+                    res.calibration_pose = calibration_pose(res, field)
             except EstimationError as exc:  # keep the pose-graph poses; the reason goes to the diagnostics
                 self.adjust_failure = str(exc)
                 return None
@@ -312,9 +321,9 @@ class ReconstructionPipeline:
                     v.points = v.points - p0 * (dk_mm * 1e-3 * L.ravel()[v.index] / p0[:, 2])[:, None]
                     v.depth_mm = np.where(d0 > 0, v.depth_mm - dk_mm * L, 0.0)
                 if tilt is not None:  # Z -> Z + a (x - x0) + b (y - y0), (x, y) the pixel's ray
-                    c0 = res.image_tilt_centre
-                    v.points = v.points + p0 * ((((p0[:, :2] / p0[:, 2:3]) - c0) @ tilt) / p0[:, 2])[:, None]
-                    v.depth_mm = np.where(d0 > 0, v.depth_mm + 1e3 * ((rays - c0) @ tilt), 0.0)
+                    dz = image_tilt_m(p0[:, :2] / p0[:, 2:3], tilt, res.image_tilt_centre)
+                    v.points = v.points + p0 * (dz / p0[:, 2])[:, None]
+                    v.depth_mm = np.where(d0 > 0, v.depth_mm + 1e3 * image_tilt_m(rays, tilt, res.image_tilt_centre), 0.0)
                 if on_plane is not None and on_plane.sum() >= 3:  # the support plane moved with its points
                     s.plane = fit_plane_svd(v.points[on_plane], orient=s.plane[:3])
         return res
@@ -414,9 +423,7 @@ class ReconstructionPipeline:
         t0 = time.perf_counter()
         views, segs, regs, intr = self.load_views()
         if self.cal is not None:  # the calibration's predicted error where this object lies
-            z = _object_depths_m(views, segs) * 1e3
-            self.prediction_at_object = local_prediction(self.cal.prediction or {},
-                                                         tuple(np.percentile(z, (5, 95))) if len(z) else None)
+            self.prediction_at_object = local_prediction(self.cal.prediction or {}, _object_depth_span_mm(views, segs))
         t1 = time.perf_counter()
         graph = self.register(regs)
         if len(self.kept) < len(views):  # views no registration links to the others are left out
