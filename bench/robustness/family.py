@@ -37,7 +37,7 @@ import shutil
 import sys
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -84,12 +84,26 @@ class Draw:
                 "sensor_seed": self.sensor.seed}
 
 
-def draw_case(seed: int, mesh_dir: Path | None = MESH_DIR, reduced: bool = False) -> Draw:
-    """The object, path and sensor of ``seed`` (``reduced``: 6-8 views, procedural objects up to 0.35 m)."""
+def draw_case(seed: int, mesh_dir: Path | None = MESH_DIR, reduced: bool = False,
+              complete_to: float | None = None) -> Draw:
+    """The object, path and sensor of ``seed`` (``reduced``: 6-8 views, procedural objects up to 0.35 m).
+
+    ``complete_to``: the path as drawn, plus the views :func:`tofmetry.plan.complete` adds so that
+    the plan predicts that completeness (a user who asks ``tofmetry plan`` what the scan misses,
+    with the object's mesh); each added view goes into the loop where its azimuth falls."""
     md = mesh_dir if mesh_dir is not None and Path(mesh_dir).is_dir() else None
     obj = random_object(seed, md)
     path = random_path(seed, obj.centre_m, float(obj.extent_m.max()), n_views=(6, 8) if reduced else (6, 16))
-    return Draw(int(seed), obj, path, random_sensor(seed))
+    sensor = random_sensor(seed)
+    if complete_to is not None:
+        from tofmetry.plan import PlanObject, complete
+
+        poses, added, _ = complete(PlanObject(obj.vertices, obj.triangles, "mesh"), path.poses, sensor.intrinsics,
+                                   target=complete_to)
+        path = replace(path, kind=path.kind + ("+planned" if added else ""), poses=poses,
+                       params={**path.params, "drawn_views": path.n_views, "planned_views": added,
+                               "complete_to": complete_to})
+    return Draw(int(seed), obj, path, sensor)
 
 
 def calibrate_sensor(draw, seed: int, n_frames: int = 20, amplitude_max_mm: float = 2500.0,
@@ -133,8 +147,10 @@ def board_captures(draw, seed: int, work: Path, n_frames: int = 10) -> list[Path
 
 
 def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, mesh_dir: Path | None = MESH_DIR,
-             keep: bool = False, config=None, stations_mm=FAMILY_DISTANCES_MM, boards: bool = True) -> dict:
-    """Simulate, calibrate, reconstruct and evaluate one draw; returns one JSON-able row."""
+             keep: bool = False, config=None, stations_mm=FAMILY_DISTANCES_MM, boards: bool = True,
+             complete_to: float | None = None) -> dict:
+    """Simulate, calibrate, reconstruct and evaluate one draw (``complete_to``: :func:`draw_case`);
+    returns one JSON-able row."""
     from tofmetry.evaluate import EvaluationConfig, evaluate_model, pose_errors, scale_from_reference
     from tofmetry.io import read_json
     from tofmetry.io.mesh import Geometry
@@ -142,7 +158,7 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
     from tofmetry.reconstruct import ReconstructionConfig, poses_document
     from tofmetry.simulate import datasets
 
-    d = draw_case(seed, mesh_dir, reduced)
+    d = draw_case(seed, mesh_dir, reduced, complete_to)
     row = {"seed": int(seed), **d.describe()}
     t0 = time.perf_counter()
     cal, white, t_cal = calibrate_sensor(d.sensor, seed, distances_mm=stations_mm)
@@ -303,6 +319,9 @@ def main(argv=None) -> int:
     ap.add_argument("--stations", choices=("family", "study"), default="family",
                     help="wall stations of the calibration: 0.5-4.5 m (family) or the study's 0.8-4.5 m")
     ap.add_argument("--no-boards", action="store_true", help="correct with the study's k (no grey-level boards)")
+    ap.add_argument("--complete-to", type=float, default=None, metavar="SHARE",
+                    help="add the views tofmetry plan proposes so that the predicted completeness reaches SHARE "
+                    "(tofmetry.plan.complete, with the object's mesh) after each drawn path")
     ap.add_argument("--set", action="append", default=[], metavar="STAGE.FIELD=JSON",
                     help="override one field of the reconstruction config, e.g. "
                     "registration.adjust_radii_mm=[12,6,3] (repeatable; for A/B runs)")
@@ -327,7 +346,7 @@ def main(argv=None) -> int:
             r = run_case(s, work, a.frames, a.reduced, keep=a.keep,
                          config=None if config is None else config.model_copy(deep=True),
                          stations_mm=FAMILY_DISTANCES_MM if a.stations == "family" else DEFAULT_DISTANCES_MM,
-                         boards=not a.no_boards)
+                         boards=not a.no_boards, complete_to=a.complete_to)
             rows.append(r)
             with open(jl, "a") as fh:
                 fh.write(json.dumps(r, default=float) + "\n")

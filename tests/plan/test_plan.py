@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from tofmetry.errors import InputError
-from tofmetry.plan import predict, propose, proxy_from_points, proxy_from_size, ring, stripes
+from tofmetry.plan import complete, predict, propose, proxy_from_points, proxy_from_size, ring, seen_masks, stripes
 from tofmetry.sensor import KINECT_V2
 
 
@@ -57,6 +57,37 @@ def test_proxy_from_points_of_a_first_view():
         proxy_from_points(pts[:3])
 
 
+def test_completing_a_low_ring_adds_views_that_see_the_top_between_their_neighbours():
+    """A ring of 8 views at 10 deg sees the flat top of a 0.2 m rounded cube at 80 deg incidence,
+    beyond the 75 deg the chain keeps: about a tenth of its surface (less the base) is missing. A view
+    added looks down on it and sits in the loop between the two views that bracket its azimuth."""
+    cube = proxy_from_size(0.2, 0.2, 0.2)
+    low = ring(8, 1.0, 10.0, cube.centre_m)
+    before = predict(cube, low, KINECT_V2.depth)
+    assert before.completeness < 0.92
+    poses, added, pred = complete(cube, low, KINECT_V2.depth, target=0.97)
+    assert added and pred.completeness >= 0.97
+    kept = [i for i in range(len(poses)) if i not in added]
+    assert all(np.array_equal(poses[i], T) for i, T in zip(kept, low))  # the scan's views, in their order
+    S = seen_masks(cube, poses, KINECT_V2.depth)
+    for i in added:
+        a, b, c = S[i - 1], S[i], S[(i + 1) % len(poses)]
+        assert (a & b).sum() >= 0.5 * min(a.sum(), b.sum()) and (b & c).sum() >= 0.5 * min(b.sum(), c.sum())
+        az = [np.degrees(np.arctan2(poses[k][1, 3], poses[k][0, 3])) for k in (i - 1, i, (i + 1) % len(poses))]
+        assert (az[1] - az[0]) % 360 <= (az[2] - az[0]) % 360  # between its neighbours in azimuth
+    assert pred.min_overlap >= 0.5
+
+
+def test_completing_a_scan_that_reaches_the_target_adds_nothing(box):
+    eight = ring(8, 1.0, 30.0, box.centre_m)
+    poses, added, pred = complete(box, eight, KINECT_V2.depth, target=0.9)
+    assert added == [] and len(poses) == 8 and pred.completeness >= 0.9
+    with pytest.raises(InputError, match="at least 2 views"):
+        complete(box, eight[:1], KINECT_V2.depth)
+    with pytest.raises(InputError, match="target"):
+        complete(box, eight, KINECT_V2.depth, target=1.5)
+
+
 def test_cli_plan(tmp_path):
     from typer.testing import CliRunner
 
@@ -67,6 +98,13 @@ def test_cli_plan(tmp_path):
     assert r.exit_code == 0, r.output
     d = json.loads((tmp_path / "plan.json").read_text())
     assert d["proposal"]["prediction"]["completeness"] >= 0.9 and len(d["asked"]["camera_to_world"]) == 10
+    r = CliRunner().invoke(app, ["plan", "--size", "0.2,0.2,0.2", "--views", "ring:8:10", "--complete", "--target",
+                                 "0.95", "-o", str(tmp_path / "plan-c.json")])
+    assert r.exit_code == 0, r.output
+    c = json.loads((tmp_path / "plan-c.json").read_text())["completed"]
+    assert c["prediction"]["completeness"] >= 0.95 and len(c["camera_to_world"]) == 8 + len(c["params"]["added_at"])
+    r = CliRunner().invoke(app, ["plan", "--size", "0.2,0.2,0.2", "--complete", "-o", str(tmp_path / "p4.json")])
+    assert isinstance(r.exception, InputError) and "--views" in str(r.exception)
     r = CliRunner().invoke(app, ["plan", "--size", "0.3,0.2", "-o", str(tmp_path / "p2.json")])
     assert isinstance(r.exception, InputError)
     r = CliRunner().invoke(app, ["plan", "-o", str(tmp_path / "p3.json")])

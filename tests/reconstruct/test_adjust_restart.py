@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from tofmetry.reconstruct import global_adjust, rotation_angle_deg
-from tofmetry.reconstruct._adjust_restart import reflected_start, restart_probe
+from tofmetry.reconstruct._adjust_restart import pair_walks, reflected_start, restart_probe
 from tofmetry.reconstruct._verdict import assess
 
 from .test_adjust import _look_at
@@ -100,6 +100,13 @@ def test_the_verdict_flags_a_slide_and_keeps_the_move_gate_when_the_fit_comes_ba
     # beyond the gate and come back: still a reason (a consistent bias holds the pairs and the fit off)
     v = verdict(big, {"deg": 0.02, "mm": 0.1, "view": 2, "start_deg": 0.9})
     assert not v["reliable"] and "came back" in v["reasons"][0] and "disagree" in v["reasons"][0]
+    # ... unless the view's pairs, registered again from the joint fit, stay there (the pose graph was off)
+    stay = [{"source": 1, "target": 2, "deg": 0.05, "mm": 0.4}, {"source": 2, "target": 0, "deg": 0.2, "mm": 1.2}]
+    v = verdict(big, {"deg": 0.02, "mm": 0.1, "view": 2, "start_deg": 0.9, "pairs": stay})
+    assert v["reliable"] and "stay there" in v["warnings"][0] and "pose graph had been off" in v["warnings"][0]
+    walk = stay[:1] + [{"source": 2, "target": 0, "deg": 0.2, "mm": 1.6}]  # 1.6 mm at the object: beyond 1.5
+    v = verdict(big, {"deg": 0.02, "mm": 0.1, "view": 2, "start_deg": 0.9, "pairs": walk})
+    assert not v["reliable"] and "pair 02->00 walks 0.20 deg / 1.6 mm" in v["reasons"][0]
     # a slide: a reason whatever the move, naming the view
     v = verdict(small, {"deg": 0.3, "mm": 1.0, "view": 2, "start_deg": 0.5})
     assert not v["reliable"] and "do not pin the joint fit down" in v["reasons"][0] and "view 02" in v["reasons"][0]
@@ -113,3 +120,18 @@ def test_the_verdict_flags_a_slide_and_keeps_the_move_gate_when_the_fit_comes_ba
     assert v["reliable"] and "failed" in v["warnings"][0]
     # no restart (switched off): the plain gate
     assert not verdict(big, None)["reliable"] and verdict(small, None)["reliable"]
+
+
+def test_pair_walks_measure_how_far_each_pair_leaves_the_joint_fit():
+    """A pair whose ICP stays at the joint fit walks 0; one that turns by 0.3 deg about its source
+    camera's y axis walks 0.3 deg and moves each point by its distance from that axis x 0.3 deg."""
+    J = np.array([_look_at(np.array([np.cos(a), np.sin(a), 0.4]), np.zeros(3)) for a in (0.0, 0.7)])
+    pts = [np.array([[0.2, 0.0, 1.0], [0.0, 0.0, 1.0]]), np.zeros((0, 3))]
+    turn = np.eye(4)
+    turn[:3, :3] = Rotation.from_rotvec([0.0, np.radians(0.3), 0.0]).as_matrix()
+    stay = pair_walks(J, [(0, 1)], lambda i, j, init: init, pts)
+    assert stay == [{"source": 0, "target": 1, "deg": 0.0, "mm": 0.0}]
+    away = pair_walks(J, [(0, 1)], lambda i, j, init: init @ turn, pts)[0]
+    assert away["deg"] == pytest.approx(0.3, abs=1e-4)
+    # the point (0.2, 0, 1) is 1.02 m from the axis through the camera centre: it moves 1.02 m x 0.3 deg
+    assert away["mm"] == pytest.approx(np.hypot(0.2, 1.0) * np.radians(0.3) * 1e3, rel=1e-3)

@@ -307,6 +307,8 @@ def plan(
     frames: int = typer.Option(10, "--frames", help="Frames per view."),
     views: str | None = typer.Option(None, "--views", help="Also predict these views: ring:N:ELEV[:M:ELEV2] (N views at "
                                      "ELEV deg, plus M zenithal views at ELEV2)."),
+    complete_views: bool = typer.Option(False, "--complete", help="Propose the views to add to --views so that "
+                                        "they reach --target (each placed where its azimuth falls in the loop)."),
     force: bool = typer.Option(False, "--force", help="Replace an existing plan.json."),
 ) -> None:
     """Acquisition planning: predicted completeness and accuracy of views around an object, and the views to take."""
@@ -315,7 +317,7 @@ def plan(
     sz = None if size is None else _parse_floats(size, "--size", 3)
     run = plan_acquisition(size=sz, mesh=mesh, mesh_scale=mesh_scale, mesh_up=_parse_floats(mesh_up, "--mesh-up", 3),
                            first_view=first_view, calibration=calibration, distance_m=distance, target=target,
-                           n_frames=frames, views=views, output=output, force=force)
+                           n_frames=frames, views=views, complete_views=complete_views, output=output, force=force)
     ext = run.object.extent_m
     console.print(f"object ({run.object.source}): {ext[0]:.3f} x {ext[1]:.3f} x {ext[2]:.3f} m; views at "
                   f"{run.settings['distance_m']:.2f} m")
@@ -331,6 +333,11 @@ def plan(
         p = run.asked.prediction
         console.print(f"asked {run.asked.name}: completeness {p.completeness:.1%}, smallest overlap {p.min_overlap:.2f}, "
                       f"mean |d| {p.mean_abs_mm:.2f} mm")
+    if run.completed is not None:
+        p = run.completed.prediction
+        added = run.completed.params["added_at"]
+        console.print(f"completed: {len(added)} view(s) added (at positions {', '.join(map(str, added)) or '-'} of "
+                      f"{p.n_views}): completeness {p.completeness:.1%}, smallest overlap {p.min_overlap:.2f}")
     for w in run.settings.get("warnings", []):
         console.print(f"[yellow]{w}[/yellow]")
     if run.proposal is None:

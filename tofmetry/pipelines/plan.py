@@ -18,7 +18,8 @@ import numpy as np
 from tofmetry.errors import InputError
 from tofmetry.io import atomic_write_json, read_json
 from tofmetry.pipelines.paths import refuse_existing
-from tofmetry.plan import PlanObject, predict, propose, proxy_from_mesh, proxy_from_points, proxy_from_size, ring
+from tofmetry.plan import (PlanObject, Proposal, complete, predict, propose, proxy_from_mesh, proxy_from_points,
+                           proxy_from_size, ring)
 from tofmetry.sensor import KINECT_V2, CameraIntrinsics
 
 
@@ -32,6 +33,7 @@ class PlanRun:
     candidates: list
     asked: object = None
     settings: dict = field(default_factory=dict)
+    completed: object = None
 
     def to_dict(self) -> dict:
         return {"object": {"source": self.object.source, "extent_m": [round(float(x), 4) for x in self.object.extent_m],
@@ -39,6 +41,7 @@ class PlanRun:
                 "intrinsics": self.intrinsics.to_dict(), "settings": self.settings,
                 "proposal": None if self.proposal is None else self.proposal.to_dict(),
                 "asked": None if self.asked is None else self.asked.to_dict(),
+                "completed": None if self.completed is None else self.completed.to_dict(),
                 "candidates": [{"name": c.name, **c.prediction.to_dict()} for c in self.candidates]}
 
 
@@ -84,7 +87,8 @@ def object_from_first_view(capture: str | os.PathLike, calibration=None) -> tupl
 def plan_acquisition(*, size: tuple[float, float, float] | None = None, mesh: str | os.PathLike | None = None,
                      mesh_scale: float = 1.0, mesh_up=(0.0, 0.0, 1.0), first_view: str | os.PathLike | None = None,
                      calibration=None, distance_m: float | None = None, target: float = 0.9, n_frames: int = 10,
-                     views: str | None = None, output: str | os.PathLike | None = None, force: bool = False) -> PlanRun:
+                     views: str | None = None, complete_views: bool = False, output: str | os.PathLike | None = None,
+                     force: bool = False) -> PlanRun:
     """Plan the acquisition of one object (exactly one of ``size``, ``mesh``, ``first_view``).
 
     Parameters
@@ -97,6 +101,8 @@ def plan_acquisition(*, size: tuple[float, float, float] | None = None, mesh: st
         else 0.5 m + 1.5 x the largest side, within 0.7-1.5 m
     target : completeness to reach (0-1)
     views : a set of views to predict as well (:func:`parse_views`)
+    complete_views : also propose the views to add to ``views`` so that they reach ``target``
+        (:func:`tofmetry.plan.complete`: next-best views, each placed in the loop where its azimuth falls)
     output : ``plan.json`` to write (atomic; refuses to overwrite without ``force``)
     """
     from tofmetry.pipelines.calibration_files import load_calibration
@@ -129,15 +135,19 @@ def plan_acquisition(*, size: tuple[float, float, float] | None = None, mesh: st
     best, ranked = propose(obj, intr, target, distance_m, **kw)
     asked = None
     if views is not None:
-        from tofmetry.plan import Proposal
-
         poses = parse_views(views, obj, distance_m)
         asked = Proposal(views, poses, predict(obj, poses, intr, **kw), {"spec": views})
+    completed = None
+    if complete_views:
+        if asked is None:
+            raise InputError("plan: --complete completes the views given with --views; give --views too")
+        poses, added, pred = complete(obj, asked.poses, intr, target, distance_m, **kw)
+        completed = Proposal(f"{views} + {len(added)} planned", poses, pred, {"spec": views, "added_at": added})
     settings = {"target": target, "distance_m": distance_m, "n_frames": n_frames, "calibration_mm": cal_mm}
     w = calibrated_range_warning(obj, distance_m, cal)
     if w:
         settings["warnings"] = [w]
-    run = PlanRun(obj, intr, best, ranked, asked, settings)
+    run = PlanRun(obj, intr, best, ranked, asked, settings, completed)
     if output is not None:
         refuse_existing(output, force)
         atomic_write_json(Path(output), run.to_dict())

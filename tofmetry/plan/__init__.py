@@ -11,14 +11,16 @@ from tofmetry.plan._plan import (
     Prediction,
     Proposal,
     candidates,
+    complete,
     predict,
     propose,
     proxy_from_mesh,
     proxy_from_points,
     proxy_from_size,
     ring,
+    seen_masks,
     stripes,
 )
 
-__all__ = ["PlanObject", "Prediction", "Proposal", "candidates", "predict", "propose", "proxy_from_mesh",
-           "proxy_from_points", "proxy_from_size", "ring", "stripes"]
+__all__ = ["PlanObject", "Prediction", "Proposal", "candidates", "complete", "predict", "propose", "proxy_from_mesh",
+           "proxy_from_points", "proxy_from_size", "ring", "seen_masks", "stripes"]

@@ -150,6 +150,28 @@ def proxy_from_points(points_up: np.ndarray) -> PlanObject:
     return PlanObject(v, f, "first view")
 
 
+def seen_masks(obj: PlanObject, poses, intr: CameraIntrinsics, *, min_mm: float = 500.0, max_mm: float = 2500.0,
+               max_incidence_deg: float = 75.0, spacing_mm: float = 3.0, seed: int = 0) -> np.ndarray:
+    """Which samples of the object's surface (its base left out, see the module docstring) each view sees.
+
+    Returns
+    -------
+    (V, N) bool: view k sees sample j (inside its image and working range ``min_mm``-``max_mm``
+    [mm], at an incidence below ``max_incidence_deg``, not hidden by the object); the samples are
+    the same for the same object, ``spacing_mm`` and ``seed``.
+    """
+    pts, nrm, _ = sample_mesh(obj.vertices, obj.triangles, spacing_mm * 1e-3, seed=seed, max_points=60_000)
+    base = nrm @ np.array([0.0, 0.0, -1.0]) > np.cos(np.radians(30.0))
+    pts, nrm = pts[~base], nrm[~base]
+    mesh = (obj.vertices, obj.triangles)
+    seen_by = []
+    for T in poses:
+        s, _ = observed_mask(pts, nrm, CameraViews(np.stack([np.asarray(T, np.float64)]), intr, min_mm, max_mm), None,
+                             mesh, max_incidence_deg)
+        seen_by.append(s)
+    return np.stack(seen_by) if seen_by else np.zeros((0, len(pts)), bool)
+
+
 def predict(obj: PlanObject, poses, intr: CameraIntrinsics, *, n_frames: int = 10, max_mm: float = 2500.0,
             min_mm: float = 500.0, max_incidence_deg: float = 75.0, spacing_mm: float = 3.0,
             noise_1m_mm: float = 1.3, calibration_mm: float = 0.5, seed: int = 0) -> Prediction:
@@ -157,15 +179,8 @@ def predict(obj: PlanObject, poses, intr: CameraIntrinsics, *, n_frames: int = 1
     poses = [np.asarray(T, np.float64) for T in poses]
     if len(poses) < 1:
         raise InputError("plan: no views to predict")
-    pts, nrm, _ = sample_mesh(obj.vertices, obj.triangles, spacing_mm * 1e-3, seed=seed, max_points=60_000)
-    base = nrm @ np.array([0.0, 0.0, -1.0]) > np.cos(np.radians(30.0))
-    pts, nrm = pts[~base], nrm[~base]
-    mesh = (obj.vertices, obj.triangles)
-    seen_by = []
-    for T in poses:
-        s, _ = observed_mask(pts, nrm, CameraViews(np.stack([T]), intr, min_mm, max_mm), None, mesh, max_incidence_deg)
-        seen_by.append(s)
-    S = np.stack(seen_by)  # (V, N)
+    S = seen_masks(obj, poses, intr, min_mm=min_mm, max_mm=max_mm, max_incidence_deg=max_incidence_deg,
+                   spacing_mm=spacing_mm, seed=seed)
     count = S.sum(0)
     comp = float((count > 0).mean())
     V = len(poses)
@@ -246,3 +261,86 @@ def propose(obj: PlanObject, intr: CameraIntrinsics, target: float = 0.9, distan
                                       -p.prediction.completeness))
     best = min(ok, key=lambda p: (p.prediction.n_views, -p.prediction.completeness)) if ok else None
     return best, rank
+
+
+def complete(obj: PlanObject, poses, intr: CameraIntrinsics, target: float = 0.9, distance_m: float | None = None,
+             elevations_deg=(15.0, 55.0, 70.0, 85.0), n_azimuth: int = 12, max_added: int = 6,
+             min_overlap: float = 0.5, **kw) -> tuple[list, list[int], Prediction]:
+    """Views to add to a scanned path so that the predicted completeness reaches ``target``: the
+    next-best views of a user who has scanned ``poses`` and asks what is missing (study §6.3).
+
+    Candidates look at the object's centre from ``n_azimuth`` azimuths on rings at
+    ``elevations_deg`` [deg], at ``distance_m`` [m] from the centre (default: the median distance of
+    ``poses``). Each goes into the loop of views where its azimuth falls (between the two views
+    that bracket it), as the reconstruction registers successive views and closes the loop; it is
+    admissible only if it shares at least ``min_overlap`` of the surface with both neighbours
+    there. Views are added greedily, each the admissible one that sees the most surface no view
+    sees yet, until the prediction reaches ``target``, none adds any, or ``max_added`` are added.
+
+    Parameters
+    ----------
+    poses : camera-to-world (4, 4) of the scanned views, in loop order (the object's z-up frame)
+
+    Returns
+    -------
+    (all poses in the order to process them, the indices of the added views in that list,
+    the prediction of that list)
+    """
+    if not 0 < target <= 1:
+        raise InputError(f"plan: target must be in (0, 1], found {target}")
+    poses = [np.asarray(T, np.float64) for T in poses]
+    if len(poses) < 2:
+        raise InputError(f"plan: completing a scan needs at least 2 views in loop order, found {len(poses)}")
+    c = obj.centre_m
+    if distance_m is None:
+        distance_m = float(np.median([np.linalg.norm(T[:3, 3] - c) for T in poses]))
+    cand = []
+    for i, el in enumerate(elevations_deg):
+        e = np.radians(el)
+        for k in range(n_azimuth):
+            az = 2 * np.pi * k / n_azimuth + (np.pi / n_azimuth) * (i % 2)  # rings staggered in azimuth
+            d = np.array([np.cos(e) * np.cos(az), np.cos(e) * np.sin(az), np.sin(e)])
+            cand.append(look_at(c + distance_m * d, c, (0.0, 0.0, 1.0) if el < 89.0 else (np.cos(az), np.sin(az), 0.0)))
+    geo = {k: kw[k] for k in ("min_mm", "max_mm", "max_incidence_deg", "spacing_mm", "seed") if k in kw}
+    S = seen_masks(obj, poses + cand, intr, **geo)
+    n = len(poses)
+
+    def azimuth(T):
+        v = T[:3, 3] - c
+        return float(np.arctan2(v[1], v[0]))
+
+    def overlap(a, b):
+        return float((a & b).sum() / max(min(a.sum(), b.sum()), 1))
+
+    order = list(range(n))  # indices into S, in loop order
+    sense = np.sign(np.sum(np.sin(np.diff(np.unwrap([azimuth(T) for T in poses]))))) or 1.0
+    have = S[:n].any(0)
+    added: list[int] = []
+    while have.mean() < target and len(added) < max_added:
+        best = None
+        for j in range(len(cand)):
+            if n + j in order:
+                continue
+            a = azimuth(cand[j])
+            for slot in range(len(order)):  # between order[slot] and order[slot + 1]
+                p, q = order[slot], order[(slot + 1) % len(order)]
+                ap = azimuth(poses[p]) if p < n else azimuth(cand[p - n])
+                aq = azimuth(poses[q]) if q < n else azimuth(cand[q - n])
+                span = (sense * (aq - ap)) % (2 * np.pi)
+                if not 0 <= (sense * (a - ap)) % (2 * np.pi) <= span:
+                    continue
+                if min(overlap(S[n + j], S[p]), overlap(S[n + j], S[q])) < min_overlap:
+                    continue
+                gain = int((S[n + j] & ~have).sum())
+                if gain > 0 and (best is None or gain > best[0]):
+                    best = (gain, j, slot)
+                break
+        if best is None:
+            break
+        _, j, slot = best
+        order.insert(slot + 1, n + j)
+        added.append(n + j)
+        have |= S[n + j]
+    out = [poses[i] if i < n else cand[i - n] for i in order]
+    idx = [order.index(i) for i in added]
+    return out, sorted(idx), predict(obj, out, intr, **kw)

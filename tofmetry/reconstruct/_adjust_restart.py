@@ -93,3 +93,39 @@ def restart_probe(solution: np.ndarray, start: np.ndarray, rerun: Callable[[np.n
     return {"deg": round(float(deg[k]), 4), "mm": round(float(max(mm)), 3), "view": k,
             "start_deg": round(float(max(rotation_angle_deg(S[v] @ np.linalg.inv(J[v])) for v in range(len(J)))), 4),
             "per_view_deg": [round(float(x), 4) for x in deg]}
+
+
+def pair_walks(solution: np.ndarray, pairs, refine: Callable[[int, int, np.ndarray], np.ndarray],
+               source_points) -> list[dict]:
+    """Each pair's own registration started at the joint fit: how far does it walk away?
+
+    A restart that comes back shows that the points of all views determine the joint fit ``J``; it
+    does not show whether the pairs, each on its own, agree with it. Here the pair's ICP (as the
+    registration refines a pair from an initial pose) starts at the relative pose ``J`` gives the
+    pair. A pair whose registration had stopped elsewhere on a cost that is flat or has two basins
+    stays at ``J`` (the pose graph was off, the joint fit put it right); a pair whose data pull it
+    away (a bias the pairs share, such as the thinning of a slab matched face to face) walks back.
+
+    Parameters
+    ----------
+    solution : (V, 4, 4) camera-to-world of the joint fit [m]
+    pairs : (i, j) view indices (source i registered onto target j)
+    refine : (i, j, init) -> (4, 4) the pair's ICP from ``init`` (source camera -> target camera)
+    source_points : per view, (N, 3) its object points in its own camera frame [m]
+
+    Returns
+    -------
+    per pair: ``source``, ``target``, ``deg`` (rotation of the walk [deg]), ``mm`` (largest
+    displacement of the source's object points by the walk [mm])
+    """
+    J = np.asarray(solution, np.float64)
+    out = []
+    for i, j in pairs:
+        init = np.linalg.inv(J[j]) @ J[i]
+        T = np.asarray(refine(i, j, init), np.float64)
+        pts = np.asarray(source_points[i], np.float64)
+        a, b = transform_points(pts, init), transform_points(pts, T)
+        mm = float(np.linalg.norm(a - b, axis=1).max()) * 1e3 if len(pts) else 0.0
+        out.append({"source": int(i), "target": int(j), "deg": round(rotation_angle_deg(np.linalg.inv(init) @ T), 4),
+                    "mm": round(mm, 3)})
+    return out

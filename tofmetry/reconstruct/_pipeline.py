@@ -18,7 +18,7 @@ from tofmetry.errors import EstimationError, InputError, SensorMismatchError
 from tofmetry.pointcloud import project_to_local_planes
 from tofmetry.reconstruct._adjust import AdjustView, apply_depth_gain, calibration_pose, global_adjust
 from tofmetry.reconstruct._adjust_terms import image_tilt_m
-from tofmetry.reconstruct._adjust_restart import restart_probe
+from tofmetry.reconstruct._adjust_restart import pair_walks, restart_probe
 from tofmetry.reconstruct._adjust_result import (
     AdjustResult,
     keep_amplitude_if_it_explains,
@@ -38,7 +38,7 @@ from tofmetry.reconstruct._fusion import TSDFFusion, crop_mesh, poisson_mesh
 from tofmetry.reconstruct._posegraph import PoseGraphBuilder
 from tofmetry.reconstruct._preprocess import ViewData, prepare_view
 from tofmetry.reconstruct._range_curve import apply_range_curve, range_curve_m
-from tofmetry.reconstruct._register import register_pair, rejection_reason
+from tofmetry.reconstruct._register import refine_pair, register_pair, rejection_reason
 from tofmetry.reconstruct._regview import RegView, make_reg_view
 from tofmetry.reconstruct._scale_budget import scale_budget
 from tofmetry.reconstruct._segment import Segmentation, segment_object
@@ -245,11 +245,13 @@ class ReconstructionPipeline:
         return pg.optimize(rc.icp_radii_mm[-1] * 1e-3, rc.edge_prune, rc.gate_max_deg, rc.gate_max_mm)
 
     def adjust(self, views: list[ViewData], segs: list[Segmentation], regs: list[RegView],
-               poses: np.ndarray, loops: list[dict] | None = None) -> AdjustResult | None:
+               poses: np.ndarray, loops: list[dict] | None = None, edges=()) -> AdjustResult | None:
         """Global adjustment of the pose-graph poses (and the depth gain); applies the gain to
         ``views`` (depth and points) in place. None when switched off. ``loops``: the pose graph's
         loop closures (:func:`loop_closures`); half the worst one widens the pose prior (a loop
-        that closes only to X deg leaves up to X / 2 on a view once spread)."""
+        that closes only to X deg leaves up to X / 2 on a view once spread). ``edges``: the pose
+        graph's kept pairs (i, j); when the fit moved a view beyond the pose gate and its restart
+        came back, those of that view are registered again from the joint fit (:func:`pair_walks`)."""
         rc = self.cfg.registration
         if not rc.global_adjust:
             return None
@@ -295,6 +297,7 @@ class ReconstructionPipeline:
                 if rc.restart_check and float(np.max(res.moved_deg)) > rc.pose_gate_deg / 2:
                     res.restart = self._restart(res, poses, regs, lambda S: run(
                         amp_prior if res.amplitude_estimated else None, S).poses)
+                    self._pair_walks(res, regs, edges)
                 if field is not None:  # once, on the adjustment kept
                     res.calibration_pose = calibration_pose(res, field)
             except EstimationError as exc:  # keep the pose-graph poses; the reason goes to the diagnostics
@@ -338,6 +341,19 @@ class ReconstructionPipeline:
             return restart_probe(res.poses, start, rerun, obj, self.cfg.registration.pose_gate_deg)
         except EstimationError as exc:
             return {"failed": str(exc)}
+
+    def _pair_walks(self, res: AdjustResult, regs: list[RegView], edges) -> None:
+        """When the fit moved a view beyond the pose gate and its restart came back, the kept pairs
+        of that view registered again from the joint fit (:func:`pair_walks`), in ``res.restart["pairs"]``."""
+        rc = self.cfg.registration
+        rs = res.restart or {}
+        w = int(np.argmax(res.moved_deg))
+        if ("failed" in rs or float(res.moved_deg[w]) <= rc.pose_gate_deg or rs.get("deg", np.inf) > rc.pose_gate_deg / 2
+                or rs.get("mm", np.inf) > rc.pose_gate_mm / 2):
+            return
+        mine = [(i, j) for i, j in edges if w in (i, j)]
+        rs["pairs"] = pair_walks(res.poses, mine, lambda i, j, init: refine_pair(regs[i], regs[j], init, rc),
+                                 [r.obj_points for r in regs])
 
     def _scale_budget(self, views: list[ViewData], segs: list[Segmentation], poses: np.ndarray, intr, z_ref: float):
         """``(offset_sigma_m, gain_sigma) -> dict``: :func:`scale_budget` on the object points of
@@ -430,7 +446,10 @@ class ReconstructionPipeline:
             views, segs, regs = ([x[k] for k in self.kept] for x in (views, segs, regs))
         names = [self.ds.names[k] for k in self.kept]
         t2a = time.perf_counter()
-        adj = self.adjust(views, segs, regs, graph.poses, (graph.consistency or {}).get("loops"))
+        idx = {n: k for k, n in enumerate(names)}
+        kept_pairs = [(idx[e["source"]], idx[e["target"]]) for e in graph.edges
+                      if e.get("kept") and e["source"] in idx and e["target"] in idx]
+        adj = self.adjust(views, segs, regs, graph.poses, (graph.consistency or {}).get("loops"), kept_pairs)
         t2 = time.perf_counter()
         poses = graph.poses if adj is None else adj.poses
         V, F, N, P, PN, fusion_info = self.fuse(views, segs, poses, intr)

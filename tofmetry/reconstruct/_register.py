@@ -165,7 +165,9 @@ def _refine_fine(src: RegView, tgt: RegView, init: np.ndarray, cfg: Registration
                max_iter=cfg.fine_max_iter).transform
 
 
-def _refine(src: RegView, tgt: RegView, init: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:
+def refine_pair(src: RegView, tgt: RegView, init: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:
+    """The pair's ICP from ``init`` (every stage: the mid-voxel ones, then the fine one), as the
+    registration refines a pair from an initial pose. (4, 4) source camera -> target camera [m]."""
     return _refine_fine(src, tgt, _refine_mid(src, tgt, init, cfg), cfg)
 
 
