@@ -1,6 +1,7 @@
 """Object models on a family of random object / path / sensor draws, judged against the truth.
 
-``.venv/bin/python -m bench.robustness.family [--n 20] [--seeds 1,2,3] [--frames 5] [-o DIR] [--reduced]``
+``.venv/bin/python -m bench.robustness.family [--n 20] [--seeds 1,2,3] [--frames 5] [-o DIR] [--reduced]
+[--complete-to SHARE]``
 
 Each draw (one seed) is:
 

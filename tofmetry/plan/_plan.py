@@ -27,6 +27,12 @@ objects): rings of 6-16 views at 20-45 deg elevation, rings plus 2-4 zenithal vi
 and, for an object at least twice as long as wide, stripes (views along both long sides and at
 both ends); the proposal is the one with the fewest views that reaches the target completeness
 with every successive overlap above ``min_overlap`` (ties: the higher completeness).
+
+**Completing a scan** (:func:`complete`): the views to add to a path already taken, greedily, each
+the one that sees the most surface still missing (rings at 15, 55, 70 and 85 deg), placed in the loop
+between the two views that bracket its azimuth and sharing ``min_overlap`` with both, as the
+reconstruction registers successive views. On family draw 20 (``bench/robustness``, 2026-11-28) a
+target of 0.92 gave 9 of 20 paths 1-5 views, and every run within the pose gate reached 0.91-0.99.
 """
 
 from __future__ import annotations
