@@ -13,11 +13,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from tofmetry._shared.geometry import fit_plane_svd, transform_points
+from tofmetry._shared.geometry import transform_points
 from tofmetry.errors import EstimationError, InputError, SensorMismatchError
 from tofmetry.pointcloud import project_to_local_planes
-from tofmetry.reconstruct._adjust import AdjustView, apply_depth_gain, calibration_pose, global_adjust
-from tofmetry.reconstruct._adjust_terms import image_tilt_m
+from tofmetry.reconstruct._adjust import AdjustView, calibration_pose, global_adjust
+from tofmetry.reconstruct._adjust_apply import correct_views
 from tofmetry.reconstruct._adjust_restart import pair_walks, restart_probe
 from tofmetry.reconstruct._adjust_result import (
     AdjustResult,
@@ -37,7 +37,6 @@ from tofmetry.reconstruct._config import ReconstructionConfig
 from tofmetry.reconstruct._fusion import TSDFFusion, crop_mesh, poisson_mesh
 from tofmetry.reconstruct._posegraph import PoseGraphBuilder
 from tofmetry.reconstruct._preprocess import ViewData, prepare_view
-from tofmetry.reconstruct._range_curve import apply_range_curve, range_curve_m
 from tofmetry.reconstruct._register import refine_pair, register_pair, rejection_reason
 from tofmetry.reconstruct._regview import RegView, make_reg_view
 from tofmetry.reconstruct._scale_budget import scale_budget
@@ -303,32 +302,7 @@ class ReconstructionPipeline:
             except EstimationError as exc:  # keep the pose-graph poses; the reason goes to the diagnostics
                 self.adjust_failure = str(exc)
                 return None
-        curve = res.range_curve_m if res.range_curve_estimated else None
-        dk_mm = res.amplitude_dk_m * 1e3 if res.amplitude_estimated else 0.0
-        tilt = res.image_tilt_m if res.image_tilt_estimated else None
-        rays = None if tilt is None else regs[0].intr.ray_table()
-        if res.depth_gain != 0.0 or curve is not None or dk_mm != 0.0 or tilt is not None:
-            thr = self.cfg.segment.plane_threshold_mm * 1e-3
-            h = res.range_curve_half_span_m
-            for v, s in zip(views, segs):
-                on_plane = None if s.plane is None else np.abs(v.points @ s.plane[:3] + s.plane[3]) < thr
-                p0, d0 = v.points, v.depth_mm
-                v.points = apply_depth_gain(p0, res.depth_gain, z_ref)
-                v.depth_mm = np.where(d0 > 0, d0 + res.depth_gain * (d0 - z_ref * 1e3), 0.0)
-                if curve is not None:  # a function of the measured depth, like the gain
-                    v.points = v.points + apply_range_curve(p0, curve, z_ref, h) - p0
-                    v.depth_mm = np.where(d0 > 0, v.depth_mm + 1e3 * range_curve_m(d0.ravel() * 1e-3, curve, z_ref, h)
-                                          .reshape(d0.shape), 0.0)
-                if dk_mm != 0.0:  # Z -> Z - dk ln(A_white / A), like the preprocessing's own correction
-                    L = amplitude_log_ratio(d0, v.ir, self.white_map, regs[0].intr)
-                    v.points = v.points - p0 * (dk_mm * 1e-3 * L.ravel()[v.index] / p0[:, 2])[:, None]
-                    v.depth_mm = np.where(d0 > 0, v.depth_mm - dk_mm * L, 0.0)
-                if tilt is not None:  # Z -> Z + a (x - x0) + b (y - y0), (x, y) the pixel's ray
-                    dz = image_tilt_m(p0[:, :2] / p0[:, 2:3], tilt, res.image_tilt_centre)
-                    v.points = v.points + p0 * (dz / p0[:, 2])[:, None]
-                    v.depth_mm = np.where(d0 > 0, v.depth_mm + 1e3 * image_tilt_m(rays, tilt, res.image_tilt_centre), 0.0)
-                if on_plane is not None and on_plane.sum() >= 3:  # the support plane moved with its points
-                    s.plane = fit_plane_svd(v.points[on_plane], orient=s.plane[:3])
+        correct_views(views, segs, res, z_ref, regs[0].intr, self.white_map, self.cfg.segment.plane_threshold_mm * 1e-3)
         return res
 
     def _restart(self, res: AdjustResult, start: np.ndarray, regs: list[RegView], rerun) -> dict:
