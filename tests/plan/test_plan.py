@@ -101,8 +101,10 @@ def test_cli_plan(tmp_path):
     r = CliRunner().invoke(app, ["plan", "--size", "0.2,0.2,0.2", "--views", "ring:8:10", "--complete", "--target",
                                  "0.95", "-o", str(tmp_path / "plan-c.json")])
     assert r.exit_code == 0, r.output
-    c = json.loads((tmp_path / "plan-c.json").read_text())["completed"]
+    doc = json.loads((tmp_path / "plan-c.json").read_text())
+    c = doc["completed"]
     assert c["prediction"]["completeness"] >= 0.95 and len(c["camera_to_world"]) == 8 + len(c["params"]["added_at"])
+    assert any("registration is harder" in w for w in doc["settings"]["warnings"])  # what views at other elevations cost
     r = CliRunner().invoke(app, ["plan", "--size", "0.2,0.2,0.2", "--complete", "-o", str(tmp_path / "p4.json")])
     assert isinstance(r.exception, InputError) and "--views" in str(r.exception)
     r = CliRunner().invoke(app, ["plan", "--size", "0.3,0.2", "-o", str(tmp_path / "p2.json")])

@@ -23,6 +23,12 @@ from tofmetry.plan import (PlanObject, Proposal, complete, predict, propose, pro
 from tofmetry.sensor import KINECT_V2, CameraIntrinsics
 
 
+#: what the family measured of views added at other elevations (bench/robustness, draws 20-21, 2026-11-28)
+ADDED_VIEWS_WARNING = ("the added views look from other elevations than the scan's: their registration is harder; on "
+                       "the family's draws 20-21 it broke 3 of 18 completed scans (flagged unreliable, 0.64-172 deg "
+                       "off) that were right without them; check the reconstruction's verdict")
+
+
 @dataclass
 class PlanRun:
     """Result of :func:`plan_acquisition` (all JSON-able through :meth:`to_dict`)."""
@@ -144,9 +150,10 @@ def plan_acquisition(*, size: tuple[float, float, float] | None = None, mesh: st
         poses, added, pred = complete(obj, asked.poses, intr, target, distance_m, **kw)
         completed = Proposal(f"{views} + {len(added)} planned", poses, pred, {"spec": views, "added_at": added})
     settings = {"target": target, "distance_m": distance_m, "n_frames": n_frames, "calibration_mm": cal_mm}
-    w = calibrated_range_warning(obj, distance_m, cal)
-    if w:
-        settings["warnings"] = [w]
+    warnings = [w for w in (calibrated_range_warning(obj, distance_m, cal),
+                            None if completed is None or not completed.params["added_at"] else ADDED_VIEWS_WARNING) if w]
+    if warnings:
+        settings["warnings"] = warnings
     run = PlanRun(obj, intr, best, ranked, asked, settings, completed)
     if output is not None:
         refuse_existing(output, force)

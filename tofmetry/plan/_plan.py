@@ -33,6 +33,9 @@ the one that sees the most surface still missing (rings at 15, 55, 70 and 85 deg
 between the two views that bracket its azimuth and sharing ``min_overlap`` with both, as the
 reconstruction registers successive views. On family draw 20 (``bench/robustness``, 2026-11-28) a
 target of 0.92 gave 9 of 20 paths 1-5 views, and every run within the pose gate reached 0.91-0.99.
+The views it adds look from other elevations than the scan's, and they are harder to register: on
+draw 21 they broke 3 of the 9 scans they completed that were right without them (a rocker arm
+0.48 -> 0.64 deg, an igea 0.10 -> 22 deg, a fandisk 0.09 -> 172 deg; all flagged), so the plan warns.
 """
 
 from __future__ import annotations
