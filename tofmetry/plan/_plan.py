@@ -183,20 +183,25 @@ def seen_masks(obj: PlanObject, poses, intr: CameraIntrinsics, *, min_mm: float 
 
 def predict(obj: PlanObject, poses, intr: CameraIntrinsics, *, n_frames: int = 10, max_mm: float = 2500.0,
             min_mm: float = 500.0, max_incidence_deg: float = 75.0, spacing_mm: float = 3.0,
-            noise_1m_mm: float = 1.3, calibration_mm: float = 0.5, seed: int = 0) -> Prediction:
-    """Predicted completeness, successive overlaps and accuracy of ``poses`` (module docstring)."""
+            noise_1m_mm: float = 1.3, calibration_mm: float = 0.5, seed: int = 0,
+            seen: np.ndarray | None = None) -> Prediction:
+    """Predicted completeness, successive overlaps and accuracy of ``poses`` (module docstring).
+
+    ``seen``: the views' seen masks (V, N) when already computed (:func:`seen_masks` with the same
+    ``min_mm``, ``max_mm``, ``max_incidence_deg``, ``spacing_mm`` and ``seed``)."""
     poses = [np.asarray(T, np.float64) for T in poses]
     if len(poses) < 1:
         raise InputError("plan: no views to predict")
-    S = seen_masks(obj, poses, intr, min_mm=min_mm, max_mm=max_mm, max_incidence_deg=max_incidence_deg,
-                   spacing_mm=spacing_mm, seed=seed)
+    if seen is None:
+        seen = seen_masks(obj, poses, intr, min_mm=min_mm, max_mm=max_mm, max_incidence_deg=max_incidence_deg,
+                          spacing_mm=spacing_mm, seed=seed)
+    S = np.asarray(seen, bool)
     count = S.sum(0)
     comp = float((count > 0).mean())
     V = len(poses)
     ov = np.zeros(V)
     for k in range(V):
-        a, b = S[k], S[(k + 1) % V]
-        ov[k] = float((a & b).sum() / max(min(a.sum(), b.sum()), 1))
+        ov[k] = _overlap(S[k], S[(k + 1) % V])
     if V == 1:
         ov[:] = 1.0
     z = np.array([np.linalg.norm(T[:3, 3] - obj.centre_m) for T in poses])
@@ -204,6 +209,11 @@ def predict(obj: PlanObject, poses, intr: CameraIntrinsics, *, n_frames: int = 1
     views_per_point = float(np.mean(count[count > 0])) if (count > 0).any() else 1.0
     sigma = float(np.hypot(noise / np.sqrt(n_frames * views_per_point), calibration_mm))
     return Prediction(comp, float(ov.min()) if V > 1 else 1.0, ov, 0.8 * sigma, 2.0 * sigma, S.mean(1), V)
+
+
+def _overlap(a: np.ndarray, b: np.ndarray) -> float:
+    """Common visible share of two views' seen masks over the smaller one's (module docstring)."""
+    return float((a & b).sum() / max(min(a.sum(), b.sum()), 1))
 
 
 def ring(n: int, distance_m: float, elevation_deg: float, target, start_deg: float = 0.0) -> list:
@@ -311,45 +321,34 @@ def complete(obj: PlanObject, poses, intr: CameraIntrinsics, target: float = 0.9
             d = np.array([np.cos(e) * np.cos(az), np.cos(e) * np.sin(az), np.sin(e)])
             cand.append(look_at(c + distance_m * d, c, (0.0, 0.0, 1.0) if el < 89.0 else (np.cos(az), np.sin(az), 0.0)))
     geo = {k: kw[k] for k in ("min_mm", "max_mm", "max_incidence_deg", "spacing_mm", "seed") if k in kw}
-    S = seen_masks(obj, poses + cand, intr, **geo)
+    every = poses + cand  # indexed like the rows of S
+    S = seen_masks(obj, every, intr, **geo)
     n = len(poses)
-
-    def azimuth(T):
-        v = T[:3, 3] - c
-        return float(np.arctan2(v[1], v[0]))
-
-    def overlap(a, b):
-        return float((a & b).sum() / max(min(a.sum(), b.sum()), 1))
-
-    order = list(range(n))  # indices into S, in loop order
-    sense = np.sign(np.sum(np.sin(np.diff(np.unwrap([azimuth(T) for T in poses]))))) or 1.0
+    az = np.array([np.arctan2(T[1, 3] - c[1], T[0, 3] - c[0]) for T in every])
+    sense = np.sign(np.sum(np.sin(np.diff(np.unwrap(az[:n]))))) or 1.0
+    order = list(range(n))  # indices into ``every``, in loop order
     have = S[:n].any(0)
     added: list[int] = []
     while have.mean() < target and len(added) < max_added:
         best = None
-        for j in range(len(cand)):
-            if n + j in order:
+        for j in range(n, len(every)):
+            if j in order:
                 continue
-            a = azimuth(cand[j])
             for slot in range(len(order)):  # between order[slot] and order[slot + 1]
                 p, q = order[slot], order[(slot + 1) % len(order)]
-                ap = azimuth(poses[p]) if p < n else azimuth(cand[p - n])
-                aq = azimuth(poses[q]) if q < n else azimuth(cand[q - n])
-                span = (sense * (aq - ap)) % (2 * np.pi)
-                if not 0 <= (sense * (a - ap)) % (2 * np.pi) <= span:
+                if not (sense * (az[j] - az[p])) % (2 * np.pi) <= (sense * (az[q] - az[p])) % (2 * np.pi):
                     continue
-                if min(overlap(S[n + j], S[p]), overlap(S[n + j], S[q])) < min_overlap:
+                if min(_overlap(S[j], S[p]), _overlap(S[j], S[q])) < min_overlap:
                     continue
-                gain = int((S[n + j] & ~have).sum())
+                gain = int((S[j] & ~have).sum())
                 if gain > 0 and (best is None or gain > best[0]):
                     best = (gain, j, slot)
                 break
         if best is None:
             break
         _, j, slot = best
-        order.insert(slot + 1, n + j)
-        added.append(n + j)
-        have |= S[n + j]
-    out = [poses[i] if i < n else cand[i - n] for i in order]
-    idx = [order.index(i) for i in added]
-    return out, sorted(idx), predict(obj, out, intr, **kw)
+        order.insert(slot + 1, j)
+        added.append(j)
+        have |= S[j]
+    out = [every[i] for i in order]
+    return out, sorted(order.index(i) for i in added), predict(obj, out, intr, seen=S[order], **kw)

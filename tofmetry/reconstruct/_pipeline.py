@@ -18,7 +18,7 @@ from tofmetry.errors import EstimationError, InputError, SensorMismatchError
 from tofmetry.pointcloud import project_to_local_planes
 from tofmetry.reconstruct._adjust import AdjustView, calibration_pose, global_adjust
 from tofmetry.reconstruct._adjust_apply import correct_views
-from tofmetry.reconstruct._adjust_restart import pair_walks, restart_probe
+from tofmetry.reconstruct._adjust_restart import came_back, pair_walks, restart_probe
 from tofmetry.reconstruct._adjust_result import (
     AdjustResult,
     keep_amplitude_if_it_explains,
@@ -320,13 +320,11 @@ class ReconstructionPipeline:
         """When the fit moved a view beyond the pose gate and its restart came back, the kept pairs
         of that view registered again from the joint fit (:func:`pair_walks`), in ``res.restart["pairs"]``."""
         rc = self.cfg.registration
-        rs = res.restart or {}
         w = int(np.argmax(res.moved_deg))
-        if ("failed" in rs or float(res.moved_deg[w]) <= rc.pose_gate_deg or rs.get("deg", np.inf) > rc.pose_gate_deg / 2
-                or rs.get("mm", np.inf) > rc.pose_gate_mm / 2):
+        if float(res.moved_deg[w]) <= rc.pose_gate_deg or not came_back(res.restart, rc.pose_gate_deg, rc.pose_gate_mm):
             return
         mine = [(i, j) for i, j in edges if w in (i, j)]
-        rs["pairs"] = pair_walks(res.poses, mine, lambda i, j, init: refine_pair(regs[i], regs[j], init, rc),
+        res.restart["pairs"] = pair_walks(res.poses, mine, lambda i, j, init: refine_pair(regs[i], regs[j], init, rc),
                                  [r.obj_points for r in regs])
 
     def _scale_budget(self, views: list[ViewData], segs: list[Segmentation], poses: np.ndarray, intr, z_ref: float):

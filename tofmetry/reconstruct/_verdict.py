@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from tofmetry.reconstruct._adjust_restart import came_back
 from tofmetry.reconstruct._calibration_support import (
     calibration_central_mm,
     station_spacing_mm,
@@ -242,7 +243,7 @@ def _judge_move(adjustment: dict, names: list[str], pose_gate_deg: float, pose_g
     if rs and "failed" in rs:
         (reasons if beyond else warnings).append(f"{move}, and its restart from the far side failed ({rs['failed']}): "
                                                  "the joint fit is not checked")
-    elif rs and (rs["deg"] > pose_gate_deg / 2 or rs["mm"] > pose_gate_mm / 2):
+    elif rs and not came_back(rs, pose_gate_deg, pose_gate_mm):
         v = names[rs["view"]] if 0 <= rs["view"] < len(names) else rs["view"]
         reasons.append(f"{move}; restarted {rs['start_deg']:.2f} deg away on the far side, it ended {rs['deg']:.2f} deg "
                        f"/ {rs['mm']:.1f} mm at the object from its solution (view {v}; limit {pose_gate_deg / 2:g} deg "
