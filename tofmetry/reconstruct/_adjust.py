@@ -39,6 +39,7 @@ import numpy as np
 
 from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.errors import EstimationError, InputError
+from tofmetry.reconstruct._adjust_albedo import albedo_gradients, albedo_terms
 from tofmetry.reconstruct._adjust_field import DepthFieldPrior, pose_spread
 from tofmetry.reconstruct._adjust_prior import pose_prior_terms
 from tofmetry.reconstruct._adjust_result import AdjustResult
@@ -68,7 +69,8 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                   systematic_m: float = 0.0, curve_degree: int = 0, curve_prior_m: float = 5e-4,
                   curve_half_span_m: float | None = None, amplitude_prior_m: float | None = None,
                   pose_prior_deg: float | None = None, pose_prior_m: float | None = None,
-                  depth_field: DepthFieldPrior | None = None, tilt_prior_m: float | None = None) -> AdjustResult:
+                  depth_field: DepthFieldPrior | None = None, tilt_prior_m: float | None = None,
+                  albedo: bool = False, up: np.ndarray | None = None) -> AdjustResult:
     """Jointly refine all poses (view 0 fixed) and, optionally, the depth gain.
 
     Each outer iteration matches every view's ``source`` points (gain-corrected, to world) to
@@ -130,6 +132,12 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         of unknown orientation cannot tell it from the walls' tilt and leaves it in. Estimated,
         like ``dk``, only when the data alone determine both coefficients better than this prior;
         None: not estimated
+    albedo : the IR albedo of the views (``source_ir``, ``target_ir``) as a term beside the geometry
+        (:mod:`tofmetry.reconstruct._adjust_albedo`): it fixes the rotation a surface of revolution
+        leaves free where a pattern is painted or printed on it. Ignored when a view carries no albedo
+    up : (3,) the vertical (support-plane normal) in the frame of ``poses``: the albedo term then acts
+        only on each view's rotation about the vertical through the object's centre (the mean of the
+        initial world points); None: on all six degrees of freedom
 
     Returns
     -------
@@ -196,6 +204,25 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
     tilt_centre = (np.concatenate([v.source[:, :2] / v.source[:, 2:3] for v in views]).mean(0) if tilt_on
                    else np.zeros(2))
 
+    # IR albedo term: the targets' albedo gradients once (camera frames; the poses rotate them)
+    alb_on = albedo and all(v.source_ir is not None and v.target_ir is not None for v in views)
+    alb_src = [(v.source, v.source_ir) for v in views] if alb_on else None
+    alb_tgt = ([(v.target, v.target_ir, albedo_gradients(v.target, v.target_normals, v.target_ir)) for v in views]
+               if alb_on else None)
+    alb_axis = None if up is None or not alb_on else (
+        np.asarray(up, np.float64), np.concatenate([v.source @ T[:3, :3].T + T[:3, 3] for v, T in zip(views, poses)]).mean(0))
+    alb_info: dict = {"used": False, "note": "not asked for" if not albedo else "not available: a view carries no albedo"}
+
+    def ne(with_gain: bool):
+        """The normal equations of the correspondences, with the albedo term when it is on."""
+        out = _normal_equations(views, P, g, z_ref_m, corr, k, with_gain, cv(), ampv(), tv())
+        if alb_on:
+            Ha, ba, info = albedo_terms(P, alb_src, alb_tgt, corr, len(out[1]), out[2], alb_axis)
+            out[0][:] += Ha
+            out[1][:] += ba
+            alb_info.update(used=True, note="used", **info)
+        return out
+
     def cv():
         return (c_curve, curve_half_span_m) if curve_on else None
 
@@ -225,7 +252,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         k = huber_m if huber_m is not None else r / 3.0
         P_start = P.copy()
         for _ in range(inner_iters):
-            H, b, s2, counts, pair_rms, sw = _normal_equations(views, P, g, z_ref_m, corr, k, estimate_gain, cv(), ampv(), tv())
+            H, b, s2, counts, pair_rms, sw = ne(estimate_gain)
             check = it == 1 or (r == radii_m[-1] and it == len(schedule) - n_last + 1)
             if check and ((curve_on and not curve_checked) or (amp_on and not amp_checked)
                           or (tilt_on and not tilt_checked)):
@@ -256,8 +283,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                                      + f" mm per unit (prior +-{tilt_prior_m * 1e3:.2f}); kept at 0")
                         tilt_on, t_xy, off = False, np.zeros(2), True
                 if off:
-                    H, b, s2, counts, pair_rms, sw = _normal_equations(views, P, g, z_ref_m, corr, k, estimate_gain,
-                                                                       cv(), ampv(), tv())
+                    H, b, s2, counts, pair_rms, sw = ne(estimate_gain)
             H_data = without_curve(H).copy()
             if estimate_gain:
                 sigma_data, sigma_sys = gain_sigmas(H_data, s2, sw, sigma_inflation, systematic_m)
@@ -269,7 +295,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                     note = (f"not observable: the views determine it only to +-{100 * sigma_data:.2f} % "
                             f"(> {100 * gain_max_sigma:.2f} %); kept at 0")
                     estimate_gain, g = False, 0.0
-                    H, b, s2, counts, pair_rms, sw = _normal_equations(views, P, g, z_ref_m, corr, k, False, cv(), ampv(), tv())
+                    H, b, s2, counts, pair_rms, sw = ne(False)
                     H_data = without_curve(H).copy()
             if estimate_gain:
                 H[-1, -1] += s2 / gain_prior_sigma ** 2  # prior g ~ N(0, sigma) in residual units
@@ -330,7 +356,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         fixed = global_adjust(views, poses, z_ref_m, radii_m, iters_per_radius, inner_iters, huber_m, asked_gain,
                               gain_prior_sigma, max_normal_deg, tol_deg, tol_m, gain_max_sigma, sigma_inflation,
                               gain_max_abs, systematic_m, curve_degree, curve_prior_m, curve_half_span_m,
-                              amplitude_prior_m, pose_prior_deg, pose_prior_m, depth_field, None)
+                              amplitude_prior_m, pose_prior_deg, pose_prior_m, depth_field, None, albedo, up)
         fixed.image_tilt_sigma_data_m = tilt_sd
         fixed.image_tilt_note = ("implausible: the views ask for " + ", ".join(f"{x * 1e3:+.1f}" for x in t_xy)
                                  + f" mm per unit, beyond {TILT_MAX_PRIORS:g} x its prior (+-{tilt_prior_m * 1e3:.1f}): "
@@ -342,7 +368,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                               curve_degree=curve_degree, curve_prior_m=curve_prior_m,
                               curve_half_span_m=curve_half_span_m, amplitude_prior_m=amplitude_prior_m,
                               pose_prior_deg=pose_prior_deg, pose_prior_m=pose_prior_m, depth_field=depth_field,
-                              tilt_prior_m=tilt_prior_m)
+                              tilt_prior_m=tilt_prior_m, albedo=albedo, up=up)
         fixed.gain_sigma_data, fixed.gain_sigma_systematic = sigma_data, sigma_sys
         fixed.gain_refused, fixed.gain_max_abs = float(g), float(gain_max_abs)
         if np.isfinite(amp_slope):  # the gain's trade with dk, from this run where the gain was free
@@ -356,6 +382,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
     res = AdjustResult(P, g, sigma_g, z_ref_m, it, np.array(rms_hist), counts, pair_rms, moved_deg, moved_mm, converged,
                        estimate_gain, sigma_data, note, sig_deg, sig_mm, sigma_sys)
     res.final_state = (views, P.copy(), g, z_ref_m, corr, k, estimate_gain, cv(), ampv(), tv(), H_solve)
+    res.albedo = alb_info
     if depth_field is not None:
         res.calibration_pose = calibration_pose(res, depth_field)
     res.image_tilt_m, res.image_tilt_estimated = (t_xy.copy(), True) if tilt_on else (np.zeros(2), False)

@@ -56,6 +56,9 @@ class AdjustResult:
         (:func:`~tofmetry.reconstruct._adjust_field.pose_spread`: worst view's rotation [deg] and
         object displacement [mm], p50 and p90 over random fields of the calibration's size), or
         None when not predicted
+    albedo : the IR albedo term of the joint fit (:mod:`~tofmetry.reconstruct._adjust_albedo`):
+        ``used``, ``note``, and when used ``n`` (residuals), ``scale`` (their robust standard
+        deviation, log albedo units), ``n_pairs``
     final_state : what :func:`~tofmetry.reconstruct._adjust.calibration_pose` needs of the last
         Gauss-Newton step (views, poses, depth terms, correspondences, the solved normal matrix);
         not reported
@@ -97,6 +100,7 @@ class AdjustResult:
     amplitude_gain_slope: float = float("nan")
     restart: dict | None = None
     calibration_pose: dict | None = None
+    albedo: dict | None = None
     final_state: tuple | None = field(default=None, repr=False, compare=False)
     image_tilt_m: np.ndarray | None = None
     image_tilt_sigma_m: np.ndarray | None = None
@@ -159,6 +163,7 @@ class AdjustResult:
                 "pose_sigma_mm": None if self.pose_sigma_mm is None else
                 {n: round(float(x), 4) for n, x in zip(names, self.pose_sigma_mm)},
                 "restart": self.restart, "calibration_pose": self.calibration_pose, "image_tilt": self.tilt_report(),
+                "albedo": self.albedo,
                 "pairs": [{"source": names[i], "target": names[j], "n": int(self.pair_counts[i, j]),
                            "rms_mm": round(float(self.pair_rms_mm[i, j]), 3)}
                           for i in range(len(names)) for j in range(len(names)) if self.pair_counts[i, j] > 0]}

@@ -25,6 +25,9 @@ class AdjustView:
     target_normals : (K, 3) unit normals of ``target``
     source_amp, target_amp : (M,), (K,) ``ln(A_white / A)`` of each point (the amplitude-bias
         regressor, dimensionless; 0 where unknown), or None: no amplitude-bias estimation
+    source_ir, target_ir : (M,), (K,) relative log IR albedo of each point
+        (:func:`~tofmetry.reconstruct._photometric.log_albedo`), or None: no albedo term
+        (:mod:`tofmetry.reconstruct._adjust_albedo`)
     """
 
     source: np.ndarray
@@ -33,6 +36,8 @@ class AdjustView:
     target_normals: np.ndarray
     source_amp: np.ndarray | None = None
     target_amp: np.ndarray | None = None
+    source_ir: np.ndarray | None = None
+    target_ir: np.ndarray | None = None
 
 
 def apply_depth_gain(points: np.ndarray, gain: float, z_ref_m: float) -> np.ndarray:

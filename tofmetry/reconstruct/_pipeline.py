@@ -244,13 +244,18 @@ class ReconstructionPipeline:
         return pg.optimize(rc.icp_radii_mm[-1] * 1e-3, rc.edge_prune, rc.gate_max_deg, rc.gate_max_mm)
 
     def adjust(self, views: list[ViewData], segs: list[Segmentation], regs: list[RegView],
-               poses: np.ndarray, loops: list[dict] | None = None, edges=()) -> AdjustResult | None:
+               poses: np.ndarray, loops: list[dict] | None = None, edges=(), edge_ir=(),
+               yaw_free: bool = False) -> AdjustResult | None:
         """Global adjustment of the pose-graph poses (and the depth gain); applies the gain to
         ``views`` (depth and points) in place. None when switched off. ``loops``: the pose graph's
         loop closures (:func:`loop_closures`); half the worst one widens the pose prior (a loop
         that closes only to X deg leaves up to X / 2 on a view once spread). ``edges``: the pose
         graph's kept pairs (i, j); when the fit moved a view beyond the pose gate and its restart
-        came back, those of that view are registered again from the joint fit (:func:`pair_walks`)."""
+        came back, those of that view are registered again from the joint fit (:func:`pair_walks`).
+        ``edge_ir``: those pairs' IR albedo correlations (None where unknown); ``yaw_free``: one of them
+        leaves the rotation about the vertical free (a surface of revolution): then the joint fit
+        matches the albedo too, about the vertical only, when their median reaches
+        ``adjust_albedo_min_corr`` (:mod:`tofmetry.reconstruct._adjust_albedo`)."""
         rc = self.cfg.registration
         if not rc.global_adjust:
             return None
@@ -263,9 +268,13 @@ class ReconstructionPipeline:
         e_sys = rc.gain_systematic_mm
         if e_sys is None:  # opt-in: the calibration's predicted central error
             e_sys = (calibration_central_mm(self.cal.prediction or {}) if self.cal is not None else None) or 0.0
-        av = [AdjustView(*(r.mid_points, r.mid_normals, r.icp_points, r.icp_normals, r.mid_amp, r.icp_amp)
-                           if r.mid_points is not None else
-                           (r.icp_points, r.icp_normals, r.icp_points, r.icp_normals, r.icp_amp, r.icp_amp)) for r in regs]
+        av = [AdjustView(*(r.mid_points, r.mid_normals, r.icp_points, r.icp_normals, r.mid_amp, r.icp_amp, r.mid_ir,
+                           r.icp_ir) if r.mid_points is not None else
+                           (r.icp_points, r.icp_normals, r.icp_points, r.icp_normals, r.icp_amp, r.icp_amp, r.icp_ir,
+                            r.icp_ir)) for r in regs]
+        albedo = (rc.adjust_albedo_min_corr is not None and bool(edge_ir) and yaw_free and segs[0].plane is not None
+                  and float(np.median([c if c is not None else -1.0 for c in edge_ir])) >= rc.adjust_albedo_min_corr)
+        up = poses[0][:3, :3] @ segs[0].plane[:3] if albedo else None
         if rc.adjust_target_smooth_k:  # the targets without their noise (tofmetry.pointcloud._smooth)
             for a in av:
                 a.target = project_to_local_planes(a.target, rc.adjust_target_smooth_k)
@@ -286,7 +295,7 @@ class ReconstructionPipeline:
                                  curve_prior_m=self._curve_prior_mm() * 1e-3,
                                  amplitude_prior_m=None if amplitude_prior_mm is None else amplitude_prior_mm * 1e-3,
                                  pose_prior_deg=prior_deg, pose_prior_m=None if prior_mm is None else prior_mm * 1e-3,
-                                 tilt_prior_m=tilt_prior)
+                                 tilt_prior_m=tilt_prior, albedo=albedo, up=up)
 
         with self.progress("global adjustment", None):
             try:
@@ -421,7 +430,11 @@ class ReconstructionPipeline:
         idx = {n: k for k, n in enumerate(names)}
         kept_pairs = [(idx[e["source"]], idx[e["target"]]) for e in graph.edges
                       if e.get("kept") and e["source"] in idx and e["target"] in idx]
-        adj = self.adjust(views, segs, regs, graph.poses, (graph.consistency or {}).get("loops"), kept_pairs)
+        kept_edges = [e for e in graph.edges if e.get("kept") and e["source"] in idx and e["target"] in idx]
+        ratios = [(e.get("conditioning") or {}).get("yaw_ratio") for e in kept_edges]
+        yaw_free = any(r is not None and r < self.cfg.registration.yaw_free_ratio for r in ratios)
+        adj = self.adjust(views, segs, regs, graph.poses, (graph.consistency or {}).get("loops"), kept_pairs,
+                          [e.get("ir_corr") for e in kept_edges], yaw_free)
         t2 = time.perf_counter()
         poses = graph.poses if adj is None else adj.poses
         V, F, N, P, PN, fusion_info = self.fuse(views, segs, poses, intr)

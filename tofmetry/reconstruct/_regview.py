@@ -38,6 +38,7 @@ class RegView:
     obj_normals : (K, 3) unit normals of ``obj_points`` (toward the camera)
     obj_ir, icp_ir : relative log IR albedo of ``obj_points`` / ``icp_points``
         (:func:`~tofmetry.reconstruct._photometric.log_albedo`), or None without IR
+    mid_ir : relative log IR albedo of ``mid_points``, or None without IR
     icp_amp, mid_amp : ``ln(A_white / A)`` of ``icp_points`` / ``mid_points`` (the amplitude-bias
         regressor, :func:`~tofmetry.reconstruct._amplitude.amplitude_log_ratio`), or None without
         IR and an amplitude reference
@@ -61,6 +62,7 @@ class RegView:
     icp_ir: np.ndarray | None = None
     icp_amp: np.ndarray | None = None
     mid_amp: np.ndarray | None = None
+    mid_ir: np.ndarray | None = None
     _tree: cKDTree | None = field(default=None, repr=False)
 
     @property
@@ -97,13 +99,15 @@ def make_reg_view(view: ViewData, seg: Segmentation, cfg: RegistrationConfig, in
     pf, nf = voxel_down(view.points[core], view.normals[core], cfg.feature_voxel_mm * 1e-3)
     csel = (core & reliable) | ring
     pc, nc = voxel_down(view.points[csel], view.normals[csel], cfg.coarse_voxel_mm * 1e-3)
-    pm, nm, pm_amp = voxel_down_values(view.points[sel], view.normals[sel], None if amp is None else amp[sel],
-                                       cfg.mid_voxel_mm * 1e-3)
+    pm, nm, pm_vals = voxel_down_values(view.points[sel], view.normals[sel], None if vals is None else vals[sel],
+                                        cfg.mid_voxel_mm * 1e-3)
+    pm_ir, pm_amp = (pm_vals[:, 0] if alb is not None else None, pm_vals[:, 1]) if amp is not None else (pm_vals, None)
     near = None
     if intr is not None:
         d = np.where(view.depth_mm > 0, view.depth_mm * 1e-3, np.inf).astype(np.float32)
         near = minimum_filter(d, size=3, mode="nearest")
-    return RegView(view.name, p, n, po, pf, nf, pc, nc, seg.plane, pm, nm, near, intr, pon, po_ir, p_ir, p_amp, pm_amp)
+    return RegView(view.name, p, n, po, pf, nf, pc, nc, seg.plane, pm, nm, near, intr, pon, po_ir, p_ir, p_amp, pm_amp,
+                   pm_ir)
 
 
 def free_space_violation(src: RegView, tgt: RegView, T: np.ndarray, tol_m: float,
