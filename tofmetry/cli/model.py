@@ -128,6 +128,15 @@ def reconstruct(
         console.print(f"global adjustment: {adj['iterations']} iterations, residual RMS {adj['rms_mm'][-1]:.2f} mm, poses "
                       f"moved up to {max(adj['moved_deg'].values()):.3f} deg / {max(adj['moved_mm'].values()):.2f} mm; "
                       f"depth gain {adj['depth_gain'] * 100:+.3f} % of (z - {adj['z_ref_mm']:.0f} mm): {adj.get('gain_note', '')}")
+        cp = adj.get("calibration_pose") or {}
+        if cp.get("rot_deg"):
+            console.print(f"pose accuracy from the depth calibration's residual: worst view "
+                          f"{cp['rot_deg']['p50']:.2f} / {cp['rot_deg']['p90']:.2f} deg, {cp['object_mm']['p50']:.1f} / "
+                          f"{cp['object_mm']['p90']:.1f} mm at the object (p50 / p90 over {cp['n_draws']} residual fields "
+                          f"of the calibration's size)")
+        if (adj.get("albedo") or {}).get("used"):
+            console.print(f"IR albedo: held the rotation about the vertical the geometry leaves free "
+                          f"({adj['albedo']['n']} residuals, scale {adj['albedo']['scale']:.3f})")
         amp = adj.get("amplitude_bias") or {}
         if amp.get("k_mm_per_ln") is not None:
             console.print(f"amplitude bias: k = {amp['k_mm_per_ln']:.2f} mm per ln unit ({amp['note']})")
