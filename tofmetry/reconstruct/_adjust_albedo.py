@@ -5,8 +5,9 @@ rotation about its axis. The pairwise registrations of such a scan take that rot
 painted or printed pattern in the IR amplitude (:mod:`tofmetry.reconstruct._photometric`), but the
 joint fit (:func:`tofmetry.reconstruct._adjust.global_adjust`) saw only the geometry: it moved every
 view along the free direction by whatever the noise and the calibration residual asked, and a
-restart of it ended elsewhere (measured on held-out family draws 18-21: all 5 painted vases moved
-0.67-1.47 deg from the pose graph and ended 0.79-1.40 deg off).
+restart of it ended elsewhere (measured on held-out family draws 18-21: 4 of the 5 painted vases
+moved 0.67-1.47 deg from the pose graph and ended 0.79-1.40 deg off; the fifth flipped, 75 deg).
+With the term, those four ended 0.46-0.86 deg off (``bench/results/object_family_dev_albedo_rows.jsonl``).
 
 The term: each correspondence of the joint fit (source point ``p`` of view ``i``, its nearest
 target point ``q`` of view ``j``) compares the relative log albedo of both
