@@ -43,8 +43,12 @@ def test_evaluate_jobs_from_a_glob_match_the_command(tmp_path):
                                 config=EvaluationConfig()).result.stats_trimmed
         got = json.loads((out / f"eval-m{k}.ply" / "metrics.json").read_text())["stats_trimmed"]
         # the batch job is the command: the same figures, up to the scatter of two runs of the same
-        # evaluation (Open3D's ICP is not bit-reproducible: 1.0447-1.0478 mm over 6 runs of m1)
-        assert abs(got["mean_abs_mm"] - direct.mean_abs_mm) < 0.01, (got["mean_abs_mm"], direct.mean_abs_mm)
+        # evaluation. A sphere leaves the alignment's rotation free and Open3D's ICP is not
+        # bit-reproducible (its threads' sums), so two runs settle at different turns and the facets of
+        # the two meshes line up differently: by up to the chord sag of a 4.5-degree step on 100 mm,
+        # 0.077 mm (measured: 1.0447-1.0478 mm over 6 runs of m1 alone; 0.999 vs 1.047 mm once in CI
+        # under load, 2026-11-28)
+        assert abs(got["mean_abs_mm"] - direct.mean_abs_mm) < 0.08, (got["mean_abs_mm"], direct.mean_abs_mm)
         # and the figures are the geometry's: a sphere 1 (2) mm larger deviates by about that much
         # (facets: the chord of a 4.5-degree ring step sags 0.08 mm below the sphere)
         assert abs(direct.mean_abs_mm - off_mm) < 0.15, direct.mean_abs_mm
