@@ -207,8 +207,8 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
     # IR albedo term: the targets' albedo gradients once (camera frames; the poses rotate them)
     alb_on = albedo and all(v.source_ir is not None and v.target_ir is not None for v in views)
     alb_src = [(v.source, v.source_ir) for v in views] if alb_on else None
-    alb_tgt = ([(v.target, v.target_ir, albedo_gradients(v.target, v.target_normals, v.target_ir)) for v in views]
-               if alb_on else None)
+    alb_tgt = ([(v.target, v.target_ir, v.target_ir_gradient if v.target_ir_gradient is not None else
+                 albedo_gradients(v.target, v.target_normals, v.target_ir)) for v in views] if alb_on else None)
     alb_axis = None if up is None or not alb_on else (
         np.asarray(up, np.float64), np.concatenate([v.source @ T[:3, :3].T + T[:3, 3] for v, T in zip(views, poses)]).mean(0))
     alb_info: dict = {"used": False, "note": "not asked for" if not albedo else "not available: a view carries no albedo"}

@@ -103,7 +103,6 @@ def albedo_terms(P: np.ndarray, sources: list, targets: list, corr, npar: int,
     info : dict: ``n`` (residuals), ``scale`` (their robust standard deviation, log albedo units),
     ``n_pairs``
     """
-    V = len(P)
     H = np.zeros((npar, npar))
     b = np.zeros(npar)
     blocks = []

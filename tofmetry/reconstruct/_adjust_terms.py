@@ -28,6 +28,9 @@ class AdjustView:
     source_ir, target_ir : (M,), (K,) relative log IR albedo of each point
         (:func:`~tofmetry.reconstruct._photometric.log_albedo`), or None: no albedo term
         (:mod:`tofmetry.reconstruct._adjust_albedo`)
+    target_ir_gradient : (K, 3) the albedo's gradient on ``target``'s tangent planes [per m]
+        (:func:`~tofmetry.reconstruct._adjust_albedo.albedo_gradients`), or None: computed by the
+        joint fit (pass it to share it between several fits of the same views)
     """
 
     source: np.ndarray
@@ -38,6 +41,7 @@ class AdjustView:
     target_amp: np.ndarray | None = None
     source_ir: np.ndarray | None = None
     target_ir: np.ndarray | None = None
+    target_ir_gradient: np.ndarray | None = None
 
 
 def apply_depth_gain(points: np.ndarray, gain: float, z_ref_m: float) -> np.ndarray:

@@ -17,6 +17,7 @@ from tofmetry._shared.geometry import transform_points
 from tofmetry.errors import EstimationError, InputError, SensorMismatchError
 from tofmetry.pointcloud import project_to_local_planes
 from tofmetry.reconstruct._adjust import AdjustView, calibration_pose, global_adjust
+from tofmetry.reconstruct._adjust_albedo import albedo_gradients
 from tofmetry.reconstruct._adjust_apply import correct_views
 from tofmetry.reconstruct._adjust_restart import came_back, pair_walks, restart_probe
 from tofmetry.reconstruct._adjust_result import (
@@ -38,7 +39,7 @@ from tofmetry.reconstruct._fusion import TSDFFusion, crop_mesh, poisson_mesh
 from tofmetry.reconstruct._posegraph import PoseGraphBuilder
 from tofmetry.reconstruct._preprocess import ViewData, prepare_view
 from tofmetry.reconstruct._register import refine_pair, register_pair, rejection_reason
-from tofmetry.reconstruct._regview import RegView, make_reg_view
+from tofmetry.reconstruct._regview import RegView, leaves_yaw_free, make_reg_view
 from tofmetry.reconstruct._scale_budget import scale_budget
 from tofmetry.reconstruct._segment import Segmentation, segment_object
 from tofmetry.reconstruct._verdict import assess, scale_report
@@ -278,6 +279,9 @@ class ReconstructionPipeline:
         if rc.adjust_target_smooth_k:  # the targets without their noise (tofmetry.pointcloud._smooth)
             for a in av:
                 a.target = project_to_local_planes(a.target, rc.adjust_target_smooth_k)
+        if albedo:  # once for every run of the joint fit below (its restart, the amplitude variant)
+            for a in av:
+                a.target_ir_gradient = albedo_gradients(a.target, a.target_normals, a.target_ir)
         amp_prior = rc.amplitude_k_prior_mm if self.white_map is not None else None
         field = None if self.cal is None else depth_field_prior(
             self.cal.prediction or {}, _object_depth_span_mm(views, segs), regs[0].intr,
@@ -428,13 +432,11 @@ class ReconstructionPipeline:
         names = [self.ds.names[k] for k in self.kept]
         t2a = time.perf_counter()
         idx = {n: k for k, n in enumerate(names)}
-        kept_pairs = [(idx[e["source"]], idx[e["target"]]) for e in graph.edges
-                      if e.get("kept") and e["source"] in idx and e["target"] in idx]
         kept_edges = [e for e in graph.edges if e.get("kept") and e["source"] in idx and e["target"] in idx]
-        ratios = [(e.get("conditioning") or {}).get("yaw_ratio") for e in kept_edges]
-        yaw_free = any(r is not None and r < self.cfg.registration.yaw_free_ratio for r in ratios)
-        adj = self.adjust(views, segs, regs, graph.poses, (graph.consistency or {}).get("loops"), kept_pairs,
-                          [e.get("ir_corr") for e in kept_edges], yaw_free)
+        adj = self.adjust(views, segs, regs, graph.poses, (graph.consistency or {}).get("loops"),
+                          [(idx[e["source"]], idx[e["target"]]) for e in kept_edges],
+                          [e.get("ir_corr") for e in kept_edges],
+                          any(leaves_yaw_free(e.get("conditioning"), self.cfg.registration.yaw_free_ratio) for e in kept_edges))
         t2 = time.perf_counter()
         poses = graph.poses if adj is None else adj.poses
         V, F, N, P, PN, fusion_info = self.fuse(views, segs, poses, intr)

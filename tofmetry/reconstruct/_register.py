@@ -26,7 +26,13 @@ from tofmetry.reconstruct._o3d import (
     icp,
     information_matrix,
 )
-from tofmetry.reconstruct._regview import RegView, object_fitness, registration_conditioning, visibility_violation
+from tofmetry.reconstruct._regview import (
+    RegView,
+    leaves_yaw_free,
+    object_fitness,
+    registration_conditioning,
+    visibility_violation,
+)
 
 
 def _plane_frame(plane: np.ndarray, obj: np.ndarray) -> np.ndarray:
@@ -249,8 +255,7 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
                 and plane_consistent(src, tgt, T)):
             best = _pair_result(src, tgt, i, j, T, fit, rmse, v, best.method + "+ir-icp", True, r_final, ir_corr=c1)
             out = [best] + out[1:]
-    yr = (best.conditioning or {}).get("yaw_ratio")
-    if cfg.ir_yaw and yr is not None and yr < cfg.yaw_free_ratio and src.obj_ir is not None and tgt.icp_ir is not None:
+    if cfg.ir_yaw and leaves_yaw_free(best.conditioning, cfg.yaw_free_ratio) and src.obj_ir is not None and tgt.icp_ir is not None:
         # the geometry leaves the yaw free: let the painted pattern (IR amplitude) choose it
         sw = ir_yaw_sweep(src, tgt, best.transform, r_final)
         if sw["decided"]:

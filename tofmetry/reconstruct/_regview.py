@@ -246,3 +246,10 @@ def registration_conditioning(src: RegView, tgt: RegView, T: np.ndarray, radius_
     return {"ratio": float(w[0] / max(w[-1], 1e-300)), "weak_rotation": round(rot, 3),
             "weak_axis": [round(float(x), 3) for x in v[:3] / max(np.linalg.norm(v[:3]), 1e-12)],
             "yaw_ratio": yaw, "n_matched": int(ok.sum())}
+
+
+def leaves_yaw_free(conditioning: dict | None, ratio: float) -> bool:
+    """Whether a registration's overlap leaves the turn about the vertical free: its
+    :func:`registration_conditioning` ``yaw_ratio`` is known and below ``ratio``."""
+    yr = (conditioning or {}).get("yaw_ratio")
+    return yr is not None and yr < ratio

@@ -48,6 +48,7 @@ from tofmetry.reconstruct._calibration_support import (
     station_spacing_mm,
 )
 from tofmetry.reconstruct._loops import connected_components
+from tofmetry.reconstruct._regview import leaves_yaw_free
 
 
 def _bridges(n: int, edges: list[tuple[int, int]]) -> set[int]:
@@ -101,8 +102,7 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
     yaw_free = []
     loops = consistency.get("loops") or []
     free = {frozenset((e["source"], e["target"])) for e in kept
-            if (e.get("conditioning") or {}).get("yaw_ratio") is not None
-            and e["conditioning"]["yaw_ratio"] < yaw_free_ratio and not (e.get("ir_yaw") or {}).get("decided")}
+            if leaves_yaw_free(e.get("conditioning"), yaw_free_ratio) and not (e.get("ir_yaw") or {}).get("decided")}
     for e in edges:
         if "verdict" in e and e["verdict"] == "left out with its view":
             continue
@@ -115,20 +115,21 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
             continue
         k = kept.index(e)
         yr = (e.get("conditioning") or {}).get("yaw_ratio")
+        free_e = leaves_yaw_free(e.get("conditioning"), yaw_free_ratio)
         iy = e.get("ir_yaw") or {}
-        if yr is not None and yr < yaw_free_ratio and iy.get("decided"):
+        if free_e and iy.get("decided"):
             e["verdict"] = "verified by IR" if k not in br else "unverified"
             e["reason"] = (f"the geometry leaves the yaw free (stiffness ratio {yr:.2f}); the IR albedo pattern fixes it "
                            f"(correlation {iy['correlation']:.2f}, {iy['margin']:.2f} above any other yaw)"
                            + ("" if k not in br else "; no loop goes through this edge"))
-        elif yr is not None and yr < yaw_free_ratio and (lp := _loop_pinning_yaw(e, loops, free, pose_gate_deg,
+        elif free_e and (lp := _loop_pinning_yaw(e, loops, free, pose_gate_deg,
                                                                               pose_gate_mm)):
             e["verdict"] = "verified by its loop"
             e["reason"] = (f"the geometry leaves the yaw free (stiffness ratio {yr:.2f}), but the loop closed by "
                            f"{lp['edge'][0]}->{lp['edge'][1]} ({lp['n_edges']} edges, this one the only free one) "
                            f"closes to {lp['closure_deg']:.2f} deg / {lp.get('closure_object_mm', lp['closure_mm']):.1f} "
                            "mm at the object: a wrong yaw here would show there, so it holds within the pose gate")
-        elif yr is not None and yr < yaw_free_ratio:
+        elif free_e:
             e["verdict"] = "yaw free"
             e["reason"] = (f"the overlap is nearly a surface of revolution: its stiffness about the vertical is {yr:.2f} "
                            f"of the tilts' (< {yaw_free_ratio}); the rotation between these views is not determined "
