@@ -21,6 +21,12 @@ except while the main thread is inside such code. Then it marks the frame that c
 the first line that frame runs after the call returned (or in its caller, when it returns). No
 polling: a loop of back-to-back queries is stopped between two queries. A second Ctrl-C while one
 is deferred stops at once.
+
+An interrupt raised inside a weakref callback or a ``__del__`` never reaches the command: Python
+prints "Exception ignored" and goes on (a loop of k-d tree queries ran on for good in CI, its
+Ctrl-C lost in the ``WeakSet`` callback that forgets a finished query thread). :func:`install`
+also wraps ``sys.unraisablehook``: such a lost interrupt is deferred, as above, to the frame that
+was running when the callback was called.
 """
 
 from __future__ import annotations
@@ -73,6 +79,16 @@ class _DeferredInterrupt:
         self.pending = True
         self._mark(outer.f_back)
 
+    def defer(self, frame: FrameType) -> None:
+        """Raise ``KeyboardInterrupt`` at the next line that ``frame`` runs (after the protected
+        code it may be inside, as :meth:`__call__`): an interrupt that a callback swallowed."""
+        outer = outermost_protected(frame)
+        target = frame if outer is None else outer.f_back
+        if target is None:  # nothing outside the protected code to stop in: Python's own handler
+            signal.default_int_handler(signal.SIGINT, frame)
+        self.pending = True
+        self._mark(target)
+
     def _mark(self, frame: FrameType) -> None:
         frame.f_trace = self._on_event
         frame.f_trace_lines = True
@@ -101,7 +117,26 @@ def install() -> None:
         return
     if signal.getsignal(signal.SIGINT) is signal.SIG_IGN or sys.gettrace() is not None:
         return
-    signal.signal(signal.SIGINT, _DeferredInterrupt())
+    handler = _DeferredInterrupt()
+    signal.signal(signal.SIGINT, handler)
+    sys.unraisablehook = _UnraisableInterrupt(handler, sys.unraisablehook)
+
+
+class _UnraisableInterrupt:
+    """``sys.unraisablehook`` that defers a ``KeyboardInterrupt`` lost in a callback (module
+    docstring) to the frame that called into the callback; everything else goes to ``previous``."""
+
+    def __init__(self, handler: _DeferredInterrupt, previous) -> None:
+        self.handler = handler
+        self.previous = previous
+
+    def __call__(self, unraisable) -> None:
+        caller = sys._getframe(0).f_back  # the callback has returned: the code it interrupted
+        if (unraisable.exc_type is not KeyboardInterrupt or caller is None
+                or threading.current_thread() is not threading.main_thread()):
+            self.previous(unraisable)
+            return
+        self.handler.defer(caller)
 
 
 def exit_interrupted(code: int = 130) -> None:
