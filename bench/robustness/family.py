@@ -149,9 +149,10 @@ def board_captures(draw, seed: int, work: Path, n_frames: int = 10) -> list[Path
 
 def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, mesh_dir: Path | None = MESH_DIR,
              keep: bool = False, config=None, stations_mm=FAMILY_DISTANCES_MM, boards: bool = True,
-             complete_to: float | None = None) -> dict:
-    """Simulate, calibrate, reconstruct and evaluate one draw (``complete_to``: :func:`draw_case`);
-    returns one JSON-able row."""
+             complete_to: float | None = None, turntable: float | None = None) -> dict:
+    """Simulate, calibrate, reconstruct and evaluate one draw (``complete_to``: :func:`draw_case`;
+    ``turntable``: a turntable path's step is declared, ``registration.turntable_step_deg``, with
+    this accuracy [deg], as a user with a turntable does); returns one JSON-able row."""
     from tofmetry.evaluate import EvaluationConfig, evaluate_model, pose_errors, scale_from_reference
     from tofmetry.io import read_json
     from tofmetry.io.mesh import Geometry
@@ -175,6 +176,10 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
     t2 = time.perf_counter()
     row["simulate_s"] = round(t2 - t1, 1)
     cfg = config or ReconstructionConfig()
+    if turntable and d.path.kind == "turntable":
+        cfg.registration.turntable_step_deg = 360.0 / d.path.n_views
+        cfg.registration.turntable_accuracy_deg = turntable
+        row["turntable"] = {"step_deg": cfg.registration.turntable_step_deg, "accuracy_deg": turntable}
     try:
         res = reconstruct_scan(scan_dir, cal, None, config=cfg, white_map=white, amplitude_boards=board_dirs)
     except Exception as exc:  # noqa: BLE001 - a refused run is a result of the family
@@ -323,6 +328,9 @@ def main(argv=None) -> int:
     ap.add_argument("--complete-to", type=float, default=None, metavar="SHARE",
                     help="add the views tofmetry plan proposes so that the predicted completeness reaches SHARE "
                     "(tofmetry.plan.complete, with the object's mesh) after each drawn path")
+    ap.add_argument("--turntable", type=float, default=None, metavar="ACCURACY_DEG",
+                    help="declare the step of the turntable paths (registration.turntable_step_deg = 360 / views) "
+                    "and how accurately it turns (the simulated turntable is exact; a stepper motor's ~0.1)")
     ap.add_argument("--set", action="append", default=[], metavar="STAGE.FIELD=JSON",
                     help="override one field of the reconstruction config, e.g. "
                     "registration.adjust_radii_mm=[12,6,3] (repeatable; for A/B runs)")
@@ -347,7 +355,7 @@ def main(argv=None) -> int:
             r = run_case(s, work, a.frames, a.reduced, keep=a.keep,
                          config=None if config is None else config.model_copy(deep=True),
                          stations_mm=FAMILY_DISTANCES_MM if a.stations == "family" else DEFAULT_DISTANCES_MM,
-                         boards=not a.no_boards, complete_to=a.complete_to)
+                         boards=not a.no_boards, complete_to=a.complete_to, turntable=a.turntable)
             rows.append(r)
             with open(jl, "a") as fh:
                 fh.write(json.dumps(r, default=float) + "\n")

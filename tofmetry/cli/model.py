@@ -50,6 +50,14 @@ def reconstruct(
     color: bool = typer.Option(True, "--color/--no-color", help="Colour the model from the views' colour frames when "
                                "they have them (occlusion-aware: points no colour camera sees get no colour, flagged "
                                "'colored' 0 in the PLYs)."),
+    turntable_step: float | None = typer.Option(
+        None, "--turntable-step", help="The views were taken on a turntable turning by this step "
+        "[deg] between successive views (name order, either sense): only registrations that turn by the declared "
+        "steps (within 5 deg) are accepted, which removes the turned-over matches of thin or symmetric objects; "
+        "where none passes, the step itself links the views."),
+    turntable_accuracy: float = typer.Option(
+        1.0, "--turntable-accuracy", help="How accurately the turntable turns by its step [deg] (manual marks ~1, a "
+        "stepper motor ~0.1): views linked by the step alone are this accurate; above 0.5 deg the run is flagged."),
     force: bool = typer.Option(False, "--force", help="Replace an existing output folder."),
     allow_unreliable: bool = typer.Option(
         False, "--allow-unreliable", help="Exit 0 even when the pose-graph consistency gate flags the registration "
@@ -86,6 +94,13 @@ def reconstruct(
         cfg.preprocess.amplitude_k_mm_per_ln = amplitude_k
     cfg.registration.global_adjust = global_adjust
     cfg.registration.estimate_depth_gain = depth_gain
+    if turntable_step is not None:
+        if not 0.0 < turntable_step < 360.0:
+            raise InputError(f"--turntable-step: expected a step between 0 and 360 deg (exclusive), found {turntable_step}")
+        cfg.registration.turntable_step_deg = turntable_step
+        if not 0.0 < turntable_accuracy <= 90.0:
+            raise InputError(f"--turntable-accuracy: expected an accuracy above 0 and at most 90 deg, found {turntable_accuracy}")
+        cfg.registration.turntable_accuracy_deg = turntable_accuracy
     cfg.color = color
     if rig is not None:
         _reconstruct_rig(scan_dir, rig, sensor_calibration or [], output, cfg, force, allow_unreliable)
@@ -111,6 +126,12 @@ def reconstruct(
     for e in res.edges:
         if not e["accepted"]:
             console.print(f"edge {e['source']}->{e['target']}: {e.get('verdict', 'rejected')}: {e.get('reason', '')}")
+    tt = res.diagnostics.get("turntable")
+    if tt:
+        stepped = [f"{a}->{b} ({how})" for a, b, how in tt["bridged"]]
+        console.print(f"turntable: axis fitted to {tt['n_registrations']} registrations (their turns within "
+                      f"{tt['residual_deg']:.2f} deg of the declared steps); linked again from the declared step: "
+                      f"{', '.join(stepped) or 'none needed'}")
     sel = (res.diagnostics.get("consistency") or {}).get("selection") or {}
     if sel.get("changed") or sel.get("dropped"):
         console.print(f"multi-view selection: alternative hypothesis taken for {', '.join(sel.get('changed', [])) or 'none'}; "

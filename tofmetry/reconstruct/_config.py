@@ -94,6 +94,22 @@ class RegistrationConfig(BaseModel):
     edge_prune: float = Field(0.25, ge=0, le=1, description="pose-graph line-process edge pruning threshold")
     yaw_step_deg: float = Field(30.0, gt=0, description="support-plane yaw hypotheses step [deg] (coarse search "
                                 "when FPFH is ambiguous on a nearly symmetric object)")
+    turntable_step_deg: float | None = Field(None, gt=0, lt=360, description="the views were taken on a turntable "
+                                             "turning by this step [deg] between successive views (capture order, either "
+                                             "sense): the pairwise yaw seeds are the declared turns and a hypothesis off "
+                                             "them by more than turntable_tol_deg is not accepted (tofmetry.reconstruct."
+                                             "_turntable: a thin slab matches its own back turned over); None: not declared")
+    turntable_tol_deg: float = Field(5.0, gt=0, le=90, description="... a pairwise registration may turn this far from "
+                                     "the declared turn [deg] (a manual turntable's marks, the object's slip)")
+    turntable_accuracy_deg: float = Field(1.0, gt=0, le=90, description="how accurately the declared turntable "
+                                          "turns by its step [deg] (a manual turntable's marks ~1, a stepper motor "
+                                          "~0.1): where no registration links two successive views, the declared turn "
+                                          "does, and their poses are then this accurate; beyond pose_gate_deg the run "
+                                          "is flagged unreliable")
+    turntable_axis_mm: float = Field(1.0, gt=0, description="how well the turntable's axis is known from the "
+                                     "registrations [mm]: with a declared turntable the global adjustment starts from "
+                                     "the turntable's poses and holds each view within turntable_accuracy_deg of its "
+                                     "turn and this of its object centre's place (the adjustment's pose prior)")
     max_loop_jump_deg: float = Field(5.0, gt=0, description="a loop-closure ICP may move at most this far from the "
                                       "chained initial pose [deg]")
     max_loop_jump_mm: float = Field(30.0, gt=0, description="... and this far [mm]")

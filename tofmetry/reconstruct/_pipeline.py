@@ -38,10 +38,11 @@ from tofmetry.reconstruct._config import ReconstructionConfig
 from tofmetry.reconstruct._fusion import TSDFFusion, crop_mesh, poisson_mesh
 from tofmetry.reconstruct._posegraph import PoseGraphBuilder
 from tofmetry.reconstruct._preprocess import ViewData, prepare_view
-from tofmetry.reconstruct._register import refine_pair, register_pair, rejection_reason
+from tofmetry.reconstruct._register import refine_pair, register_pair, rejection_reason, turntable_bridges
 from tofmetry.reconstruct._regview import RegView, leaves_yaw_free, make_reg_view
 from tofmetry.reconstruct._scale_budget import scale_budget
 from tofmetry.reconstruct._segment import Segmentation, segment_object
+from tofmetry.reconstruct._turntable import turntable_poses
 from tofmetry.reconstruct._verdict import assess, scale_report
 from tofmetry.reconstruct._world import support_plane_frame, transform_plane
 
@@ -135,6 +136,7 @@ class ReconstructionPipeline:
         self.kept: list[int] = list(range(len(dataset)))
         self.left_out: dict[str, str] = {}
         self.other_edges: list[dict] = []
+        self.turntable: dict | None = None  # the declared turntable's axis fit and bridges (turntable_bridges)
 
     # -- stages -----------------------------------------------------------------------------
     def _intrinsics(self, cap):
@@ -216,6 +218,12 @@ class ReconstructionPipeline:
                             pg.add(register_pair(regs[a], regs[b], a, b, rc))
                             done.add((a, b))
                 adv()
+        if rc.turntable_step_deg is not None:
+            bridges, self.turntable = turntable_bridges(regs, pg.pairs, succ, rc)
+            if self.turntable:
+                self.turntable["bridged"] = [[names[i], names[j], how] for i, j, how in self.turntable["bridged"]]
+            new = {(b.source, b.target) for b in bridges}
+            pg.pairs = [p for p in pg.pairs if (p.source, p.target) not in new] + bridges
         if rc.all_pairs:
             chain = pg.chain_poses()
             rest = [(i, j) for i in range(n) for j in range(i + 1, n) if (i, j) not in done]
@@ -228,6 +236,12 @@ class ReconstructionPipeline:
         pg.select_hypotheses(rc.gate_max_deg, rc.gate_max_mm, rc.ambiguity_margin, spread_deg=rc.spread_max_deg,
                              spread_mm=rc.spread_max_mm)
         keep = pg.components()[0]
+        if len(keep) < 2 and rc.turntable_step_deg is not None:
+            raise EstimationError(
+                f"no registration of successive views turns by the declared turntable step ({rc.turntable_step_deg:g} "
+                f"deg, within {rc.turntable_tol_deg:g} deg, either sense): check the step (--turntable-step; "
+                f"{len(self.ds.names)} views evenly round the table turn by {360 / len(self.ds.names):g} deg) and that "
+                "the views are named in capture order. No model is written")
         if len(keep) < 2:
             pg.check_connected()  # raises, naming the groups of views and the rejected pairs
         self.kept, self.left_out, self.other_edges = keep, {}, []
@@ -261,7 +275,9 @@ class ReconstructionPipeline:
         if not rc.global_adjust:
             return None
         prior_deg, prior_mm = rc.adjust_prior_deg, rc.adjust_prior_mm
-        if prior_deg is not None and prior_mm is not None and loops:
+        if rc.turntable_step_deg is not None and self.turntable:  # the poses start on the declared turntable
+            prior_deg, prior_mm = rc.turntable_accuracy_deg, rc.turntable_axis_mm
+        elif prior_deg is not None and prior_mm is not None and loops:
             prior_deg = max(prior_deg, max(lp["closure_deg"] for lp in loops) / 2)
             prior_mm = max(prior_mm, max(lp.get("closure_object_mm", lp["closure_mm"]) for lp in loops) / 2)
         z_ref = _median_object_depth_m(views, segs)
@@ -433,12 +449,19 @@ class ReconstructionPipeline:
         t2a = time.perf_counter()
         idx = {n: k for k, n in enumerate(names)}
         kept_edges = [e for e in graph.edges if e.get("kept") and e["source"] in idx and e["target"] in idx]
-        adj = self.adjust(views, segs, regs, graph.poses, (graph.consistency or {}).get("loops"),
+        start = graph.poses
+        if self.cfg.registration.turntable_step_deg is not None and self.turntable:
+            # the declared turntable places the views; the joint fit refines them within its accuracy
+            start, self.turntable["poses"] = turntable_poses(graph.poses, self.kept,
+                                                             self.cfg.registration.turntable_step_deg,
+                                                             np.array(self.turntable["axis"]),
+                                                             self.cfg.registration.turntable_tol_deg)
+        adj = self.adjust(views, segs, regs, start, (graph.consistency or {}).get("loops"),
                           [(idx[e["source"]], idx[e["target"]]) for e in kept_edges],
                           [e.get("ir_corr") for e in kept_edges],
                           any(leaves_yaw_free(e.get("conditioning"), self.cfg.registration.yaw_free_ratio) for e in kept_edges))
         t2 = time.perf_counter()
-        poses = graph.poses if adj is None else adj.poses
+        poses = start if adj is None else adj.poses
         V, F, N, P, PN, fusion_info = self.fuse(views, segs, poses, intr)
         t3 = time.perf_counter()
         world_obj = np.concatenate([
@@ -478,7 +501,9 @@ class ReconstructionPipeline:
         z_obj = _median_object_depth_m(views, segs)
         verdict = assess(names, edges, graph.consistency, self.left_out, adj_d, self.prediction_at_object,
                          rc.max_calibration_mm,
-                         rc.pose_gate_deg, rc.pose_gate_mm, rc.yaw_free_ratio, rc.max_left_out)
+                         rc.pose_gate_deg, rc.pose_gate_mm, rc.yaw_free_ratio, rc.max_left_out,
+                         turntable_accuracy_deg=rc.turntable_accuracy_deg,
+                         turntable_placed=bool(self.turntable and "poses" in self.turntable))
         if self.cal is not None and self.cal.support is not None:
             w = extrapolation_warning({v.name: v.stats for v in views}, pred, self.cal.support.range_mm)
             if w:
@@ -493,7 +518,7 @@ class ReconstructionPipeline:
                                       rc.scale_floor_pct),
                 "world": world,
                 "views": {v.name: v.stats for v in views}, "fusion": fusion_info, "timings_s": self.timings,
-                "adjustment": adj_d, "left_out": self.left_out, "color": colour_diag,
+                "adjustment": adj_d, "left_out": self.left_out, "color": colour_diag, "turntable": self.turntable,
                 "calibrated": self.cal is not None, "amplitude_corrected": self.white_map is not None, "intrinsics": intr.to_dict(),
                 "calibration_local": (self.prediction_at_object or {}).get("local"),
                 "working_range_mm": self.working_range_mm(), "config": self.cfg.model_dump()}

@@ -16,11 +16,14 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.reconstruct._config import RegistrationConfig
 from tofmetry.reconstruct._photometric import ir_agreement, ir_yaw_sweep, photometric_icp
+from tofmetry.reconstruct._turntable import TurntablePrior, fit_turntable, turn_about
 from tofmetry.reconstruct._o3d import (
     global_register,
     icp,
@@ -59,19 +62,23 @@ def plane_consistent(src: RegView, tgt: RegView, T: np.ndarray, max_deg: float =
     return bool(ang <= max_deg and abs(h) * 1e3 <= max_mm)
 
 
-def yaw_candidates(src: RegView, tgt: RegView, step_deg: float = 30.0) -> list[np.ndarray]:
-    """Transforms that put the source support plane on the target one, at yaw steps about its normal."""
+def yaw_candidates(src: RegView, tgt: RegView, step_deg: float = 30.0,
+                   angles_deg: tuple[float, ...] | None = None) -> list[np.ndarray]:
+    """Transforms that put the source support plane on the target one, at yaw steps about its normal
+    (or at the yaws ``angles_deg``: a declared turntable's turns)."""
     Fs = _plane_frame(src.plane, src.obj_points)
     Ft = _plane_frame(tgt.plane, tgt.obj_points)
     out = []
-    for a in np.radians(np.arange(0.0, 360.0, step_deg)):
+    yaws = np.arange(0.0, 360.0, step_deg) if angles_deg is None else np.asarray(angles_deg, np.float64)
+    for a in np.radians(yaws):
         Rz = np.eye(4)
         Rz[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
         out.append(Ft @ Rz @ np.linalg.inv(Fs))
     return out
 
 
-def shifted_yaw_candidates(src: RegView, tgt: RegView, step_deg: float = 30.0, frac: float = 0.5) -> list[np.ndarray]:
+def shifted_yaw_candidates(src: RegView, tgt: RegView, step_deg: float = 30.0, frac: float = 0.5,
+                           angles_deg: tuple[float, ...] | None = None) -> list[np.ndarray]:
     """:func:`yaw_candidates` shifted in the support plane by ``frac`` x the target object's in-plane RMS
     radius in the 8 directions of a 3 x 3 grid. The yaw seeds put the two object centroids on top of
     each other, but each view sees another part of the object: on an elongated object seen from
@@ -85,7 +92,7 @@ def shifted_yaw_candidates(src: RegView, tgt: RegView, step_deg: float = 30.0, f
     x /= np.linalg.norm(x)
     y = np.cross(n, x)
     out = []
-    for T0 in yaw_candidates(src, tgt, step_deg):
+    for T0 in yaw_candidates(src, tgt, step_deg, angles_deg):
         for a in (-1, 0, 1):
             for b in (-1, 0, 1):
                 if a or b:
@@ -191,10 +198,17 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
 
     With ``init`` the ICP starts there first; FPFH + RANSAC (``cfg.ransac_seeds`` restarts)
     is used when there is no ``init`` or when the initialised ICP fails the gates. The
-    candidate with the best (fitness, -RMSE) wins.
+    candidate with the best (fitness, -RMSE) wins. With ``cfg.turntable_step_deg`` the yaw seeds
+    are the declared turns and a hypothesis off them is not accepted (:mod:`._turntable`).
     """
     r_final = cfg.icp_radii_mm[-1] * 1e-3
     tol = cfg.see_through_tol_mm * 1e-3
+    prior = None if cfg.turntable_step_deg is None else TurntablePrior(
+        i, j, cfg.turntable_step_deg, cfg.turntable_tol_deg, None if tgt.plane is None else tgt.plane[:3])
+    seeds = None if prior is None else prior.seeds_deg()
+
+    def allowed(T, widen: float = 1.0) -> bool:
+        return prior is None or prior.allows(T, widen)
 
     def key(c):  # hypotheses the other camera sees through rank last, then by fitness, then RMSE
         return (c[4] > cfg.max_see_through, -c[0], c[1])
@@ -218,24 +232,27 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
                     for s in range(cfg.ransac_seeds)]
 
         def good(c):
-            return _passes(c[0], c[1], cfg) and c[4] <= cfg.max_see_through and plane_consistent(src, tgt, c[2])
+            return (_passes(c[0], c[1], cfg) and c[4] <= cfg.max_see_through and plane_consistent(src, tgt, c[2])
+                    and allowed(c[2]))
 
         if src.plane is not None and tgt.plane is not None:
-            _search(src, tgt, cfg, [(T, "plane-yaw+icp") for T in yaw_candidates(src, tgt, cfg.yaw_step_deg)], cands, key, vis)
+            _search(src, tgt, cfg, [(T, "plane-yaw+icp") for T in yaw_candidates(src, tgt, cfg.yaw_step_deg, seeds)],
+                    cands, key, vis, allowed)
             # fallbacks when no yaw seed converged to an acceptable pose: shifted yaw seeds, then FPFH + RANSAC
             if not any(good(c) for c in cands):
-                _search(src, tgt, cfg, [(T, "shifted-yaw+icp") for T in shifted_yaw_candidates(src, tgt, cfg.yaw_step_deg)],
-                        cands, key, vis)
+                _search(src, tgt, cfg, [(T, "shifted-yaw+icp") for T in
+                                        shifted_yaw_candidates(src, tgt, cfg.yaw_step_deg, angles_deg=seeds)],
+                        cands, key, vis, allowed)
             if not any(good(c) for c in cands):
-                _search(src, tgt, cfg, fpfh(), cands, key, vis)
+                _search(src, tgt, cfg, fpfh(), cands, key, vis, allowed)
         else:
-            _search(src, tgt, cfg, fpfh(), cands, key, vis)
+            _search(src, tgt, cfg, fpfh(), cands, key, vis, allowed)
     if not cands:
         return PairResult(i, j, np.eye(4), 0.0, np.inf, np.zeros((6, 6)), "none", False)
-    ranked = sorted(cands, key=lambda c: (not plane_consistent(src, tgt, c[2]), *key(c)))
+    ranked = sorted(cands, key=lambda c: (not plane_consistent(src, tgt, c[2]), not allowed(c[2]), *key(c)))
     out = []
     for fit, rmse, T, method, v in ranked:
-        ok = _passes(fit, rmse, cfg) and v <= cfg.max_see_through
+        ok = _passes(fit, rmse, cfg) and v <= cfg.max_see_through and allowed(T)
         if out and not (ok and plane_consistent(src, tgt, T)):
             continue
         out.append(_pair_result(src, tgt, i, j, T, fit, rmse, v, method, ok, r_final))
@@ -252,14 +269,15 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
         v = vis(T)
         if (c1 is not None and c1 >= cfg.ir_icp_min_corr and c1 - c0 >= cfg.ir_icp_min_gain
                 and fit >= best.fitness - 0.005 and _passes(fit, rmse, cfg) and v <= cfg.max_see_through
-                and plane_consistent(src, tgt, T)):
+                and plane_consistent(src, tgt, T) and allowed(T)):
             best = _pair_result(src, tgt, i, j, T, fit, rmse, v, best.method + "+ir-icp", True, r_final, ir_corr=c1)
             out = [best] + out[1:]
     if cfg.ir_yaw and leaves_yaw_free(best.conditioning, cfg.yaw_free_ratio) and src.obj_ir is not None and tgt.icp_ir is not None:
         # the geometry leaves the yaw free: let the painted pattern (IR amplitude) choose it
         sw = ir_yaw_sweep(src, tgt, best.transform, r_final)
-        if sw["decided"]:
-            turned = _ir_turned(src, tgt, i, j, sw.pop("transform"), cfg, r_final, vis, best.method + "+ir-yaw", sw)
+        turned = _ir_turned(src, tgt, i, j, sw.pop("transform"), cfg, r_final, vis, best.method + "+ir-yaw", sw) \
+            if sw["decided"] else None
+        if turned is not None and allowed(turned.transform):
             return _with_ir(replace(turned, alternatives=[a for a in out if not _same_pose(a.transform, turned.transform)]),
                             src, tgt, r_final)
         cands = sw.pop("candidates", None)
@@ -269,7 +287,7 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
             # ones stay as alternatives, which the pattern then vetoes
             turned = [_ir_turned(src, tgt, i, j, T0, cfg, r_final, vis, best.method + "+ir-yaw-candidate", sw)
                       for T0 in cands]
-            turned = [t for t in turned if t.accepted]
+            turned = [t for t in turned if t.accepted and allowed(t.transform)]
             if turned and (best.ir_corr is None or turned[0].ir_corr is not None and turned[0].ir_corr > best.ir_corr):
                 rest = [a for a in turned[1:] + out if not _same_pose(a.transform, turned[0].transform)]
                 return _with_ir(replace(turned[0], alternatives=rest), src, tgt, r_final)
@@ -314,10 +332,12 @@ def _with_ir(p: PairResult, src: RegView, tgt: RegView, radius_m: float) -> Pair
                                  for a in p.alternatives])
 
 
-def _search(src: RegView, tgt: RegView, cfg: RegistrationConfig, coarse: list, cands: list, key, vis) -> None:
+def _search(src: RegView, tgt: RegView, cfg: RegistrationConfig, coarse: list, cands: list, key, vis,
+            allowed=None) -> None:
     """Coarse hypotheses ``coarse`` [(T, how)] -> quick ICP -> distinct -> mid ICP -> fine ICP; appends
     (fitness, rmse, T, how, see_through) of the winner and of every other distinct hypothesis that
-    passes the gates to ``cands``."""
+    passes the gates to ``cands``; ``allowed(T, widen)``: a declared turntable's test (the quick ICP's
+    poses within twice its tolerance go on)."""
     r_final = cfg.icp_radii_mm[-1] * 1e-3
     # quick ICP of every coarse candidate on the feature-voxel clouds, keep the best few
     quick = []
@@ -326,7 +346,7 @@ def _search(src: RegView, tgt: RegView, cfg: RegistrationConfig, coarse: list, c
         for r in (2.5 * cfg.coarse_voxel_mm, 1.25 * cfg.coarse_voxel_mm):
             T = icp(src.coarse_points, tgt.coarse_points, tgt.coarse_normals, T, r * 1e-3, kernel=cfg.kernel,
                     max_iter=12).transform
-        if plane_consistent(src, tgt, T, 5.0, 15.0):
+        if plane_consistent(src, tgt, T, 5.0, 15.0) and (allowed is None or allowed(T, 2.0)):
             quick.append((*_coarse_fitness(src, tgt, T, 1.25 * cfg.coarse_voxel_mm * 1e-3), T, how, vis(T)))
     quick.sort(key=key)
     distinct: list = []  # several yaw seeds converge to the same pose: refine distinct ones only
@@ -376,3 +396,60 @@ def rejection_reason(p: PairResult, cfg: RegistrationConfig) -> str:
 
 def _passes(fit: float, rmse_m: float, cfg: RegistrationConfig) -> bool:
     return fit >= cfg.min_fitness and rmse_m * 1e3 <= cfg.max_rmse_mm
+
+
+def turntable_bridges(regs: list[RegView], pairs: list[PairResult], links: list[tuple[int, int]],
+                      cfg: RegistrationConfig) -> tuple[list[PairResult], dict | None]:
+    """Links that a declared turntable gives where the registrations failed (:mod:`._turntable`).
+
+    The turntable's axis and sense are fitted to the accepted registrations (``pairs``). Each pair
+    of ``links`` (successive views, then the closing pair) whose views no accepted registration
+    connects yet is registered again from the declared turn about that axis (ICP, no global
+    search); where that fails the gates, the declared turn itself links the views (method
+    ``turntable-step``: their relative pose is then as accurate as the turntable's steps,
+    ``cfg.turntable_accuracy_deg``, and the global adjustment refines it where the points allow).
+
+    Returns
+    -------
+    (the new pairs, the axis fit as a JSON-able dict or None when no accepted registration turns)
+    """
+    step = cfg.turntable_step_deg
+    acc = [p for p in pairs if p.accepted]
+    normals = [r.plane[:3] for r in regs if r.plane is not None]
+    if step is None or not acc or not normals:
+        return [], None
+    axis = np.sum([n if n @ normals[0] >= 0 else -n for n in normals], axis=0)
+    fit = fit_turntable([p.transform for p in acc], [p.target - p.source for p in acc], step, axis)
+    if fit is None:
+        return [], None
+    r_final = cfg.icp_radii_mm[-1] * 1e-3
+    tol = cfg.see_through_tol_mm * 1e-3
+    sig_r = np.radians(cfg.turntable_accuracy_deg)
+    info = np.diag([sig_r ** -2] * 3 + [(sig_r * 0.2 + 5e-4) ** -2] * 3)  # the steps' accuracy, at 0.2 m
+    edges = [(p.source, p.target) for p in acc]
+    out = []
+    for i, j in links:
+        if _linked(len(regs), edges, i, j):
+            continue
+        T0 = turn_about(fit["centre"], fit["axis"], fit["sense"] * (j - i) * step)
+        p = register_pair(regs[i], regs[j], i, j, cfg, init=T0, global_search=False)
+        if not p.accepted:
+            f, rmse = object_fitness(regs[i], regs[j], T0, r_final)
+            p = PairResult(i, j, T0, f, rmse * 1e3, info, "turntable-step", True,
+                           conditioning=registration_conditioning(regs[i], regs[j], T0, r_final),
+                           see_through=visibility_violation(regs[i], regs[j], T0, tol))
+        out.append(p)
+        edges.append((i, j))
+    report = {"axis": [round(float(x), 5) for x in fit["axis"]], "centre_m": [round(float(x), 4) for x in fit["centre"]],
+              "sense": int(fit["sense"]), "residual_deg": round(fit["residual_deg"], 3), "n_registrations": fit["n"],
+              "bridged": [[p.source, p.target, p.method] for p in out]}
+    return out, report
+
+
+def _linked(n: int, edges: list[tuple[int, int]], i: int, j: int) -> bool:
+    """Do ``edges`` connect views ``i`` and ``j`` (of ``n``)?"""
+    if not edges:
+        return False
+    a, b = np.array(edges).T
+    _, label = connected_components(coo_matrix((np.ones(len(a)), (a, b)), shape=(n, n)), directed=False)
+    return bool(label[i] == label[j])

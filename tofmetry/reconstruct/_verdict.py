@@ -65,7 +65,8 @@ def _bridges(n: int, edges: list[tuple[int, int]]) -> set[int]:
 def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dict | None = None,
            adjustment: dict | None = None, calibration_prediction: dict | None = None,
            max_calibration_mm: float = 1.5, pose_gate_deg: float = 0.5, pose_gate_mm: float = 3.0,
-           yaw_free_ratio: float = 0.15, max_left_out: float = 0.25, gain_alarm_factor: float = 1.5) -> dict:
+           yaw_free_ratio: float = 0.15, max_left_out: float = 0.25, gain_alarm_factor: float = 1.5,
+           turntable_accuracy_deg: float | None = None, turntable_placed: bool = False) -> dict:
     """Verdicts of the edges (added to each edge dict as ``verdict`` and ``reason``), the views and the run.
 
     Parameters
@@ -82,6 +83,14 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
         object [mm]); see the module docstring
     yaw_free_ratio : an edge whose yaw stiffness ratio (``conditioning["yaw_ratio"]``) is below this is yaw free
     max_left_out : a larger share of the views left out makes the run unreliable (a few are a warning)
+    turntable_accuracy_deg : how accurately a declared turntable turns [deg]: edges that its step alone
+        gives (method ``turntable-step``, no registration passed the gates) are that accurate; a reason
+        when it exceeds ``pose_gate_deg``, a warning otherwise
+    turntable_placed : the declared turntable placed the views (the joint fit started from its poses
+        and held them within ``turntable_accuracy_deg``): when that accuracy is within
+        ``pose_gate_deg``, what the pairwise graph's loops, ambiguity or free yaws say about the pose
+        graph's poses no longer bears on the poses, and is a warning (the joint fit's move and
+        restart still judge them)
     gain_alarm_factor : a depth gain the adjustment refused as implausible makes the run unreliable when it
         exceeds this many times the bound it broke (the calibration's allowance); below, it is a warning.
         Set on 8 family runs with a refused gain: asking 1.04-1.4 times the bound, 5 runs were within the
@@ -98,8 +107,10 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
     pairs = [(idx[e["source"]], idx[e["target"]]) for e in kept]
     br = _bridges(len(names), pairs)
     reasons = list(consistency.get("reasons", []))
+    graph = list(reasons)  # what the pairwise graph says about the pose graph's poses
     warnings = []
     yaw_free = []
+    stepped = []  # edges the declared turntable's step gives
     loops = consistency.get("loops") or []
     free = {frozenset((e["source"], e["target"])) for e in kept
             if leaves_yaw_free(e.get("conditioning"), yaw_free_ratio) and not (e.get("ir_yaw") or {}).get("decided")}
@@ -114,6 +125,12 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
             e["verdict"], e["reason"] = "pruned", "pruned by the pose-graph optimisation (disagrees with the others)"
             continue
         k = kept.index(e)
+        if e.get("method") == "turntable-step":
+            e["verdict"] = "turntable step"
+            e["reason"] = ("no registration of these views passed the gates; the declared turntable step links them, "
+                           f"as accurately as the turntable turns (+/- {turntable_accuracy_deg:g} deg)")
+            stepped.append(f"{e['source']}->{e['target']}")
+            continue
         yr = (e.get("conditioning") or {}).get("yaw_ratio")
         free_e = leaves_yaw_free(e.get("conditioning"), yaw_free_ratio)
         iy = e.get("ir_yaw") or {}
@@ -140,9 +157,17 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
         else:
             e["verdict"], e["reason"] = "verified", "on a closed loop of the view graph"
     if yaw_free:
-        reasons.append(f"edge(s) {', '.join(yaw_free)}: the views overlap on a nearly rotation-symmetric part only; their "
+        graph.append(f"edge(s) {', '.join(yaw_free)}: the views overlap on a nearly rotation-symmetric part only; their "
                        "rotation about the vertical is not determined by the geometry (add views that see a distinctive "
                        "feature, or texture/markers)")
+        reasons.append(graph[-1])
+    if stepped:
+        msg = (f"edge(s) {', '.join(stepped)}: no registration passed the gates; the declared turntable step links the "
+               f"views, as accurately as the turntable turns (+/- {turntable_accuracy_deg:g} deg")
+        if turntable_accuracy_deg is None or turntable_accuracy_deg > pose_gate_deg:
+            reasons.append(msg + f", beyond the pose gate of {pose_gate_deg:g} deg)")
+        else:
+            warnings.append(msg + ")")
     # views
     views = {}
     on_loop = {v for k, (a, b) in enumerate(pairs) if k not in br for v in (a, b)}
@@ -169,9 +194,14 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
     b_mm = max((lp.get("closure_object_mm", lp["closure_mm"]) for lp in loops), default=0.0) / 2
     sel = consistency.get("selection") or {}
     if sel.get("spread") and (b_deg > pose_gate_deg or b_mm > pose_gate_mm):
-        reasons.append(f"the loops close only to {2 * b_deg:.2f} deg / {2 * b_mm:.1f} mm at the object; spread over "
+        graph.append(f"the loops close only to {2 * b_deg:.2f} deg / {2 * b_mm:.1f} mm at the object; spread over "
                        f"their edges this leaves up to ~{b_deg:.2f} deg / {b_mm:.1f} mm on a view (limit "
                        f"{pose_gate_deg:g} deg / {pose_gate_mm:g} mm): the views disagree (depth-calibration residual?)")
+        reasons.append(graph[-1])
+    if turntable_placed and turntable_accuracy_deg is not None and turntable_accuracy_deg <= pose_gate_deg:
+        reasons = [r for r in reasons if r not in graph]
+        warnings.extend("the declared turntable places the views (within its accuracy, +/- "
+                        f"{turntable_accuracy_deg:g} deg), not the pairwise graph, which says: {r}" for r in graph)
     if sel.get("decided_by_ir"):
         warnings.append("the geometry alone left the registration ambiguous (the object looks alike from different "
                         f"sides: {sel['decided_by_ir']['n_tied']} choices closed every loop); the IR albedo pattern "
@@ -189,7 +219,8 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
                        "than it allows (wrong poses on a smooth or symmetric object, or a wrong calibration)")
     if adjustment is not None and (adjustment.get("gain_note") or "").startswith("not observable"):
         warnings.append(f"depth gain {adjustment['gain_note']}")
-    _judge_move(adjustment or {}, names, pose_gate_deg, pose_gate_mm, reasons, warnings)
+    _judge_move(adjustment or {}, names, pose_gate_deg, pose_gate_mm, reasons, warnings,
+                "the declared turntable" if turntable_placed else "the pairwise registrations")
     warns = (calibration_prediction or {}).get("warnings") or []
     pc = calibration_central_mm(calibration_prediction)
     local = (calibration_prediction or {}).get("local") or {}
@@ -211,8 +242,9 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
 
 
 def _judge_move(adjustment: dict, names: list[str], pose_gate_deg: float, pose_gate_mm: float, reasons: list[str],
-                warnings: list[str]) -> None:
-    """The joint fit's move from the pose graph, and its restart from the far side
+                warnings: list[str], placed_by: str = "the pairwise registrations") -> None:
+    """The joint fit's move from where ``placed_by`` put the views (the pose graph, or a declared
+    turntable), and its restart from the far side
     (:mod:`tofmetry.reconstruct._adjust_restart`) when there is one.
 
     * A restart that ends more than half the pose gate from the solution is a reason, whatever the
@@ -240,7 +272,7 @@ def _judge_move(adjustment: dict, names: list[str], pose_gate_deg: float, pose_g
     rs = adjustment.get("restart")
     worst = max(moved, key=moved.get)
     beyond = moved[worst] > pose_gate_deg
-    move = f"the global adjustment moved view {worst} by {moved[worst]:.2f} deg from where the pairwise registrations put it"
+    move = f"the global adjustment moved view {worst} by {moved[worst]:.2f} deg from where {placed_by} put it"
     if rs and "failed" in rs:
         (reasons if beyond else warnings).append(f"{move}, and its restart from the far side failed ({rs['failed']}): "
                                                  "the joint fit is not checked")
