@@ -107,6 +107,17 @@ def draw_case(seed: int, mesh_dir: Path | None = MESH_DIR, reduced: bool = False
     return Draw(int(seed), obj, path, sensor)
 
 
+def jitter_turntable(d: Draw, seed: int, sigma_deg: float) -> tuple[Draw, list[float]]:
+    """``d`` with each view turned about the vertical through the object's centre by N(0, sigma_deg)."""
+    from tofmetry.reconstruct._turntable import turn_about
+
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x7A1]))
+    e = rng.normal(0.0, sigma_deg, len(d.path.poses))
+    c = np.asarray(d.object.centre_m, np.float64)
+    poses = [turn_about(c, np.array([0.0, 0.0, 1.0]), float(a)) @ P for a, P in zip(e, d.path.poses)]
+    return replace(d, path=replace(d.path, poses=poses)), [round(float(a), 3) for a in e]
+
+
 def calibrate_sensor(draw, seed: int, n_frames: int = 20, amplitude_max_mm: float = 2500.0,
                      distances_mm=FAMILY_DISTANCES_MM):
     """Depth calibration of ``draw`` by tofmetry's chain on in-memory wall stations, and the white
@@ -149,10 +160,12 @@ def board_captures(draw, seed: int, work: Path, n_frames: int = 10) -> list[Path
 
 def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, mesh_dir: Path | None = MESH_DIR,
              keep: bool = False, config=None, stations_mm=FAMILY_DISTANCES_MM, boards: bool = True,
-             complete_to: float | None = None, turntable: float | None = None) -> dict:
+             complete_to: float | None = None, turntable: float | None = None, turntable_jitter: float = 0.0) -> dict:
     """Simulate, calibrate, reconstruct and evaluate one draw (``complete_to``: :func:`draw_case`;
     ``turntable``: a turntable path's step is declared, ``registration.turntable_step_deg``, with
-    this accuracy [deg], as a user with a turntable does); returns one JSON-able row."""
+    this accuracy [deg], as a user with a turntable does; ``turntable_jitter``: a turntable path's
+    views turned about the vertical through the object by N(0, jitter) [deg] each, as a manual
+    turntable's steps are off); returns one JSON-able row."""
     from tofmetry.evaluate import EvaluationConfig, evaluate_model, pose_errors, scale_from_reference
     from tofmetry.io import read_json
     from tofmetry.io.mesh import Geometry
@@ -162,6 +175,8 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
 
     d = draw_case(seed, mesh_dir, reduced, complete_to)
     row = {"seed": int(seed), **d.describe()}
+    if turntable_jitter and d.path.kind == "turntable":
+        d, row["turntable_jitter_deg"] = jitter_turntable(d, seed, turntable_jitter)
     t0 = time.perf_counter()
     cal, white, t_cal = calibrate_sensor(d.sensor, seed, distances_mm=stations_mm)
     row["true_k_mm_per_ln"] = round(d.sensor.errors.amplitude_slope_mm_per_ln(), 3)
@@ -331,6 +346,8 @@ def main(argv=None) -> int:
     ap.add_argument("--turntable", type=float, default=None, metavar="ACCURACY_DEG",
                     help="declare the step of the turntable paths (registration.turntable_step_deg = 360 / views) "
                     "and how accurately it turns (the simulated turntable is exact; a stepper motor's ~0.1)")
+    ap.add_argument("--turntable-jitter", type=float, default=0.0, metavar="DEG",
+                    help="turn each view of a turntable path by N(0, DEG) about the vertical (a manual turntable)")
     ap.add_argument("--set", action="append", default=[], metavar="STAGE.FIELD=JSON",
                     help="override one field of the reconstruction config, e.g. "
                     "registration.adjust_radii_mm=[12,6,3] (repeatable; for A/B runs)")
@@ -355,7 +372,8 @@ def main(argv=None) -> int:
             r = run_case(s, work, a.frames, a.reduced, keep=a.keep,
                          config=None if config is None else config.model_copy(deep=True),
                          stations_mm=FAMILY_DISTANCES_MM if a.stations == "family" else DEFAULT_DISTANCES_MM,
-                         boards=not a.no_boards, complete_to=a.complete_to, turntable=a.turntable)
+                         boards=not a.no_boards, complete_to=a.complete_to, turntable=a.turntable,
+                         turntable_jitter=a.turntable_jitter)
             rows.append(r)
             with open(jl, "a") as fh:
                 fh.write(json.dumps(r, default=float) + "\n")

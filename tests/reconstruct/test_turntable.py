@@ -114,8 +114,28 @@ def test_a_declared_turntable_registers_the_scan_as_well_as_without(orbit_scan):
     assert all(e["method"] != "turntable-step" for e in res.edges)
 
 
-def test_a_wrong_step_is_refused_with_its_reason(orbit_scan):
+def test_a_wrong_step_is_refused_or_flagged_with_its_reason(orbit_scan):
+    # the views turn by 45 deg: no registration turns by 30 (refused), or only rejected ones do
+    # (the axis fitted on them, the run flagged, the step named)
     cfg = ReconstructionConfig()
-    cfg.registration.turntable_step_deg = 30.0  # the views turn by 45 deg
-    with pytest.raises(EstimationError, match="declared turntable step .30 deg.*45 deg"):
-        ReconstructionPipeline(ScanDataset(orbit_scan), None, cfg).run()
+    cfg.registration.turntable_step_deg = 30.0
+    try:
+        res = ReconstructionPipeline(ScanDataset(orbit_scan), None, cfg).run()
+    except EstimationError as exc:
+        assert "declared turntable step (30 deg" in str(exc) and "45 deg" in str(exc), exc
+    else:
+        rel = res.diagnostics["reliability"]
+        assert not rel["reliable"] and any("--turntable-step" in r for r in rel["reasons"]), rel["reasons"]
+
+
+@pytest.mark.parametrize("args, name", [(["--turntable-step", "400"], "--turntable-step"),
+                                        (["--turntable-step", "45", "--turntable-accuracy", "0"], "--turntable-accuracy")])
+def test_the_cli_names_a_bad_turntable_option(orbit_scan, tmp_path, args, name):
+    from typer.testing import CliRunner
+
+    from tofmetry.cli import app
+    from tofmetry.errors import InputError
+
+    r = CliRunner().invoke(app, ["reconstruct", str(orbit_scan), "--no-calibration", "-o", str(tmp_path / "o"), *args])
+    assert isinstance(r.exception, InputError) and name in str(r.exception), r.output
+    assert not (tmp_path / "o").exists()

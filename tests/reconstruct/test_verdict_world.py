@@ -268,3 +268,30 @@ def test_a_loop_with_one_free_yaw_pins_it():
     e = [_edge(names[i], names[i + 1], yaw=0.05 if i in (2, 4) else 1.0) for i in range(7)] + [_edge("00", "07")]
     v = assess(names, e, {"reasons": [], "loops": [loop]}, calibration_prediction={})
     assert not v["reliable"] and e[2]["verdict"] == e[4]["verdict"] == "yaw free"
+
+
+def test_a_declared_turntable_places_the_views_within_its_accuracy():
+    # the pairwise graph's yaw-free edge and its consistency reason no longer bear on poses the
+    # turntable places (accuracy within the pose gate): warnings; an edge given by the step alone
+    # is a warning there and a reason for a manual table (1 deg)
+    def edges():
+        return [_edge("00", "01", yaw=0.03), _edge("01", "02", method="turntable-step"), _edge("00", "02")]
+
+    cons = {"reasons": ["registration ambiguous: ..."], "loops": []}
+    e = edges()
+    v = assess(_names(3), e, cons, calibration_prediction={}, turntable_accuracy_deg=0.1, turntable_placed=True)
+    assert v["reliable"], v["reasons"]
+    assert e[1]["verdict"] == "turntable step" and "0.1 deg" in e[1]["reason"]
+    assert sum("declared turntable places the views" in w for w in v["warnings"]) == 2, v["warnings"]
+    v = assess(_names(3), edges(), cons, calibration_prediction={}, turntable_accuracy_deg=1.0, turntable_placed=True)
+    assert not v["reliable"] and any("turntable step" in r and "beyond the pose gate" in r for r in v["reasons"])
+    assert any(r.startswith("registration ambiguous") for r in v["reasons"])
+    # the joint fit may move the views by up to twice the turntable's accuracy from its poses
+    adj = {"moved_deg": {"00": 0.0, "01": 0.8, "02": 0.3}, "restart": {"view": 1, "start_deg": 0.8, "deg": 0.05,
+                                                                       "mm": 0.3}}
+    e = [_edge("00", "01"), _edge("01", "02"), _edge("00", "02")]
+    v = assess(_names(3), e, {"reasons": [], "loops": []}, adjustment=adj, calibration_prediction={},
+               turntable_accuracy_deg=0.5, turntable_placed=True)
+    assert v["reliable"], v["reasons"]
+    v = assess(_names(3), e, {"reasons": [], "loops": []}, adjustment=adj, calibration_prediction={})
+    assert not v["reliable"] and "from where the pairwise registrations put it" in v["reasons"][0]

@@ -38,11 +38,12 @@ from tofmetry.reconstruct._config import ReconstructionConfig
 from tofmetry.reconstruct._fusion import TSDFFusion, crop_mesh, poisson_mesh
 from tofmetry.reconstruct._posegraph import PoseGraphBuilder
 from tofmetry.reconstruct._preprocess import ViewData, prepare_view
-from tofmetry.reconstruct._register import refine_pair, register_pair, rejection_reason, turntable_bridges
+from tofmetry.reconstruct._register import refine_pair, register_pair, rejection_reason
 from tofmetry.reconstruct._regview import RegView, leaves_yaw_free, make_reg_view
 from tofmetry.reconstruct._scale_budget import scale_budget
 from tofmetry.reconstruct._segment import Segmentation, segment_object
 from tofmetry.reconstruct._turntable import turntable_poses
+from tofmetry.reconstruct._turntable_bridge import UNCONFIRMED_REASON, no_turn_error, turntable_bridges
 from tofmetry.reconstruct._verdict import assess, scale_report
 from tofmetry.reconstruct._world import support_plane_frame, transform_plane
 
@@ -237,11 +238,7 @@ class ReconstructionPipeline:
                              spread_mm=rc.spread_max_mm)
         keep = pg.components()[0]
         if len(keep) < 2 and rc.turntable_step_deg is not None:
-            raise EstimationError(
-                f"no registration of successive views turns by the declared turntable step ({rc.turntable_step_deg:g} "
-                f"deg, within {rc.turntable_tol_deg:g} deg, either sense): check the step (--turntable-step; "
-                f"{len(self.ds.names)} views evenly round the table turn by {360 / len(self.ds.names):g} deg) and that "
-                "the views are named in capture order. No model is written")
+            raise no_turn_error(rc.turntable_step_deg, rc.turntable_tol_deg, len(self.ds.names))
         if len(keep) < 2:
             pg.check_connected()  # raises, naming the groups of views and the rejected pairs
         self.kept, self.left_out, self.other_edges = keep, {}, []
@@ -504,6 +501,9 @@ class ReconstructionPipeline:
                          rc.pose_gate_deg, rc.pose_gate_mm, rc.yaw_free_ratio, rc.max_left_out,
                          turntable_accuracy_deg=rc.turntable_accuracy_deg,
                          turntable_placed=bool(self.turntable and "poses" in self.turntable))
+        if self.turntable and self.turntable.get("axis_from", "").startswith("rejected"):
+            verdict["reasons"].append(UNCONFIRMED_REASON)
+            verdict["reliable"] = False
         if self.cal is not None and self.cal.support is not None:
             w = extrapolation_warning({v.name: v.stats for v in views}, pred, self.cal.support.range_mm)
             if w:

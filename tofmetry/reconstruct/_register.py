@@ -16,14 +16,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.reconstruct._config import RegistrationConfig
 from tofmetry.reconstruct._photometric import ir_agreement, ir_yaw_sweep, photometric_icp
-from tofmetry.reconstruct._turntable import TurntablePrior, fit_turntable, turn_about
 from tofmetry.reconstruct._o3d import (
     global_register,
     icp,
@@ -36,6 +33,7 @@ from tofmetry.reconstruct._regview import (
     registration_conditioning,
     visibility_violation,
 )
+from tofmetry.reconstruct._turntable import TurntablePrior
 
 
 def _plane_frame(plane: np.ndarray, obj: np.ndarray) -> np.ndarray:
@@ -397,59 +395,3 @@ def rejection_reason(p: PairResult, cfg: RegistrationConfig) -> str:
 def _passes(fit: float, rmse_m: float, cfg: RegistrationConfig) -> bool:
     return fit >= cfg.min_fitness and rmse_m * 1e3 <= cfg.max_rmse_mm
 
-
-def turntable_bridges(regs: list[RegView], pairs: list[PairResult], links: list[tuple[int, int]],
-                      cfg: RegistrationConfig) -> tuple[list[PairResult], dict | None]:
-    """Links that a declared turntable gives where the registrations failed (:mod:`._turntable`).
-
-    The turntable's axis and sense are fitted to the accepted registrations (``pairs``). Each pair
-    of ``links`` (successive views, then the closing pair) whose views no accepted registration
-    connects yet is registered again from the declared turn about that axis (ICP, no global
-    search); where that fails the gates, the declared turn itself links the views (method
-    ``turntable-step``: their relative pose is then as accurate as the turntable's steps,
-    ``cfg.turntable_accuracy_deg``, and the global adjustment refines it where the points allow).
-
-    Returns
-    -------
-    (the new pairs, the axis fit as a JSON-able dict or None when no accepted registration turns)
-    """
-    step = cfg.turntable_step_deg
-    acc = [p for p in pairs if p.accepted]
-    normals = [r.plane[:3] for r in regs if r.plane is not None]
-    if step is None or not acc or not normals:
-        return [], None
-    axis = np.sum([n if n @ normals[0] >= 0 else -n for n in normals], axis=0)
-    fit = fit_turntable([p.transform for p in acc], [p.target - p.source for p in acc], step, axis)
-    if fit is None:
-        return [], None
-    r_final = cfg.icp_radii_mm[-1] * 1e-3
-    tol = cfg.see_through_tol_mm * 1e-3
-    sig_r = np.radians(cfg.turntable_accuracy_deg)
-    info = np.diag([sig_r ** -2] * 3 + [(sig_r * 0.2 + 5e-4) ** -2] * 3)  # the steps' accuracy, at 0.2 m
-    edges = [(p.source, p.target) for p in acc]
-    out = []
-    for i, j in links:
-        if _linked(len(regs), edges, i, j):
-            continue
-        T0 = turn_about(fit["centre"], fit["axis"], fit["sense"] * (j - i) * step)
-        p = register_pair(regs[i], regs[j], i, j, cfg, init=T0, global_search=False)
-        if not p.accepted:
-            f, rmse = object_fitness(regs[i], regs[j], T0, r_final)
-            p = PairResult(i, j, T0, f, rmse * 1e3, info, "turntable-step", True,
-                           conditioning=registration_conditioning(regs[i], regs[j], T0, r_final),
-                           see_through=visibility_violation(regs[i], regs[j], T0, tol))
-        out.append(p)
-        edges.append((i, j))
-    report = {"axis": [round(float(x), 5) for x in fit["axis"]], "centre_m": [round(float(x), 4) for x in fit["centre"]],
-              "sense": int(fit["sense"]), "residual_deg": round(fit["residual_deg"], 3), "n_registrations": fit["n"],
-              "bridged": [[p.source, p.target, p.method] for p in out]}
-    return out, report
-
-
-def _linked(n: int, edges: list[tuple[int, int]], i: int, j: int) -> bool:
-    """Do ``edges`` connect views ``i`` and ``j`` (of ``n``)?"""
-    if not edges:
-        return False
-    a, b = np.array(edges).T
-    _, label = connected_components(coo_matrix((np.ones(len(a)), (a, b)), shape=(n, n)), directed=False)
-    return bool(label[i] == label[j])

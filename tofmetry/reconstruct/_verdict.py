@@ -220,7 +220,9 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
     if adjustment is not None and (adjustment.get("gain_note") or "").startswith("not observable"):
         warnings.append(f"depth gain {adjustment['gain_note']}")
     _judge_move(adjustment or {}, names, pose_gate_deg, pose_gate_mm, reasons, warnings,
-                "the declared turntable" if turntable_placed else "the pairwise registrations")
+                "the declared turntable" if turntable_placed else "the pairwise registrations",
+                max(pose_gate_deg, 2.0 * turntable_accuracy_deg) if turntable_placed and turntable_accuracy_deg else
+                pose_gate_deg)
     warns = (calibration_prediction or {}).get("warnings") or []
     pc = calibration_central_mm(calibration_prediction)
     local = (calibration_prediction or {}).get("local") or {}
@@ -242,7 +244,7 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
 
 
 def _judge_move(adjustment: dict, names: list[str], pose_gate_deg: float, pose_gate_mm: float, reasons: list[str],
-                warnings: list[str], placed_by: str = "the pairwise registrations") -> None:
+                warnings: list[str], placed_by: str = "the pairwise registrations", move_gate_deg: float | None = None) -> None:
     """The joint fit's move from where ``placed_by`` put the views (the pose graph, or a declared
     turntable), and its restart from the far side
     (:mod:`tofmetry.reconstruct._adjust_restart`) when there is one.
@@ -265,13 +267,17 @@ def _judge_move(adjustment: dict, names: list[str], pose_gate_deg: float, pose_g
       0.94 and 1.26 deg back (kept flagged); of five right runs one pebble stayed (0.10, 0.15 deg,
       cleared), the others walked 0.38-0.69 deg (kept flagged: the pairs prefer their own poses).
     * A failed restart is a reason when the move is beyond the gate, a warning below it.
+    * From a declared turntable's poses the joint fit is expected to move the views by up to about
+      the turntable's accuracy: the move is then judged against ``move_gate_deg`` (twice that
+      accuracy, at least the pose gate); the restart still against the pose gate.
     """
     moved = adjustment.get("moved_deg") or {}
     if not moved:
         return
     rs = adjustment.get("restart")
     worst = max(moved, key=moved.get)
-    beyond = moved[worst] > pose_gate_deg
+    gate = pose_gate_deg if move_gate_deg is None else move_gate_deg
+    beyond = moved[worst] > gate
     move = f"the global adjustment moved view {worst} by {moved[worst]:.2f} deg from where {placed_by} put it"
     if rs and "failed" in rs:
         (reasons if beyond else warnings).append(f"{move}, and its restart from the far side failed ({rs['failed']}): "
@@ -284,7 +290,7 @@ def _judge_move(adjustment: dict, names: list[str], pose_gate_deg: float, pose_g
                        "free and the fit slides along it, a smooth or symmetric object, or the views sit in a wrong "
                        "basin); add views that see a distinctive feature, or texture")
     elif beyond and rs:
-        back = (f"{move} (limit {pose_gate_deg:g} deg); restarted {rs['start_deg']:.2f} deg away on the far side, "
+        back = (f"{move} (limit {gate:g} deg); restarted {rs['start_deg']:.2f} deg away on the far side, "
                 f"the joint fit came back to within {rs['deg']:.2f} deg / {rs['mm']:.1f} mm: the points determine it")
         walks = rs.get("pairs") or []
         worst = max(walks, key=lambda w: (w["deg"] / pose_gate_deg, w["mm"] / pose_gate_mm), default=None)
@@ -300,7 +306,7 @@ def _judge_move(adjustment: dict, names: list[str], pose_gate_deg: float, pose_g
             reasons.append(f"{back}{pw}, so the pairwise registrations and the joint fit of all views disagree, and a "
                            "consistent bias can hold both off (a thin object whose faces meet only at its rim)")
     elif beyond:
-        reasons.append(f"{move} (limit {pose_gate_deg:g} deg): the pairs and the joint fit of all views "
+        reasons.append(f"{move} (limit {gate:g} deg): the pairs and the joint fit of all views "
                        "disagree by more than the poses must hold, so one of them is off (a smooth or symmetric "
                        "object sliding, or a depth-calibration residual)")
 
