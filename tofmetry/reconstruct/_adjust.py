@@ -70,7 +70,8 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                   curve_half_span_m: float | None = None, amplitude_prior_m: float | None = None,
                   pose_prior_deg: float | None = None, pose_prior_m: float | None = None,
                   depth_field: DepthFieldPrior | None = None, tilt_prior_m: float | None = None,
-                  albedo: bool = False, up: np.ndarray | None = None) -> AdjustResult:
+                  albedo: bool = False, up: np.ndarray | None = None,
+                  prior_poses: np.ndarray | None = None) -> AdjustResult:
     """Jointly refine all poses (view 0 fixed) and, optionally, the depth gain.
 
     Each outer iteration matches every view's ``source`` points (gain-corrected, to world) to
@@ -124,6 +125,8 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         world points), weighed against the data at their inflated uncertainty
         (:mod:`tofmetry.reconstruct._adjust_prior`): it holds the directions the points leave free
         (the axis of a surface of revolution). None: no prior
+    prior_poses : (V, 4, 4) where that prior holds the views (default ``poses``): a restart from other
+        poses keeps the prior of the fit it checks, so that it minimises the same objective
     depth_field : the size of the per-pixel depth residual the calibration leaves; the poses' spread
         under such fields (:func:`calibration_pose`) is returned as :attr:`AdjustResult.calibration_pose`.
         None: not predicted here (:func:`calibration_pose` can be asked for later)
@@ -160,8 +163,8 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
     g = 0.0
     asked_gain = estimate_gain
     prior_on = pose_prior_deg is not None and pose_prior_m is not None
-    centre = (np.concatenate([v.source @ T[:3, :3].T + T[:3, 3] for v, T in zip(views, poses)]).mean(0)
-              if prior_on else None)
+    centre = (np.concatenate([v.source @ T[:3, :3].T + T[:3, 3] for v, T in
+                              zip(views, poses if prior_poses is None else prior_poses)]).mean(0) if prior_on else None)
     cos_max = np.cos(np.radians(max_normal_deg))
     rms_hist: list[float] = []
     schedule = [r for r, n in zip(radii_m, iters_per_radius) for _ in range(n)]
@@ -316,7 +319,8 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                 H[ti, ti] += s2 * sigma_inflation ** 2 / tilt_prior_m ** 2  # prior a, b ~ N(0, tilt_prior_m)
                 b[ti] += s2 * sigma_inflation ** 2 / tilt_prior_m ** 2 * t_xy
             if prior_on:
-                Hp, bp = pose_prior_terms(P, poses, centre, np.radians(pose_prior_deg), pose_prior_m,
+                Hp, bp = pose_prior_terms(P, poses if prior_poses is None else prior_poses, centre,
+                                          np.radians(pose_prior_deg), pose_prior_m,
                                           s2 * sigma_inflation ** 2)
                 H[:len(bp), :len(bp)] += Hp
                 b[:len(bp)] += bp
@@ -356,7 +360,8 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         fixed = global_adjust(views, poses, z_ref_m, radii_m, iters_per_radius, inner_iters, huber_m, asked_gain,
                               gain_prior_sigma, max_normal_deg, tol_deg, tol_m, gain_max_sigma, sigma_inflation,
                               gain_max_abs, systematic_m, curve_degree, curve_prior_m, curve_half_span_m,
-                              amplitude_prior_m, pose_prior_deg, pose_prior_m, depth_field, None, albedo, up)
+                              amplitude_prior_m, pose_prior_deg, pose_prior_m, depth_field, None, albedo, up,
+                              prior_poses)
         fixed.image_tilt_sigma_data_m = tilt_sd
         fixed.image_tilt_note = ("implausible: the views ask for " + ", ".join(f"{x * 1e3:+.1f}" for x in t_xy)
                                  + f" mm per unit, beyond {TILT_MAX_PRIORS:g} x its prior (+-{tilt_prior_m * 1e3:.1f}): "
@@ -368,7 +373,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                               curve_degree=curve_degree, curve_prior_m=curve_prior_m,
                               curve_half_span_m=curve_half_span_m, amplitude_prior_m=amplitude_prior_m,
                               pose_prior_deg=pose_prior_deg, pose_prior_m=pose_prior_m, depth_field=depth_field,
-                              tilt_prior_m=tilt_prior_m, albedo=albedo, up=up)
+                              tilt_prior_m=tilt_prior_m, albedo=albedo, up=up, prior_poses=prior_poses)
         fixed.gain_sigma_data, fixed.gain_sigma_systematic = sigma_data, sigma_sys
         fixed.gain_refused, fixed.gain_max_abs = float(g), float(gain_max_abs)
         if np.isfinite(amp_slope):  # the gain's trade with dk, from this run where the gain was free

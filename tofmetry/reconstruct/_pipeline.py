@@ -312,7 +312,7 @@ class ReconstructionPipeline:
                                  curve_prior_m=self._curve_prior_mm() * 1e-3,
                                  amplitude_prior_m=None if amplitude_prior_mm is None else amplitude_prior_mm * 1e-3,
                                  pose_prior_deg=prior_deg, pose_prior_m=None if prior_mm is None else prior_mm * 1e-3,
-                                 tilt_prior_m=tilt_prior, albedo=albedo, up=up)
+                                 tilt_prior_m=tilt_prior, albedo=albedo, up=up, prior_poses=poses)
 
         with self.progress("global adjustment", None):
             try:
