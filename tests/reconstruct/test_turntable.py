@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from tofmetry.errors import EstimationError
 from tofmetry.io import ScanDataset, read_json
@@ -22,10 +23,7 @@ UP /= np.linalg.norm(UP)
 
 def _about(axis, deg, centre):
     """(4, 4) rotation by ``deg`` about the line through ``centre`` along ``axis`` (the turntable)."""
-    a = np.radians(deg)
-    k = axis / np.linalg.norm(axis)
-    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    R = np.eye(3) + np.sin(a) * K + (1.0 - np.cos(a)) * (K @ K)
+    R = Rotation.from_rotvec(np.radians(deg) * np.asarray(axis) / np.linalg.norm(axis)).as_matrix()
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = R, centre - R @ centre
     return T

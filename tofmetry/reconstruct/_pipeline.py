@@ -272,7 +272,7 @@ class ReconstructionPipeline:
         if not rc.global_adjust:
             return None
         prior_deg, prior_mm = rc.adjust_prior_deg, rc.adjust_prior_mm
-        if rc.turntable_step_deg is not None and self.turntable:  # the poses start on the declared turntable
+        if self.turntable:  # the poses start on the declared turntable
             prior_deg, prior_mm = rc.turntable_accuracy_deg, rc.turntable_axis_mm
         elif prior_deg is not None and prior_mm is not None and loops:
             prior_deg = max(prior_deg, max(lp["closure_deg"] for lp in loops) / 2)
@@ -447,8 +447,7 @@ class ReconstructionPipeline:
         idx = {n: k for k, n in enumerate(names)}
         kept_edges = [e for e in graph.edges if e.get("kept") and e["source"] in idx and e["target"] in idx]
         start = graph.poses
-        if self.cfg.registration.turntable_step_deg is not None and self.turntable:
-            # the declared turntable places the views; the joint fit refines them within its accuracy
+        if self.turntable:  # the declared turntable places the views; the joint fit refines them within its accuracy
             start, self.turntable["poses"] = turntable_poses(graph.poses, self.kept,
                                                              self.cfg.registration.turntable_step_deg,
                                                              np.array(self.turntable["axis"]),
@@ -500,7 +499,7 @@ class ReconstructionPipeline:
                          rc.max_calibration_mm,
                          rc.pose_gate_deg, rc.pose_gate_mm, rc.yaw_free_ratio, rc.max_left_out,
                          turntable_accuracy_deg=rc.turntable_accuracy_deg,
-                         turntable_placed=bool(self.turntable and "poses" in self.turntable))
+                         turntable_placed=bool(self.turntable))
         if self.turntable and self.turntable.get("axis_from", "").startswith("rejected"):
             verdict["reasons"].append(UNCONFIRMED_REASON)
             verdict["reliable"] = False

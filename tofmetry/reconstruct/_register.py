@@ -394,4 +394,3 @@ def rejection_reason(p: PairResult, cfg: RegistrationConfig) -> str:
 
 def _passes(fit: float, rmse_m: float, cfg: RegistrationConfig) -> bool:
     return fit >= cfg.min_fitness and rmse_m * 1e3 <= cfg.max_rmse_mm
-

@@ -16,6 +16,7 @@ turntable's steps are off by a degree or two).
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from tofmetry._shared.geometry import rotation_angle_deg
 
@@ -27,11 +28,8 @@ def expected_turns_deg(i: int, j: int, step_deg: float) -> tuple[float, float]:
 
 
 def _turn(axis: np.ndarray, deg: float) -> np.ndarray:
-    """(3, 3) rotation by ``deg`` about the unit vector ``axis`` (Rodrigues)."""
-    a = np.radians(deg)
-    k = axis / np.linalg.norm(axis)
-    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + np.sin(a) * K + (1.0 - np.cos(a)) * (K @ K)
+    """(3, 3) rotation by ``deg`` about the direction ``axis``."""
+    return Rotation.from_rotvec(np.radians(deg) * axis / np.linalg.norm(axis)).as_matrix()
 
 
 def turn_error_deg(transform: np.ndarray, turns_deg: tuple[float, ...], axis: np.ndarray | None) -> float:

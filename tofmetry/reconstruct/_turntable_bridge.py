@@ -4,11 +4,10 @@ messages of a turntable that no registration confirms (:mod:`._turntable` holds 
 from __future__ import annotations
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from tofmetry.errors import EstimationError
 from tofmetry.reconstruct._config import RegistrationConfig
+from tofmetry.reconstruct._loops import connected_components
 from tofmetry.reconstruct._register import PairResult, register_pair
 from tofmetry.reconstruct._regview import RegView, object_fitness, registration_conditioning, visibility_violation
 from tofmetry.reconstruct._turntable import TurntablePrior, fit_turntable, turn_about
@@ -67,7 +66,7 @@ def turntable_bridges(regs: list[RegView], pairs: list[PairResult], links: list[
     edges = [(p.source, p.target) for p in acc]
     out = []
     for i, j in links:
-        if _linked(len(regs), edges, i, j):
+        if j in next(c for c in connected_components(len(regs), edges) if i in c):
             continue
         T0 = turn_about(fit["centre"], fit["axis"], fit["sense"] * (j - i) * step)
         p = register_pair(regs[i], regs[j], i, j, cfg, init=T0, global_search=False)
@@ -83,12 +82,3 @@ def turntable_bridges(regs: list[RegView], pairs: list[PairResult], links: list[
               "sense": int(fit["sense"]), "residual_deg": round(fit["residual_deg"], 3), "n_registrations": fit["n"],
               "bridged": [[p.source, p.target, p.method] for p in out]}
     return out, report
-
-
-def _linked(n: int, edges: list[tuple[int, int]], i: int, j: int) -> bool:
-    """Do ``edges`` connect views ``i`` and ``j`` (of ``n``)?"""
-    if not edges:
-        return False
-    a, b = np.array(edges).T
-    _, label = connected_components(coo_matrix((np.ones(len(a)), (a, b)), shape=(n, n)), directed=False)
-    return bool(label[i] == label[j])
