@@ -3,7 +3,7 @@
 A reader never sees a half-written file or folder under its final name: an interrupted run
 leaves at most a hidden ``.NAME.*.tmp`` sibling, never an output that looks complete.
 
-The temporary file / folder is created private (``tempfile`` uses 0600 / 0700); before it is
+The temporary file / folder is created private (0600 / 0700); before it is
 renamed into place it gets the mode an ordinary ``open`` / ``mkdir`` would have given it under the
 process's umask (0644 / 0755 under the usual 022), so that colleagues can read the results.
 """
@@ -11,8 +11,8 @@ process's umask (0644 / 0755 under the usual 022), so that colleagues can read t
 from __future__ import annotations
 
 import os
+import secrets
 import shutil
-import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
@@ -45,6 +45,22 @@ def dir_mode() -> int:
     return 0o777 & ~_umask()
 
 
+def staging_name(path: Path) -> Path:
+    """A fresh hidden sibling of ``path``: ``.NAME.<random>.tmp`` (not created).
+
+    The writers create it themselves (``os.open`` with ``O_EXCL`` / ``os.mkdir``) *inside* their
+    clean-up's ``try``: with ``tempfile.mkstemp`` / ``mkdtemp`` a Ctrl-C landing between the
+    creation and the ``try`` (``tofmetry correct`` interrupted as its staging folder appeared, once
+    in CI) left the staging entry behind.
+    """
+    return path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
+
+
+def _someone_elses(exc: BaseException, tmp: Path) -> bool:
+    """The creation of ``tmp`` itself failed because the name was taken: not ours to remove."""
+    return isinstance(exc, FileExistsError) and exc.filename == os.fspath(tmp)
+
+
 def replace_dir(src: str | os.PathLike, dst: str | os.PathLike) -> Path:
     """Move the finished folder ``src`` to ``dst`` (a sibling). An existing ``dst`` is first moved
     aside to a hidden ``.NAME.old-PID`` and removed only once ``src`` is in place, so ``dst`` is at
@@ -74,14 +90,15 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    tmp = staging_name(path)
     try:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
         with os.fdopen(fd, "wb") as fh:
             os.fchmod(fh.fileno(), file_mode())
             fh.write(data)
         os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
+    except BaseException as exc:
+        if os.path.lexists(tmp) and not _someone_elses(exc, tmp):
             os.unlink(tmp)
         raise
     return path
@@ -104,11 +121,13 @@ def atomic_dir(path: str | os.PathLike, force: bool = False) -> Iterator[Path]:
     if occupied and not force:
         raise InputError(f"output {path} already exists; refusing to overwrite (pass --force to replace it)")
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    tmp = staging_name(path)
     try:
+        os.mkdir(tmp, 0o700)
         os.chmod(tmp, dir_mode())
         yield tmp
         replace_dir(tmp, path)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+    except BaseException as exc:
+        if not _someone_elses(exc, tmp):
+            shutil.rmtree(tmp, ignore_errors=True)
         raise

@@ -120,12 +120,30 @@ class IntrinsicsResult:
         return d
 
 
+#: Restarts of the fit from its own solution while they lower the RMS by more than this fraction.
+RESTART_GAIN = 0.01
+MAX_RESTARTS = 3
+
+
 def _calib(obj, img, size, flags):
-    """One ``calibrateCameraExtended`` fit. Returns rms, (9,) values, (9,) std, (V,) per-view
-    RMS, K, dist, rvecs, tvecs."""
-    K0 = np.eye(3)
+    """One ``calibrateCameraExtended`` fit, restarted from its own solution while that helps.
+    Returns rms, (9,) values, (9,) std, (V,) per-view RMS, K, dist, rvecs, tvecs.
+
+    OpenCV's Levenberg-Marquardt can stop short of the minimum from its closed-form start: on a
+    random lens of the family (k1 0.14, k2 -0.60, k3 0.65, three image corners without a board)
+    it stopped at 0.125 px RMS on *exact* corners (2.8 px ray error), whatever the iteration
+    limit; one restart from that solution (``CALIB_USE_INTRINSIC_GUESS``) reached 1e-5 px. The
+    restart is kept only where it lowers the RMS."""
     crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12)
-    out = cv2.calibrateCameraExtended(obj, img, size, K0, np.zeros(5), flags=flags, criteria=crit)
+    out = cv2.calibrateCameraExtended(obj, img, size, np.eye(3), np.zeros(5), flags=flags, criteria=crit)
+    for _ in range(MAX_RESTARTS):
+        again = cv2.calibrateCameraExtended(obj, img, size, out[1].copy(), out[2].copy(),
+                                            flags=flags | cv2.CALIB_USE_INTRINSIC_GUESS, criteria=crit)
+        before = out[0]
+        if again[0] < before:
+            out = again
+        if not before - again[0] > RESTART_GAIN * before:
+            break
     rms, K, dist, rv, tv, std_i, _std_e, per_view = out
     d = np.asarray(dist, float).ravel()
     d = np.concatenate([d, np.zeros(max(0, 5 - len(d)))])[:5]

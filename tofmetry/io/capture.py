@@ -15,6 +15,7 @@
 
 from __future__ import annotations
 
+import inspect
 import io
 import os
 import shutil
@@ -314,9 +315,14 @@ class CaptureWriter:
 
     def __enter__(self) -> "CaptureWriter":
         self._ctx = atomic_dir(self.path, force=self.force)
-        self._tmp = self._ctx.__enter__()
-        for sub in ("depth", "ir", "color"):
-            (self._tmp / sub).mkdir()
+        try:  # a 'with' whose __enter__ fails never calls __exit__: the staging folder is ours to remove
+            self._tmp = self._ctx.__enter__()
+            for sub in ("depth", "ir", "color"):
+                (self._tmp / sub).mkdir()
+        except BaseException as err:
+            if inspect.getgeneratorstate(self._ctx.gen) == inspect.GEN_SUSPENDED:  # the staging folder exists
+                self._ctx.__exit__(type(err), err, err.__traceback__)
+            raise
         return self
 
     def add(self, depth: np.ndarray, ir: np.ndarray | None = None, color: np.ndarray | None = None) -> None:
