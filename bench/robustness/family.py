@@ -222,7 +222,8 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
                scale=res.diagnostics.get("scale"), adjustment=res.diagnostics.get("adjustment"),
                consistency={k: v for k, v in res.diagnostics["consistency"].items() if k != "selection"},
                selection={k: v for k, v in (res.diagnostics["consistency"].get("selection") or {}).items()
-                          if k in ("changed", "dropped", "spread", "ambiguous_with", "reasons", "ir_vetoed")},
+                          if k in ("changed", "dropped", "spread", "ambiguous_with", "reasons", "ir_vetoed",
+                                   "loop_implied")},
                pose_errors=pe.to_dict(),
                plan=res.diagnostics.get("plan"), amplitude_slope=res.diagnostics.get("amplitude_slope"))
     model = Geometry(res.mesh_vertices, res.mesh_triangles, source="model")

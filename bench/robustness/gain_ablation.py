@@ -58,7 +58,8 @@ def ablate(seed: int, variant: str, n_frames: int = 5) -> dict:
     from tofmetry.io import ScanDataset, read_json
     from tofmetry.reconstruct import ReconstructionConfig
     from tofmetry.reconstruct._adjust import AdjustView, global_adjust
-    from tofmetry.reconstruct._pipeline import ReconstructionPipeline, _median_object_depth_m
+    from tofmetry.reconstruct._model_build import median_object_depth_m
+    from tofmetry.reconstruct._pipeline import ReconstructionPipeline
     from tofmetry.reconstruct._calibration_support import calibration_central_mm
     from tofmetry.simulate import datasets
 
@@ -72,7 +73,7 @@ def ablate(seed: int, variant: str, n_frames: int = 5) -> dict:
     by = {v["name"]: np.array(v["camera_to_world"]) for v in read_json(scan_dir / "truth.json")["views"]}
     T = np.array([by[n] for n in ds.names])
     rel = np.array([np.linalg.inv(T[0]) @ t for t in T])
-    z_ref = _median_object_depth_m(views, segs)
+    z_ref = median_object_depth_m(views, segs)
     av = [AdjustView(r.mid_points, r.mid_normals, r.icp_points, r.icp_normals) for r in regs]
     e_mm = calibration_central_mm(cal.prediction or {}) or 0.0
 

@@ -11,64 +11,35 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from tofmetry._shared.geometry import transform_points
 from tofmetry.errors import EstimationError, InputError, SensorMismatchError
-from tofmetry.pointcloud import project_to_local_planes
-from tofmetry.reconstruct._adjust import AdjustView, calibration_pose, global_adjust
-from tofmetry.reconstruct._adjust_albedo import albedo_gradients
-from tofmetry.reconstruct._adjust_apply import correct_views
-from tofmetry.reconstruct._adjust_restart import came_back, pair_walks, restart_probe
-from tofmetry.reconstruct._adjust_result import (
-    AdjustResult,
-    keep_amplitude_if_it_explains,
-)
-from tofmetry.reconstruct._amplitude import amplitude_log_ratio
-from tofmetry.reconstruct._calibration_support import (
-    calibration_central_mm,
-    calibration_gain_sigma,
-    depth_field_prior,
-    extrapolated_points,
-    extrapolation_warning,
-    local_prediction,
-)
+from tofmetry.reconstruct._adjust_result import AdjustResult
+from tofmetry.reconstruct._adjust_stage import joint_adjustment, scale_budget_of
+from tofmetry.reconstruct._calibration_support import extrapolated_points, extrapolation_warning, local_prediction
 from tofmetry.reconstruct._colour import colour_model
 from tofmetry.reconstruct._config import ReconstructionConfig
-from tofmetry.reconstruct._fusion import TSDFFusion, crop_mesh, poisson_mesh
+from tofmetry.reconstruct._loop_implied import METHOD as LOOP_IMPLIED, loop_implied_hypotheses
+from tofmetry.reconstruct._model_build import (
+    crop_model,
+    fuse_views,
+    median_object_depth_m,
+    object_depth_span_mm,
+    world_plane,
+)
 from tofmetry.reconstruct._posegraph import PoseGraphBuilder
 from tofmetry.reconstruct._preprocess import ViewData, prepare_view
-from tofmetry.reconstruct._register import refine_pair, register_pair, rejection_reason
+from tofmetry.reconstruct._register import register_pair, rejection_reason
 from tofmetry.reconstruct._regview import RegView, leaves_yaw_free, make_reg_view
-from tofmetry.reconstruct._scale_budget import scale_budget
 from tofmetry.reconstruct._segment import Segmentation, segment_object
 from tofmetry.reconstruct._turntable import turntable_poses
 from tofmetry.reconstruct._turntable_bridge import UNCONFIRMED_REASON, no_turn_error, turntable_bridges
 from tofmetry.reconstruct._verdict import assess, scale_report
 from tofmetry.reconstruct._world import support_plane_frame, transform_plane
 
-
 @contextmanager
 def _no_progress(description: str, total: int | None):
     yield lambda n=1: None
-
-
-def _object_depths_m(views, segs) -> np.ndarray:
-    """(N,) depths Z [m] of the segmented object points of all views."""
-    return np.concatenate([v.points[s.object_mask, 2] for v, s in zip(views, segs)])
-
-
-def _object_depth_span_mm(views, segs) -> tuple[float, float] | None:
-    """5th-95th percentile of the segmented object points' depths Z over all views [mm]; None
-    without object points."""
-    z = _object_depths_m(views, segs) * 1e3
-    return tuple(float(x) for x in np.percentile(z, (5, 95))) if len(z) else None
-
-
-def _median_object_depth_m(views, segs) -> float:
-    """Median depth Z [m] of the segmented object points over all views (1 m when there are none)."""
-    z = _object_depths_m(views, segs)
-    return float(np.median(z)) if len(z) else 1.0
 
 
 @dataclass
@@ -234,8 +205,7 @@ class ReconstructionPipeline:
                         init = np.linalg.inv(chain[j]) @ chain[i]
                         pg.add(register_pair(regs[i], regs[j], i, j, rc, init=init, global_search=False))
                     adv()
-        pg.select_hypotheses(rc.gate_max_deg, rc.gate_max_mm, rc.ambiguity_margin, spread_deg=rc.spread_max_deg,
-                             spread_mm=rc.spread_max_mm)
+        self._select(pg, regs)
         keep = pg.components()[0]
         if len(keep) < 2 and rc.turntable_step_deg is not None:
             raise no_turn_error(rc.turntable_step_deg, rc.turntable_tol_deg, len(self.ds.names))
@@ -255,175 +225,56 @@ class ReconstructionPipeline:
             pg = pg.subgraph(keep)
         return pg.optimize(rc.icp_radii_mm[-1] * 1e-3, rc.edge_prune, rc.gate_max_deg, rc.gate_max_mm)
 
+    def _select(self, pg: PoseGraphBuilder, regs: list[RegView]) -> None:
+        """The multi-view choice of hypotheses; where it had to drop an edge, once more with the
+        hypotheses the loops of the dropped edges imply (:mod:`._loop_implied`), kept where it then
+        drops fewer edges (``selection["loop_implied"]`` names the pairs so registered)."""
+        rc = self.cfg.registration
+        before = list(pg.pairs)
+
+        def select() -> dict:
+            return pg.select_hypotheses(rc.gate_max_deg, rc.gate_max_mm, rc.ambiguity_margin,
+                                        spread_deg=rc.spread_max_deg, spread_mm=rc.spread_max_mm)
+
+        first = select()
+        if not first.get("dropped") or rc.loop_implied_min_gain is None:
+            return
+        chosen = list(pg.pairs)
+        pairs, found = loop_implied_hypotheses(
+            len(regs), before, chosen,
+            lambda i, j, init: register_pair(regs[i], regs[j], i, j, rc, init=init, global_search=False),
+            rc.loop_implied_min_gain)
+        if not found:
+            return
+        pg.pairs = pairs
+        again = select()
+        names = list(self.ds.names)
+        now = {(q.source, q.target): q.method for q in pg.pairs if q.accepted}
+        used = [f for f in found if now.get(tuple(f["edge"])) == LOOP_IMPLIED]
+        if again.get("resolved") and len(again.get("dropped", [])) < len(first["dropped"]) and used:
+            again["loop_implied"] = [{"edge": f"{names[f['edge'][0]]}->{names[f['edge'][1]]}",
+                                      "fitness": f["fitness"], "replaced_fitness": f["kept_fitness"],
+                                      "implied_by": f"{names[f['implied_by'][0]]}->{names[f['implied_by'][1]]}"}
+                                     for f in used]
+            return
+        pg.pairs, pg.selection = chosen, first
+
     def adjust(self, views: list[ViewData], segs: list[Segmentation], regs: list[RegView],
                poses: np.ndarray, loops: list[dict] | None = None, edges=(), edge_ir=(),
                yaw_free: bool = False) -> AdjustResult | None:
-        """Global adjustment of the pose-graph poses (and the depth gain); applies the gain to
-        ``views`` (depth and points) in place. None when switched off. ``loops``: the pose graph's
-        loop closures (:func:`loop_closures`); half the worst one widens the pose prior (a loop
-        that closes only to X deg leaves up to X / 2 on a view once spread). ``edges``: the pose
-        graph's kept pairs (i, j); when the fit moved a view beyond the pose gate and its restart
-        came back, those of that view are registered again from the joint fit (:func:`pair_walks`).
-        ``edge_ir``: those pairs' IR albedo correlations (None where unknown); ``yaw_free``: one of them
-        leaves the rotation about the vertical free (a surface of revolution): then the joint fit
-        matches the albedo too, about the vertical only, when their median reaches
-        ``adjust_albedo_min_corr`` (:mod:`tofmetry.reconstruct._adjust_albedo`)."""
-        rc = self.cfg.registration
-        if not rc.global_adjust:
-            return None
-        prior_deg, prior_mm = rc.adjust_prior_deg, rc.adjust_prior_mm
-        if self.turntable:  # the poses start on the declared turntable
-            prior_deg, prior_mm = rc.turntable_accuracy_deg, rc.turntable_axis_mm
-        elif prior_deg is not None and prior_mm is not None and loops:
-            prior_deg = max(prior_deg, max(lp["closure_deg"] for lp in loops) / 2)
-            prior_mm = max(prior_mm, max(lp.get("closure_object_mm", lp["closure_mm"]) for lp in loops) / 2)
-        z_ref = _median_object_depth_m(views, segs)
-        sg_cal = None if self.cal is None else calibration_gain_sigma(self.cal.prediction or {})
-        e_sys = rc.gain_systematic_mm
-        if e_sys is None:  # opt-in: the calibration's predicted central error
-            e_sys = (calibration_central_mm(self.cal.prediction or {}) if self.cal is not None else None) or 0.0
-        av = [AdjustView(*(r.mid_points, r.mid_normals, r.icp_points, r.icp_normals, r.mid_amp, r.icp_amp, r.mid_ir,
-                           r.icp_ir) if r.mid_points is not None else
-                           (r.icp_points, r.icp_normals, r.icp_points, r.icp_normals, r.icp_amp, r.icp_amp, r.icp_ir,
-                            r.icp_ir)) for r in regs]
-        albedo = (rc.adjust_albedo_min_corr is not None and bool(edge_ir) and yaw_free and segs[0].plane is not None
-                  and float(np.median([c if c is not None else -1.0 for c in edge_ir])) >= rc.adjust_albedo_min_corr)
-        up = poses[0][:3, :3] @ segs[0].plane[:3] if albedo else None
-        if rc.adjust_target_smooth_k:  # the targets without their noise (tofmetry.pointcloud._smooth)
-            for a in av:
-                a.target = project_to_local_planes(a.target, rc.adjust_target_smooth_k)
-        if albedo:  # once for every run of the joint fit below (its restart, the amplitude variant)
-            for a in av:
-                a.target_ir_gradient = albedo_gradients(a.target, a.target_normals, a.target_ir)
-        amp_prior = rc.amplitude_k_prior_mm if self.white_map is not None else None
-        field = None if self.cal is None else depth_field_prior(
-            self.cal.prediction or {}, _object_depth_span_mm(views, segs), regs[0].intr,
-            tilt_sigma_mm=rc.uncalibrated_tilt_mm)
-
-        tilt_prior = None if rc.image_tilt_prior_mm is None or (
-            self.cal is not None and (self.cal.prediction or {}).get("tilt_calibrated")) else rc.image_tilt_prior_mm * 1e-3
-
-        def run(amplitude_prior_mm: float | None, start: np.ndarray = poses) -> AdjustResult:
-            return global_adjust(av, start, z_ref, tuple(x * 1e-3 for x in rc.adjust_radii_mm), rc.adjust_iters,
-                                 estimate_gain=rc.estimate_depth_gain, gain_prior_sigma=rc.depth_gain_prior,
-                                 gain_max_sigma=rc.gain_max_sigma, sigma_inflation=rc.sigma_inflation,
-                                 gain_max_abs=None if sg_cal is None else rc.gain_max_calibration_sigmas * sg_cal,
-                                 systematic_m=e_sys * 1e-3, curve_degree=rc.range_curve_degree,
-                                 curve_prior_m=self._curve_prior_mm() * 1e-3,
-                                 amplitude_prior_m=None if amplitude_prior_mm is None else amplitude_prior_mm * 1e-3,
-                                 pose_prior_deg=prior_deg, pose_prior_m=None if prior_mm is None else prior_mm * 1e-3,
-                                 tilt_prior_m=tilt_prior, albedo=albedo, up=up, prior_poses=poses)
-
-        with self.progress("global adjustment", None):
-            try:
-                res = run(None)
-                if amp_prior is not None:
-                    res = keep_amplitude_if_it_explains(res, run(amp_prior), rc.amplitude_min_rms_drop)
-                if rc.restart_check and float(np.max(res.moved_deg)) > rc.pose_gate_deg / 2:
-                    res.restart = self._restart(res, poses, regs, lambda S: run(
-                        amp_prior if res.amplitude_estimated else None, S).poses)
-                    self._pair_walks(res, regs, edges)
-                if field is not None:  # once, on the adjustment kept
-                    res.calibration_pose = calibration_pose(res, field)
-            except EstimationError as exc:  # keep the pose-graph poses; the reason goes to the diagnostics
-                self.adjust_failure = str(exc)
-                return None
-        correct_views(views, segs, res, z_ref, regs[0].intr, self.white_map, self.cfg.segment.plane_threshold_mm * 1e-3)
+        """The joint fit of the poses (:func:`joint_adjustment`; its failure in :attr:`adjust_failure`)."""
+        res, self.adjust_failure = joint_adjustment(views, segs, regs, poses, self.cfg, self.cal, self.white_map,
+                                                    self.progress, turntable=bool(self.turntable), loops=loops,
+                                                    edges=edges, edge_ir=edge_ir, yaw_free=yaw_free)
         return res
 
-    def _restart(self, res: AdjustResult, start: np.ndarray, regs: list[RegView], rerun) -> dict:
-        """:func:`restart_probe` of the adjustment ``res`` started at ``start`` (``rerun``: the same
-        adjustment from other poses), measured on ~5000 of the views' object points (not the ground
-        ring); a restart that fails says why (``{"failed": reason}``; the verdict weighs it)."""
-        obj = np.concatenate([transform_points(r.obj_points, T) for r, T in zip(regs, res.poses)])
-        obj = obj[:: max(1, len(obj) // 5000)]
-        try:
-            return restart_probe(res.poses, start, rerun, obj, self.cfg.registration.pose_gate_deg)
-        except EstimationError as exc:
-            return {"failed": str(exc)}
-
-    def _pair_walks(self, res: AdjustResult, regs: list[RegView], edges) -> None:
-        """When the fit moved a view beyond the pose gate and its restart came back, the kept pairs
-        of that view registered again from the joint fit (:func:`pair_walks`), in ``res.restart["pairs"]``."""
-        rc = self.cfg.registration
-        w = int(np.argmax(res.moved_deg))
-        if float(res.moved_deg[w]) <= rc.pose_gate_deg or not came_back(res.restart, rc.pose_gate_deg, rc.pose_gate_mm):
-            return
-        mine = [(i, j) for i, j in edges if w in (i, j)]
-        res.restart["pairs"] = pair_walks(res.poses, mine, lambda i, j, init: refine_pair(regs[i], regs[j], init, rc),
-                                 [r.obj_points for r in regs])
-
-    def _scale_budget(self, views: list[ViewData], segs: list[Segmentation], poses: np.ndarray, intr, z_ref: float):
-        """``(offset_sigma_m, gain_sigma) -> dict``: :func:`scale_budget` on the object points of
-        ``views`` placed by ``poses`` (camera to world), the gain acting about ``z_ref`` [m], with the
-        amplitude term when an amplitude reference was given."""
-        pts = [v.points[s.object_mask] for v, s in zip(views, segs)]
-        nrm = [v.normals[s.object_mask] for v, s in zip(views, segs)]
-        L = None
-        if self.white_map is not None and all(v.ir is not None for v in views):
-            L = [amplitude_log_ratio(v.depth_mm, v.ir, self.white_map, intr).ravel()[v.index[s.object_mask]]
-                 for v, s in zip(views, segs)]
-        k_sigma = self.cfg.registration.amplitude_k_sigma_mm * 1e-3
-
-        def budget(offset_sigma_m: float, gain_sigma: float) -> dict:
-            return scale_budget(pts, nrm, poses, z_ref, L, offset_sigma_m, gain_sigma, k_sigma)
-        return budget
-
-    def _curve_prior_mm(self) -> float:
-        """Prior standard deviation of the range curve's coefficients [mm]: configured, or the depth
-        calibration's predicted central error between its stations (1 mm without one)."""
-        rc = self.cfg.registration
-        if rc.range_curve_prior_mm is not None:
-            return float(rc.range_curve_prior_mm)
-        e = calibration_central_mm(self.cal.prediction or {}) if self.cal is not None else None
-        return float(e) if e else 1.0
-
     def fuse(self, views, segs, poses, intr):
-        fc = self.cfg.fusion
-        z_med = _median_object_depth_m(views, segs) * 1e3
-        voxel = fc.voxel_for(z_med, intr.fx)
-        trunc = fc.trunc_for(z_med, voxel)
-        tsdf = TSDFFusion(intr, voxel, trunc, depth_max_mm=self.cfg.preprocess.max_mm,
-                          block_resolution=fc.block_resolution)
-        keep_all = self.cfg.segment.keep_all
-        with self.progress("TSDF fusion", len(views)) as adv:
-            for v, s, T in zip(views, segs, poses):
-                d = v.depth_mm
-                if not keep_all:  # integrate the object and its ground ring only
-                    m = np.zeros(d.size, bool)
-                    m[v.index[s.object_mask | s.ring_mask]] = True
-                    d = np.where(m.reshape(d.shape), d, 0.0)
-                tsdf.integrate(d, T)
-                adv()
-        V, F, N, P, PN = tsdf.extract(1.0)  # surface seen by a single view is kept (undersides, flanks)
-        return V, F, N, P, PN, {"voxel_mm": voxel, "trunc_mm": trunc, "median_object_depth_mm": z_med, "min_views": 1,
-                                "rule": "voxel = 0.6 * z / f; trunc = max(4 * sigma_eff(z), 3 voxels)"}
-
-    def crop(self, pts: np.ndarray, world_obj: np.ndarray, plane_w: np.ndarray | None) -> np.ndarray:
-        """Mask of points near the segmented object points and above the support plane."""
-        if self.cfg.segment.keep_all:
-            return np.ones(len(pts), bool)
-        d, _ = cKDTree(world_obj).query(pts, distance_upper_bound=self.cfg.fusion.crop_margin_mm * 1e-3, workers=-1)
-        keep = np.isfinite(d)
-        if plane_w is not None:
-            keep &= pts @ plane_w[:3] + plane_w[3] > 0.5 * self.cfg.segment.min_height_mm * 1e-3
-        return keep
+        """TSDF fusion of the views at ``poses`` (:func:`fuse_views`)."""
+        return fuse_views(views, segs, poses, intr, self.cfg, self.progress)
 
     def crop_model(self, V, F, N, P, PN, world_obj: np.ndarray, plane_w: np.ndarray | None) -> tuple:
-        """The fused mesh (V, F, N) and cloud (P, PN) cropped to the object (:meth:`crop`), and the
-        Poisson mesh of the cropped cloud (cropped as well; None when switched off)."""
-        V, F, used = crop_mesh(V, F, self.crop(V, world_obj, plane_w))
-        N = N[used]
-        keep_p = self.crop(P, world_obj, plane_w)
-        P, PN = P[keep_p], PN[keep_p]
-        if len(F) == 0 or len(P) == 0:
-            raise EstimationError("fusion produced an empty model after cropping to the object")
-        poisson = None
-        if self.cfg.fusion.poisson:
-            pv, pf = poisson_mesh(P, PN, self.cfg.fusion.poisson_depth, self.cfg.fusion.poisson_trim_quantile)
-            pv, pf, _ = crop_mesh(pv, pf, self.crop(pv, world_obj, plane_w))
-            poisson = (pv, pf)
-        return V, F, N, P, PN, poisson
+        """The fused model cropped to the object (:func:`~tofmetry.reconstruct._model_build.crop_model`)."""
+        return crop_model(V, F, N, P, PN, world_obj, plane_w, self.cfg)
 
     def working_range_mm(self) -> list[float]:
         """Depth range [mm] kept by the preprocessing (working range within the calibrated span)."""
@@ -437,7 +288,7 @@ class ReconstructionPipeline:
         t0 = time.perf_counter()
         views, segs, regs, intr = self.load_views()
         if self.cal is not None:  # the calibration's predicted error where this object lies
-            self.prediction_at_object = local_prediction(self.cal.prediction or {}, _object_depth_span_mm(views, segs))
+            self.prediction_at_object = local_prediction(self.cal.prediction or {}, object_depth_span_mm(views, segs))
         t1 = time.perf_counter()
         graph = self.register(regs)
         if len(self.kept) < len(views):  # views no registration links to the others are left out
@@ -462,11 +313,7 @@ class ReconstructionPipeline:
         t3 = time.perf_counter()
         world_obj = np.concatenate([
             v.points[s.object_mask] @ T[:3, :3].T + T[:3, 3] for v, s, T in zip(views, segs, poses)])
-        plane_w = None
-        if segs[0].plane is not None:
-            R, t = poses[0][:3, :3], poses[0][:3, 3]
-            n = R @ segs[0].plane[:3]
-            plane_w = np.r_[n, segs[0].plane[3] - n @ t]
+        plane_w = world_plane(segs[0].plane, poses[0])
         V, F, N, P, PN, poisson = self.crop_model(V, F, N, P, PN, world_obj, plane_w)
         W = np.eye(4)
         if self.cfg.world_frame == "support" and plane_w is not None:
@@ -494,7 +341,7 @@ class ReconstructionPipeline:
         rc = self.cfg.registration
         edges = graph.edges + self.other_edges
         pred = None if self.cal is None else (self.cal.prediction or {})
-        z_obj = _median_object_depth_m(views, segs)
+        z_obj = median_object_depth_m(views, segs)
         verdict = assess(names, edges, graph.consistency, self.left_out, adj_d, self.prediction_at_object,
                          rc.max_calibration_mm,
                          rc.pose_gate_deg, rc.pose_gate_mm, rc.yaw_free_ratio, rc.max_left_out,
@@ -512,7 +359,9 @@ class ReconstructionPipeline:
                  if not np.allclose(W, np.eye(4)) else {"frame": "camera frame of the first view (x right, y down, z "
                                                                  "forward)", "from_first_camera": W.tolist()})
         diag = {"consistency": graph.consistency, "reliable": bool(verdict["reliable"]), "reliability": verdict,
-                "scale": scale_report(adj_d, pred, z_obj * 1e3, self._scale_budget(views, segs, poses, intr, z_obj),
+                "scale": scale_report(adj_d, pred, z_obj * 1e3,
+                                      scale_budget_of(views, segs, poses, intr, z_obj, self.white_map,
+                                                      rc.amplitude_k_sigma_mm),
                                       rc.amplitude_k_sigma_mm if self.white_map is not None else None,
                                       rc.scale_floor_pct),
                 "world": world,

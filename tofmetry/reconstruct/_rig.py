@@ -29,11 +29,8 @@ from scipy.spatial import cKDTree
 from tofmetry.errors import InputError, SensorMismatchError
 from tofmetry.reconstruct._colour import colour_model
 from tofmetry.reconstruct._fusion import TSDFFusion
-from tofmetry.reconstruct._pipeline import (
-    ReconstructionPipeline,
-    ReconstructionResult,
-    _median_object_depth_m,
-)
+from tofmetry.reconstruct._model_build import median_object_depth_m
+from tofmetry.reconstruct._pipeline import ReconstructionPipeline, ReconstructionResult
 from tofmetry.reconstruct._world import transform_plane
 
 
@@ -157,7 +154,7 @@ class RigReconstruction(ReconstructionPipeline):
         """TSDF fusion of every view with its own intrinsics; voxel and truncation from the median object
         depth and the sensors' mean focal length (:meth:`ReconstructionPipeline.fuse`'s rule)."""
         fc = self.cfg.fusion
-        z_med = _median_object_depth_m(views, segs) * 1e3
+        z_med = median_object_depth_m(views, segs) * 1e3
         f = float(np.mean([s.intrinsics.fx for s in self.sensors]))
         voxel = fc.voxel_for(z_med, f)
         trunc = fc.trunc_for(z_med, voxel)

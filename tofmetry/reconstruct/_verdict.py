@@ -26,7 +26,8 @@ own state, and :func:`assess` turns it into verdicts:
   when the depth calibration predicts its own error between stations, where the object lies
   (:func:`~tofmetry.reconstruct._calibration_support.local_prediction`), above
   ``max_calibration_mm``, or when more than ``max_left_out`` of the views are left out. A few views
-  left out, an unobservable depth gain, unverified views and a depth calibration that doubts its
+  left out, an unobservable depth gain, unverified views, a pair registered again from the pose
+  its loop implies (:mod:`~tofmetry.reconstruct._loop_implied`) and a depth calibration that doubts its
   own prediction are warnings: the model is then incomplete or less checked, not wrong. (A calibration's doubt was a reason until a family of 20 random
   draws showed it flagging three runs whose poses were within 0.16 deg / 1.4 mm, while the runs
   it should have caught were caught by their own loops. Views on no loop were tried as a reason
@@ -202,6 +203,10 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
         reasons = [r for r in reasons if r not in graph]
         warnings.extend("the declared turntable places the views (within its accuracy, +/- "
                         f"{turntable_accuracy_deg:g} deg), not the pairwise graph, which says: {r}" for r in graph)
+    for li in sel.get("loop_implied") or []:
+        warnings.append(f"edge {li['edge']} registered again from the pose its loop implies (closed by {li['implied_by']}): "
+                        f"its points fit that pose better ({100 * li['fitness']:.0f} % matched against "
+                        f"{100 * li['replaced_fitness']:.0f} % for the pairwise search's pose)")
     if sel.get("decided_by_ir"):
         warnings.append("the geometry alone left the registration ambiguous (the object looks alike from different "
                         f"sides: {sel['decided_by_ir']['n_tied']} choices closed every loop); the IR albedo pattern "

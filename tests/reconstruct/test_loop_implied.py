@@ -1,0 +1,152 @@
+"""Hypotheses a loop implies (:mod:`tofmetry.reconstruct._loop_implied`): a successive pair registered
+wrong, whose right pose the global search missed, is found again from the loop the closing edge
+makes, where the pair's own points fit that pose better; never where they do not."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from tofmetry.reconstruct import PairResult, PoseGraphBuilder
+from tofmetry.reconstruct._loop_implied import METHOD, loop_implied_hypotheses
+
+
+def _rot_z(deg: float, t=(0.0, 0.0, 0.0)) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("z", deg, degrees=True).as_matrix()
+    T[:3, 3] = t
+    return T
+
+
+def _circle(n: int) -> list[np.ndarray]:
+    step = 360.0 / n
+    return [_rot_z(step * k, (np.cos(np.radians(step * k)), np.sin(np.radians(step * k)), 0.0)) for k in range(n)]
+
+
+def _true(P, i, j) -> np.ndarray:
+    return np.linalg.inv(P[j]) @ P[i]
+
+
+def _edge(T, i, j, fit, method="test"):
+    return PairResult(i, j, T, fit, 1.0, np.eye(6) * 1000, method, True)
+
+
+def _scan(n=9, wrong_deg=49.5, wrong_fit=0.69):
+    """A circle of ``n`` views; successive pair 0 -> 1 registered ``wrong_deg`` off (about the axis
+    through the object), every other pair and the closing 0 -> n-1 right."""
+    P = _circle(n)
+    pairs = [_edge(_true(P, 0, 1) @ _rot_z(wrong_deg), 0, 1, wrong_fit)]
+    pairs += [_edge(_true(P, i, i + 1), i, i + 1, 0.97) for i in range(1, n - 1)]
+    pairs.append(_edge(_true(P, 0, n - 1), 0, n - 1, 0.97))
+    return P, pairs
+
+
+def _register_on(P, fit_right: float):
+    """A pair's ICP from ``init``: converges to the true pose when started within 5 deg of it, with
+    fitness ``fit_right``; elsewhere stays put with fitness 0.3 (rejected)."""
+    calls = []
+
+    def register(i, j, init):
+        calls.append((i, j))
+        T = _true(P, i, j)
+        E = np.linalg.inv(init) @ T
+        ang = np.degrees(np.arccos(np.clip((np.trace(E[:3, :3]) - 1) / 2, -1, 1)))
+        if ang <= 5.0:
+            return _edge(T, i, j, fit_right, "init+icp")
+        return PairResult(i, j, init, 0.3, 5.0, np.eye(6), "init+icp", False)
+    return register, calls
+
+
+def _select(pg):
+    return pg.select_hypotheses(2.0, 10.0, 0.05)
+
+
+def _graph(pairs, n: int) -> PoseGraphBuilder:
+    pg = PoseGraphBuilder(n, [f"{k:02d}" for k in range(n)])
+    for p in pairs:
+        pg.add(p)
+    return pg
+
+
+def test_the_pose_the_loop_implies_replaces_a_wrong_pair_its_points_fit_worse():
+    P, pairs = _scan()
+    pg = _graph(pairs, len(P))
+    before = list(pg.pairs)
+    first = _select(pg)
+    assert first["dropped"] == ["00->08"]  # the selection alone drops the right closing edge
+    register, calls = _register_on(P, 0.99)
+    new, found = loop_implied_hypotheses(len(P), before, list(pg.pairs), register, 0.05)
+    assert [f["edge"] for f in found] == [(0, 1)]  # only the wrong pair's loop-implied pose is new
+    # every pair of the loop was tried from the pose the others imply (the right ones' implied poses
+    # carry the wrong pair's error: their ICP from there fails, in this mock)
+    assert sorted(calls) == [(i, i + 1) for i in range(8)]
+    pg.pairs = new
+    again = _select(pg)
+    assert not again["dropped"] and again["changed"] == ["00->01"], again
+    assert next(p for p in pg.pairs if (p.source, p.target) == (0, 1)).method == METHOD
+    res = pg.optimize(0.003)
+    assert res.consistency["reliable"], res.consistency
+    for k in range(len(P)):
+        np.testing.assert_allclose(res.poses[k], np.linalg.inv(P[0]) @ P[k], atol=1e-6)
+
+
+def test_no_hypothesis_where_the_pairs_points_do_not_fit_the_implied_pose_better():
+    # the implied pose fits only as well as the kept one (within the margin): the pair's data do not
+    # prefer it, and a hypothesis derived from the loop would close that loop by construction
+    P, pairs = _scan()
+    pg = _graph(pairs, len(P))
+    before = list(pg.pairs)
+    _select(pg)
+    register, _ = _register_on(P, 0.72)
+    _, found = loop_implied_hypotheses(len(P), before, list(pg.pairs), register, 0.05)
+    assert found == []
+
+
+def test_nothing_to_do_without_a_dropped_edge():
+    P = _circle(6)
+    pairs = [_edge(_true(P, i, i + 1), i, i + 1, 0.97) for i in range(5)] + [_edge(_true(P, 0, 5), 0, 5, 0.97)]
+    register, calls = _register_on(P, 0.99)
+    new, found = loop_implied_hypotheses(6, pairs, pairs, register, 0.05)
+    assert found == [] and calls == [] and new == pairs
+
+
+class _Names:
+    """A scan's names, all the pipeline's selection step reads of it."""
+
+    def __init__(self, n: int):
+        self.names = [f"{k:02d}" for k in range(n)]
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+
+def _pipeline_selection(monkeypatch, fit_right: float):
+    """The pipeline's selection step on :func:`_scan`, the pair ICP mocked by :func:`_register_on`."""
+    import tofmetry.reconstruct._pipeline as pipeline
+    from tofmetry.reconstruct import ReconstructionPipeline
+
+    P, pairs = _scan()
+    register, _ = _register_on(P, fit_right)
+    monkeypatch.setattr(pipeline, "register_pair", lambda src, tgt, i, j, rc, init, global_search: register(i, j, init))
+    pipe = ReconstructionPipeline(_Names(len(P)))
+    pg = _graph(pairs, len(P))
+    pipe._select(pg, [None] * len(P))
+    return pipe, pg
+
+
+def test_the_pipeline_keeps_the_reselection_and_says_so(monkeypatch):
+    from tofmetry.reconstruct._verdict import assess
+
+    pipe, pg = _pipeline_selection(monkeypatch, 0.99)
+    assert not pg.selection["dropped"]
+    assert pg.selection["loop_implied"] == [{"edge": "00->01", "fitness": 0.99, "replaced_fitness": 0.69,
+                                            "implied_by": "00->08"}]
+    res = pg.optimize(0.003)
+    verdict = assess(pipe.ds.names, res.edges, res.consistency, {}, None, None)
+    assert verdict["reliable"], verdict["reasons"]
+    assert any("00->01 registered again from the pose its loop implies" in w for w in verdict["warnings"])
+
+
+def test_the_pipeline_keeps_the_first_selection_when_the_loops_imply_nothing_better(monkeypatch):
+    pipe, pg = _pipeline_selection(monkeypatch, 0.70)  # the implied pose fits as well as the wrong one
+    assert pg.selection["dropped"] == ["00->08"] and "loop_implied" not in pg.selection

@@ -1,0 +1,166 @@
+"""The joint-fit stage of a reconstruction: the global adjustment of the pose-graph poses set up
+from the configuration, the depth calibration and the amplitude reference, checked by its
+restart, and applied to the views.
+
+:class:`~tofmetry.reconstruct.ReconstructionPipeline` calls :func:`joint_adjustment` between
+the pose graph and the fusion; the algorithm itself is :func:`~tofmetry.reconstruct._adjust.global_adjust`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tofmetry._shared.geometry import transform_points
+from tofmetry.errors import EstimationError
+from tofmetry.pointcloud import project_to_local_planes
+from tofmetry.reconstruct._adjust import AdjustView, calibration_pose, global_adjust
+from tofmetry.reconstruct._adjust_albedo import albedo_gradients
+from tofmetry.reconstruct._adjust_apply import correct_views
+from tofmetry.reconstruct._adjust_restart import came_back, pair_walks, restart_probe
+from tofmetry.reconstruct._adjust_result import AdjustResult, keep_amplitude_if_it_explains
+from tofmetry.reconstruct._amplitude import amplitude_log_ratio
+from tofmetry.reconstruct._calibration_support import calibration_central_mm, calibration_gain_sigma, depth_field_prior
+from tofmetry.reconstruct._config import ReconstructionConfig
+from tofmetry.reconstruct._model_build import median_object_depth_m, object_depth_span_mm
+from tofmetry.reconstruct._register import refine_pair
+from tofmetry.reconstruct._regview import RegView
+from tofmetry.reconstruct._scale_budget import scale_budget
+
+
+def curve_prior_mm(cfg: ReconstructionConfig, cal) -> float:
+    """Prior standard deviation of the range curve's coefficients [mm]: configured, or the depth
+    calibration's predicted central error between its stations (1 mm without one)."""
+    rc = cfg.registration
+    if rc.range_curve_prior_mm is not None:
+        return float(rc.range_curve_prior_mm)
+    e = calibration_central_mm(cal.prediction or {}) if cal is not None else None
+    return float(e) if e else 1.0
+
+
+def _views(regs: list[RegView]) -> list[AdjustView]:
+    """The joint fit's view of each registration view (mid-voxel points and targets where there are)."""
+    return [AdjustView(*(r.mid_points, r.mid_normals, r.icp_points, r.icp_normals, r.mid_amp, r.icp_amp, r.mid_ir,
+                         r.icp_ir) if r.mid_points is not None else
+                       (r.icp_points, r.icp_normals, r.icp_points, r.icp_normals, r.icp_amp, r.icp_amp, r.icp_ir,
+                        r.icp_ir)) for r in regs]
+
+
+def joint_adjustment(views, segs, regs: list[RegView], poses: np.ndarray, cfg: ReconstructionConfig, cal,
+                     white_map: np.ndarray | None, progress, *, turntable: bool = False,
+                     loops: list[dict] | None = None, edges=(), edge_ir=(),
+                     yaw_free: bool = False) -> tuple[AdjustResult | None, str | None]:
+    """Global adjustment of the pose-graph poses ``poses`` (V, 4, 4) camera to world [m] (and the
+    depth gain); applies the gain to ``views`` (depth and points) in place.
+
+    ``turntable``: the poses start on a declared turntable (the pose prior is its accuracy).
+    ``loops``: the pose graph's loop closures (:func:`loop_closures`); half the worst one widens
+    the pose prior (a loop that closes only to X deg leaves up to X / 2 on a view once spread).
+    ``edges``: the pose graph's kept pairs (i, j); when the fit moved a view beyond the pose gate
+    and its restart came back, those of that view are registered again from the joint fit
+    (:func:`pair_walks`). ``edge_ir``: those pairs' IR albedo correlations (None where unknown);
+    ``yaw_free``: one of them leaves the rotation about the vertical free (a surface of
+    revolution): then the joint fit matches the albedo too, about the vertical only, when their
+    median reaches ``adjust_albedo_min_corr`` (:mod:`tofmetry.reconstruct._adjust_albedo`).
+
+    Returns
+    -------
+    (AdjustResult or None, failure): None and no failure when switched off; None and the reason
+    when the adjustment failed (the pose-graph poses are then kept)
+    """
+    rc = cfg.registration
+    if not rc.global_adjust:
+        return None, None
+    prior_deg, prior_mm = rc.adjust_prior_deg, rc.adjust_prior_mm
+    if turntable:  # the poses start on the declared turntable
+        prior_deg, prior_mm = rc.turntable_accuracy_deg, rc.turntable_axis_mm
+    elif prior_deg is not None and prior_mm is not None and loops:
+        prior_deg = max(prior_deg, max(lp["closure_deg"] for lp in loops) / 2)
+        prior_mm = max(prior_mm, max(lp.get("closure_object_mm", lp["closure_mm"]) for lp in loops) / 2)
+    z_ref = median_object_depth_m(views, segs)
+    sg_cal = None if cal is None else calibration_gain_sigma(cal.prediction or {})
+    e_sys = rc.gain_systematic_mm
+    if e_sys is None:  # opt-in: the calibration's predicted central error
+        e_sys = (calibration_central_mm(cal.prediction or {}) if cal is not None else None) or 0.0
+    av = _views(regs)
+    albedo = (rc.adjust_albedo_min_corr is not None and bool(edge_ir) and yaw_free and segs[0].plane is not None
+              and float(np.median([c if c is not None else -1.0 for c in edge_ir])) >= rc.adjust_albedo_min_corr)
+    up = poses[0][:3, :3] @ segs[0].plane[:3] if albedo else None
+    if rc.adjust_target_smooth_k:  # the targets without their noise (tofmetry.pointcloud._smooth)
+        for a in av:
+            a.target = project_to_local_planes(a.target, rc.adjust_target_smooth_k)
+    if albedo:  # once for every run of the joint fit below (its restart, the amplitude variant)
+        for a in av:
+            a.target_ir_gradient = albedo_gradients(a.target, a.target_normals, a.target_ir)
+    amp_prior = rc.amplitude_k_prior_mm if white_map is not None else None
+    field = None if cal is None else depth_field_prior(cal.prediction or {}, object_depth_span_mm(views, segs),
+                                                       regs[0].intr, tilt_sigma_mm=rc.uncalibrated_tilt_mm)
+    tilt_prior = None if rc.image_tilt_prior_mm is None or (
+        cal is not None and (cal.prediction or {}).get("tilt_calibrated")) else rc.image_tilt_prior_mm * 1e-3
+
+    def run(amplitude_prior_mm: float | None, start: np.ndarray = poses) -> AdjustResult:
+        return global_adjust(av, start, z_ref, tuple(x * 1e-3 for x in rc.adjust_radii_mm), rc.adjust_iters,
+                             estimate_gain=rc.estimate_depth_gain, gain_prior_sigma=rc.depth_gain_prior,
+                             gain_max_sigma=rc.gain_max_sigma, sigma_inflation=rc.sigma_inflation,
+                             gain_max_abs=None if sg_cal is None else rc.gain_max_calibration_sigmas * sg_cal,
+                             systematic_m=e_sys * 1e-3, curve_degree=rc.range_curve_degree,
+                             curve_prior_m=curve_prior_mm(cfg, cal) * 1e-3,
+                             amplitude_prior_m=None if amplitude_prior_mm is None else amplitude_prior_mm * 1e-3,
+                             pose_prior_deg=prior_deg, pose_prior_m=None if prior_mm is None else prior_mm * 1e-3,
+                             tilt_prior_m=tilt_prior, albedo=albedo, up=up, prior_poses=poses)
+
+    with progress("global adjustment", None):
+        try:
+            res = run(None)
+            if amp_prior is not None:
+                res = keep_amplitude_if_it_explains(res, run(amp_prior), rc.amplitude_min_rms_drop)
+            if rc.restart_check and float(np.max(res.moved_deg)) > rc.pose_gate_deg / 2:
+                res.restart = _restart(res, poses, regs, cfg, lambda S: run(
+                    amp_prior if res.amplitude_estimated else None, S).poses)
+                _pair_walks(res, regs, edges, cfg)
+            if field is not None:  # once, on the adjustment kept
+                res.calibration_pose = calibration_pose(res, field)
+        except EstimationError as exc:  # keep the pose-graph poses; the reason goes to the diagnostics
+            return None, str(exc)
+    correct_views(views, segs, res, z_ref, regs[0].intr, white_map, cfg.segment.plane_threshold_mm * 1e-3)
+    return res, None
+
+
+def _restart(res: AdjustResult, start: np.ndarray, regs: list[RegView], cfg: ReconstructionConfig, rerun) -> dict:
+    """:func:`restart_probe` of the adjustment ``res`` started at ``start`` (``rerun``: the same
+    adjustment from other poses), measured on ~5000 of the views' object points (not the ground
+    ring); a restart that fails says why (``{"failed": reason}``; the verdict weighs it)."""
+    obj = np.concatenate([transform_points(r.obj_points, T) for r, T in zip(regs, res.poses)])
+    obj = obj[:: max(1, len(obj) // 5000)]
+    try:
+        return restart_probe(res.poses, start, rerun, obj, cfg.registration.pose_gate_deg)
+    except EstimationError as exc:
+        return {"failed": str(exc)}
+
+
+def _pair_walks(res: AdjustResult, regs: list[RegView], edges, cfg: ReconstructionConfig) -> None:
+    """When the fit moved a view beyond the pose gate and its restart came back, the kept pairs
+    of that view registered again from the joint fit (:func:`pair_walks`), in ``res.restart["pairs"]``."""
+    rc = cfg.registration
+    w = int(np.argmax(res.moved_deg))
+    if float(res.moved_deg[w]) <= rc.pose_gate_deg or not came_back(res.restart, rc.pose_gate_deg, rc.pose_gate_mm):
+        return
+    mine = [(i, j) for i, j in edges if w in (i, j)]
+    res.restart["pairs"] = pair_walks(res.poses, mine, lambda i, j, init: refine_pair(regs[i], regs[j], init, rc),
+                                      [r.obj_points for r in regs])
+
+
+def scale_budget_of(views, segs, poses: np.ndarray, intr, z_ref: float, white_map: np.ndarray | None,
+                    k_sigma_mm: float):
+    """``(offset_sigma_m, gain_sigma) -> dict``: :func:`scale_budget` on the object points of
+    ``views`` placed by ``poses`` (camera to world), the gain acting about ``z_ref`` [m], with the
+    amplitude term (coefficient uncertainty ``k_sigma_mm``) when an amplitude reference was given."""
+    pts = [v.points[s.object_mask] for v, s in zip(views, segs)]
+    nrm = [v.normals[s.object_mask] for v, s in zip(views, segs)]
+    L = None
+    if white_map is not None and all(v.ir is not None for v in views):
+        L = [amplitude_log_ratio(v.depth_mm, v.ir, white_map, intr).ravel()[v.index[s.object_mask]]
+             for v, s in zip(views, segs)]
+
+    def budget(offset_sigma_m: float, gain_sigma: float) -> dict:
+        return scale_budget(pts, nrm, poses, z_ref, L, offset_sigma_m, gain_sigma, k_sigma_mm * 1e-3)
+    return budget

@@ -1,0 +1,100 @@
+"""The model from the placed views: the object's depths, TSDF fusion, and the crop to the object.
+
+Functions of the views (:class:`~tofmetry.reconstruct._preprocess.ViewData`), their segmentations
+and camera-to-world poses; :class:`~tofmetry.reconstruct.ReconstructionPipeline` (and the rig
+reconstruction) call them after the registration.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from tofmetry.errors import EstimationError
+from tofmetry.reconstruct._config import ReconstructionConfig
+from tofmetry.reconstruct._fusion import TSDFFusion, crop_mesh, poisson_mesh
+
+
+def object_depths_m(views, segs) -> np.ndarray:
+    """(N,) depths Z [m] of the segmented object points of all views."""
+    return np.concatenate([v.points[s.object_mask, 2] for v, s in zip(views, segs)])
+
+
+def object_depth_span_mm(views, segs) -> tuple[float, float] | None:
+    """5th-95th percentile of the segmented object points' depths Z over all views [mm]; None
+    without object points."""
+    z = object_depths_m(views, segs) * 1e3
+    return tuple(float(x) for x in np.percentile(z, (5, 95))) if len(z) else None
+
+
+def median_object_depth_m(views, segs) -> float:
+    """Median depth Z [m] of the segmented object points over all views (1 m when there are none)."""
+    z = object_depths_m(views, segs)
+    return float(np.median(z)) if len(z) else 1.0
+
+
+def fuse_views(views, segs, poses: np.ndarray, intr, cfg: ReconstructionConfig, progress) -> tuple:
+    """TSDF fusion of the views' depth (the object and its ground ring only, unless
+    ``cfg.segment.keep_all``) at the poses ``poses`` (V, 4, 4) camera to world [m].
+
+    Returns
+    -------
+    V, F, N : mesh vertices [m], triangles, normals; P, PN : cloud [m] and normals; info : dict
+    (voxel and truncation [mm] and their rule)
+    """
+    fc = cfg.fusion
+    z_med = median_object_depth_m(views, segs) * 1e3
+    voxel = fc.voxel_for(z_med, intr.fx)
+    trunc = fc.trunc_for(z_med, voxel)
+    tsdf = TSDFFusion(intr, voxel, trunc, depth_max_mm=cfg.preprocess.max_mm, block_resolution=fc.block_resolution)
+    with progress("TSDF fusion", len(views)) as adv:
+        for v, s, T in zip(views, segs, poses):
+            d = v.depth_mm
+            if not cfg.segment.keep_all:  # integrate the object and its ground ring only
+                m = np.zeros(d.size, bool)
+                m[v.index[s.object_mask | s.ring_mask]] = True
+                d = np.where(m.reshape(d.shape), d, 0.0)
+            tsdf.integrate(d, T)
+            adv()
+    V, F, N, P, PN = tsdf.extract(1.0)  # surface seen by a single view is kept (undersides, flanks)
+    return V, F, N, P, PN, {"voxel_mm": voxel, "trunc_mm": trunc, "median_object_depth_mm": z_med, "min_views": 1,
+                            "rule": "voxel = 0.6 * z / f; trunc = max(4 * sigma_eff(z), 3 voxels)"}
+
+
+def crop_mask(pts: np.ndarray, world_obj: np.ndarray, plane_w: np.ndarray | None, cfg: ReconstructionConfig) -> np.ndarray:
+    """(N,) bool: ``pts`` (N, 3) [m] within ``cfg.fusion.crop_margin_mm`` of the segmented object
+    points ``world_obj`` (M, 3) [m] and above the support plane ``plane_w`` (4,) (None: no plane)."""
+    if cfg.segment.keep_all:
+        return np.ones(len(pts), bool)
+    d, _ = cKDTree(world_obj).query(pts, distance_upper_bound=cfg.fusion.crop_margin_mm * 1e-3, workers=-1)
+    keep = np.isfinite(d)
+    if plane_w is not None:
+        keep &= pts @ plane_w[:3] + plane_w[3] > 0.5 * cfg.segment.min_height_mm * 1e-3
+    return keep
+
+
+def crop_model(V, F, N, P, PN, world_obj: np.ndarray, plane_w: np.ndarray | None, cfg: ReconstructionConfig) -> tuple:
+    """The fused mesh (V, F, N) and cloud (P, PN) cropped to the object (:func:`crop_mask`), and the
+    Poisson mesh of the cropped cloud (cropped as well; None when switched off)."""
+    V, F, used = crop_mesh(V, F, crop_mask(V, world_obj, plane_w, cfg))
+    N = N[used]
+    keep_p = crop_mask(P, world_obj, plane_w, cfg)
+    P, PN = P[keep_p], PN[keep_p]
+    if len(F) == 0 or len(P) == 0:
+        raise EstimationError("fusion produced an empty model after cropping to the object")
+    poisson = None
+    if cfg.fusion.poisson:
+        pv, pf = poisson_mesh(P, PN, cfg.fusion.poisson_depth, cfg.fusion.poisson_trim_quantile)
+        pv, pf, _ = crop_mesh(pv, pf, crop_mask(pv, world_obj, plane_w, cfg))
+        poisson = (pv, pf)
+    return V, F, N, P, PN, poisson
+
+
+def world_plane(plane_cam: np.ndarray | None, pose: np.ndarray) -> np.ndarray | None:
+    """The support plane (4,) of a view's camera frame in the world frame, given that view's
+    camera-to-world ``pose`` (4, 4); None without a plane."""
+    if plane_cam is None:
+        return None
+    R, t = pose[:3, :3], pose[:3, 3]
+    n = R @ plane_cam[:3]
+    return np.r_[n, plane_cam[3] - n @ t]
