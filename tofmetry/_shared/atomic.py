@@ -76,13 +76,16 @@ def replace_dir(src: str | os.PathLike, dst: str | os.PathLike) -> Path:
     return dst
 
 
-def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
+def atomic_write_bytes(path: str | os.PathLike, data: bytes, *, mode: int | None = None,
+                       fsync: bool = False) -> Path:
     """Write ``data`` to ``path`` atomically (same-folder temporary file + ``os.replace``).
 
     Parameters
     ----------
     path : the file to write; its folder is created if needed
     data : the bytes
+    mode : the file's permission bits (default :func:`file_mode`)
+    fsync : flush the data to the disk before the rename (a file that must survive a power cut)
 
     Returns
     -------
@@ -94,8 +97,11 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
         with os.fdopen(fd, "wb") as fh:
-            os.fchmod(fh.fileno(), file_mode())
+            os.fchmod(fh.fileno(), file_mode() if mode is None else mode)
             fh.write(data)
+            if fsync:
+                fh.flush()
+                os.fsync(fh.fileno())
         os.replace(tmp, path)
     except BaseException as exc:
         if os.path.lexists(tmp) and not _someone_elses(exc, tmp):

@@ -12,10 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
-from tofmetry._shared.atomic import atomic_dir, atomic_write_bytes, staging_name
+from tofmetry._shared.atomic import atomic_dir, atomic_write_bytes
 from tofmetry.errors import InputError
 
-__all__ = ["atomic_dir", "atomic_write_bytes", "staging_name", "atomic_write_json", "read_json", "to_json"]
+__all__ = ["atomic_dir", "atomic_write_bytes", "atomic_write_json", "read_json", "to_json"]
 
 
 def _json_default(o):

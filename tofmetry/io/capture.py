@@ -15,12 +15,12 @@
 
 from __future__ import annotations
 
-import inspect
 import io
 import os
 import shutil
 import threading
 import warnings
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable, Iterator
@@ -314,15 +314,13 @@ class CaptureWriter:
         return len(self._written)
 
     def __enter__(self) -> "CaptureWriter":
-        self._ctx = atomic_dir(self.path, force=self.force)
-        try:  # a 'with' whose __enter__ fails never calls __exit__: the staging folder is ours to remove
-            self._tmp = self._ctx.__enter__()
+        # a 'with' whose __enter__ fails never calls __exit__: until the folder is ready, the stack
+        # removes the staging folder itself; then it is handed on to __exit__
+        with ExitStack() as stack:
+            self._tmp = stack.enter_context(atomic_dir(self.path, force=self.force))
             for sub in ("depth", "ir", "color"):
                 (self._tmp / sub).mkdir()
-        except BaseException as err:
-            if inspect.getgeneratorstate(self._ctx.gen) == inspect.GEN_SUSPENDED:  # the staging folder exists
-                self._ctx.__exit__(type(err), err, err.__traceback__)
-            raise
+            self._ctx = stack.pop_all()
         return self
 
     def add(self, depth: np.ndarray, ir: np.ndarray | None = None, color: np.ndarray | None = None) -> None:

@@ -29,27 +29,15 @@ import numpy as np
 
 from tofmetry.errors import FormatError, InputError
 from tofmetry.io import images
-from tofmetry.io._atomic import atomic_write_json, read_json, staging_name
+from tofmetry.io._atomic import atomic_write_bytes, atomic_write_json, read_json
 from tofmetry.io.capture import CaptureMeta
 from tofmetry.io.frames_log import FRAMES_LOG, read_frames_log
 
 
 
 def durable_write(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a hidden temporary file, ``fsync`` and rename."""
-    tmp = staging_name(path)
-    try:
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException as exc:
-        if os.path.lexists(tmp) and not isinstance(exc, FileExistsError):
-            os.unlink(tmp)
-        raise
+    """Write ``data`` to ``path`` through a hidden temporary file, ``fsync`` and rename (mode 0644)."""
+    atomic_write_bytes(path, data, mode=0o644, fsync=True)
 
 
 class LiveCaptureWriter:

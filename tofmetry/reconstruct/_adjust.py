@@ -163,8 +163,9 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
     g = 0.0
     asked_gain = estimate_gain
     prior_on = pose_prior_deg is not None and pose_prior_m is not None
-    centre = (np.concatenate([v.source @ T[:3, :3].T + T[:3, 3] for v, T in
-                              zip(views, poses if prior_poses is None else prior_poses)]).mean(0) if prior_on else None)
+    held_at = poses if prior_poses is None else prior_poses  # where the pose prior holds the views
+    centre = (np.concatenate([v.source @ T[:3, :3].T + T[:3, 3] for v, T in zip(views, held_at)]).mean(0)
+              if prior_on else None)
     cos_max = np.cos(np.radians(max_normal_deg))
     rms_hist: list[float] = []
     schedule = [r for r, n in zip(radii_m, iters_per_radius) for _ in range(n)]
@@ -319,8 +320,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                 H[ti, ti] += s2 * sigma_inflation ** 2 / tilt_prior_m ** 2  # prior a, b ~ N(0, tilt_prior_m)
                 b[ti] += s2 * sigma_inflation ** 2 / tilt_prior_m ** 2 * t_xy
             if prior_on:
-                Hp, bp = pose_prior_terms(P, poses if prior_poses is None else prior_poses, centre,
-                                          np.radians(pose_prior_deg), pose_prior_m,
+                Hp, bp = pose_prior_terms(P, held_at, centre, np.radians(pose_prior_deg), pose_prior_m,
                                           s2 * sigma_inflation ** 2)
                 H[:len(bp), :len(bp)] += Hp
                 b[:len(bp)] += bp

@@ -25,9 +25,8 @@ from typing import Callable
 
 import numpy as np
 
-from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.reconstruct._loops import spanning_tree
-from tofmetry.reconstruct._register import PairResult
+from tofmetry.reconstruct._register import PairResult, _same_pose
 
 #: method tag of a hypothesis found here
 METHOD = "loop-implied+icp"
@@ -54,11 +53,6 @@ def _path(n: int, edges: list[PairResult], a: int, b: int) -> list[int] | None:
         b, k = prev[b]
         out.append(k)
     return out[::-1]
-
-
-def _same(A: np.ndarray, B: np.ndarray, deg: float = 3.0, mm: float = 10.0) -> bool:
-    E = np.linalg.inv(A) @ B
-    return bool(rotation_angle_deg(E) <= deg and np.linalg.norm(E[:3, 3]) * 1e3 <= mm)
 
 
 def loop_implied_hypotheses(n: int, before: list[PairResult], selected: list[PairResult],
@@ -102,12 +96,12 @@ def loop_implied_hypotheses(n: int, before: list[PairResult], selected: list[Pai
             if depth[e.source] < 0 or depth[e.target] < 0:
                 continue
             init = np.linalg.inv(poses[e.target]) @ poses[e.source]  # pose_source = pose_target @ T
-            if _same(init, e.transform):
+            if _same_pose(init, e.transform):
                 continue
             q = register(e.source, e.target, init)
             if not q.accepted or q.fitness < e.fitness + min_gain:
                 continue
-            if any(_same(q.transform, h.transform) for h in [out[ke], *out[ke].alternatives]):
+            if any(_same_pose(q.transform, h.transform) for h in [out[ke], *out[ke].alternatives]):
                 continue
             q = replace(q, method=METHOD, alternatives=[])
             out[ke] = replace(out[ke], alternatives=[*out[ke].alternatives, q])
