@@ -110,7 +110,7 @@ class PairResult:
     fitness : share of the source object points with a target point within the final ICP radius
     inlier_rmse_mm : RMS distance of those matches [mm]
     information : (6, 6) Open3D information matrix
-    method : "fpfh+icp", "plane-yaw+icp" or "init+icp"
+    method : "fpfh+icp", "plane-yaw+icp" or "init+icp", "+hop" where :func:`yaw_hops` moved it
     accepted : passed the fitness / RMSE gates and the free-space test
     alternatives : other distinct hypotheses that pass the gates (PairResult each), best first
     conditioning : :func:`registration_conditioning` of the transform
@@ -180,6 +180,36 @@ def refine_pair(src: RegView, tgt: RegView, init: np.ndarray, cfg: RegistrationC
     """The pair's ICP from ``init`` (every stage: the mid-voxel ones, then the fine one), as the
     registration refines a pair from an initial pose. (4, 4) source camera -> target camera [m]."""
     return _refine_fine(src, tgt, _refine_mid(src, tgt, init, cfg), cfg)
+
+
+def yaw_hops(src: RegView, tgt: RegView, T: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:
+    """``T`` (source -> target, (4, 4) [m]) after the hops of ``cfg.yaw_hops_deg``: the last ICP stage
+    from ``T`` turned about the target's support-plane normal through its object centre, kept where
+    it matches a larger share of the object points (:func:`object_fitness` at the last ICP radius)
+    by more than ``cfg.yaw_hop_min_gain`` and still within the largest hop of ``T`` (the hops look
+    for a better minimum nearby, not for another hypothesis); repeated from the new pose. Without
+    a support plane or hops, ``T`` itself."""
+    if not cfg.yaw_hops_deg or tgt.plane is None or src.plane is None:
+        return T
+    r_final = cfg.icp_radii_mm[-1] * 1e-3
+    F = _plane_frame(tgt.plane, tgt.obj_points)
+    Fi = np.linalg.inv(F)
+    T0, reach = T, max(abs(a) for a in cfg.yaw_hops_deg)
+    fit = object_fitness(src, tgt, T, r_final)[0]
+    for _ in range(cfg.yaw_hop_rounds):
+        best = None
+        for a in np.radians(cfg.yaw_hops_deg):
+            Rz = np.eye(4)
+            Rz[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+            T1 = _refine_fine(src, tgt, F @ Rz @ Fi @ T, cfg)
+            f1 = object_fitness(src, tgt, T1, r_final)[0]
+            if (f1 > fit + cfg.yaw_hop_min_gain and (best is None or f1 > best[0])
+                    and rotation_angle_deg(np.linalg.inv(T0) @ T1) <= reach):
+                best = (f1, T1)
+        if best is None:
+            break
+        fit, T = best
+    return T
 
 
 def _coarse_fitness(src: RegView, tgt: RegView, T: np.ndarray, radius_m: float) -> tuple[float, float]:
@@ -255,6 +285,8 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
             continue
         out.append(_pair_result(src, tgt, i, j, T, fit, rmse, v, method, ok, r_final))
     best = out[0]
+    if best.accepted:
+        best, out = _hopped(src, tgt, best, out, cfg, vis, allowed, r_final)
     c0 = ir_agreement(src, tgt, best.transform, r_final) if cfg.ir_icp and best.accepted else None
     best = replace(best, ir_corr=c0)
     if c0 is not None and c0 >= 0.5 * cfg.ir_icp_min_corr:  # no pattern at all (a plain object): not tried
@@ -291,6 +323,23 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
                 return _with_ir(replace(turned[0], alternatives=rest), src, tgt, r_final)
         best = replace(best, ir_yaw=sw)
     return _with_ir(replace(best, alternatives=out[1:]), src, tgt, r_final)
+
+
+def _hopped(src: RegView, tgt: RegView, best: PairResult, out: list[PairResult], cfg: RegistrationConfig, vis, allowed,
+            r_final: float) -> tuple[PairResult, list[PairResult]]:
+    """The chosen hypothesis after :func:`yaw_hops`, where the hopped pose passes every gate the
+    hypothesis did; the other hypotheses are not hopped (a turned-over one of a nearly symmetric
+    object would match as well as the right one, measured on a fandisk: 131 deg off, 100 % against
+    99.8 %), and one the hops reached is no alternative any more."""
+    T = yaw_hops(src, tgt, best.transform, cfg)
+    if T is best.transform:
+        return best, out
+    fit, rmse = object_fitness(src, tgt, T, r_final)
+    v = vis(T)
+    if not (_passes(fit, rmse, cfg) and v <= cfg.max_see_through and plane_consistent(src, tgt, T) and allowed(T)):
+        return best, out
+    hopped = _pair_result(src, tgt, best.source, best.target, T, fit, rmse, v, best.method + "+hop", True, r_final)
+    return hopped, [hopped] + [a for a in out[1:] if not _same_pose(a.transform, T)]
 
 
 def _ir_turned(src: RegView, tgt: RegView, i: int, j: int, T0: np.ndarray, cfg: RegistrationConfig, r_final: float,
