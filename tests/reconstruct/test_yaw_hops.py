@@ -1,4 +1,4 @@
-"""Yaw hops after a pair's ICP (:func:`tofmetry.reconstruct._register.yaw_hops`): the last ICP stage
+"""Yaw hops after a pair's ICP (:func:`tofmetry.reconstruct._icp_stages.yaw_hops`): the last ICP stage
 locked one period off on a ribbed object is brought back where the object points match better,
 and a pose the points do not decide (a plain surface of revolution) is left where it was."""
 
@@ -8,7 +8,7 @@ import numpy as np
 
 from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.reconstruct._config import RegistrationConfig
-from tofmetry.reconstruct._register import _refine_fine, yaw_hops
+from tofmetry.reconstruct._icp_stages import refine_fine, yaw_hops
 from tofmetry.reconstruct._regview import RegView, object_fitness
 
 AXIS = np.array([0.0, 0.0, 1.0])  # the column's axis (parallel to y, the support plane's normal) [m]
@@ -49,7 +49,7 @@ def test_a_pose_locked_one_rib_off_hops_back_to_where_the_boss_lines_up():
     v = _view(rib_mm=2.0, boss_mm=8.0)
     cfg = RegistrationConfig()
     for start in (8.0, -8.0, 5.0):
-        stuck = _refine_fine(v, v, _turned(start), cfg)
+        stuck = refine_fine(v, v, _turned(start), cfg)
         # the last ICP stage alone stays a rib period off: the ribs hold it there
         assert rotation_angle_deg(stuck) > 7.0
         fit_stuck = object_fitness(v, v, stuck, 0.003)[0]
@@ -65,7 +65,7 @@ def test_a_yaw_the_points_do_not_decide_is_left_alone():
     # a plain column: every yaw matches alike, so no hop raises the share of points matched
     v = _view(rib_mm=0.0, boss_mm=0.0)
     cfg = RegistrationConfig()
-    start = _refine_fine(v, v, _turned(6.0), cfg)
+    start = refine_fine(v, v, _turned(6.0), cfg)
     assert np.array_equal(yaw_hops(v, v, start, cfg), start)
 
 
@@ -73,7 +73,7 @@ def test_the_hops_look_nearby_only():
     # two rib periods off, a better pose is 16 deg away: beyond the largest hop (8 deg), not taken
     v = _view(rib_mm=2.0, boss_mm=8.0)
     cfg = RegistrationConfig()
-    stuck = _refine_fine(v, v, _turned(16.0), cfg)
+    stuck = refine_fine(v, v, _turned(16.0), cfg)
     assert rotation_angle_deg(np.linalg.inv(stuck) @ yaw_hops(v, v, stuck, cfg)) <= 8.0 + 1e-6
 
 

@@ -22,7 +22,7 @@ from tofmetry.reconstruct._amplitude import amplitude_log_ratio
 from tofmetry.reconstruct._calibration_support import calibration_central_mm, calibration_gain_sigma, depth_field_prior
 from tofmetry.reconstruct._config import ReconstructionConfig
 from tofmetry.reconstruct._model_build import median_object_depth_m, object_depth_span_mm
-from tofmetry.reconstruct._register import refine_pair
+from tofmetry.reconstruct._icp_stages import refine_pair
 from tofmetry.reconstruct._regview import RegView
 from tofmetry.reconstruct._scale_budget import scale_budget
 

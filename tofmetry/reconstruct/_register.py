@@ -20,6 +20,7 @@ from scipy.spatial import cKDTree
 
 from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.reconstruct._config import RegistrationConfig
+from tofmetry.reconstruct._icp_stages import plane_frame, refine_fine, refine_mid, yaw_hops
 from tofmetry.reconstruct._photometric import ir_agreement, ir_yaw_sweep, photometric_icp
 from tofmetry.reconstruct._o3d import (
     global_register,
@@ -34,18 +35,6 @@ from tofmetry.reconstruct._regview import (
     visibility_violation,
 )
 from tofmetry.reconstruct._turntable import TurntablePrior
-
-
-def _plane_frame(plane: np.ndarray, obj: np.ndarray) -> np.ndarray:
-    """4x4 frame: origin = object centroid projected on the plane, z = plane normal (up)."""
-    n = plane[:3]
-    c = obj.mean(0)
-    o = c - (n @ c + plane[3]) * n
-    x = np.array([1.0, 0, 0]) - n[0] * n
-    x /= np.linalg.norm(x)
-    F = np.eye(4)
-    F[:3, 0], F[:3, 1], F[:3, 2], F[:3, 3] = x, np.cross(n, x), n, o
-    return F
 
 
 def plane_consistent(src: RegView, tgt: RegView, T: np.ndarray, max_deg: float = 3.0, max_mm: float = 8.0) -> bool:
@@ -64,8 +53,8 @@ def yaw_candidates(src: RegView, tgt: RegView, step_deg: float = 30.0,
                    angles_deg: tuple[float, ...] | None = None) -> list[np.ndarray]:
     """Transforms that put the source support plane on the target one, at yaw steps about its normal
     (or at the yaws ``angles_deg``: a declared turntable's turns)."""
-    Fs = _plane_frame(src.plane, src.obj_points)
-    Ft = _plane_frame(tgt.plane, tgt.obj_points)
+    Fs = plane_frame(src.plane, src.obj_points)
+    Ft = plane_frame(tgt.plane, tgt.obj_points)
     out = []
     yaws = np.arange(0.0, 360.0, step_deg) if angles_deg is None else np.asarray(angles_deg, np.float64)
     for a in np.radians(yaws):
@@ -160,58 +149,6 @@ class PairResult:
                           alt.ir_corr)
 
 
-def _refine_mid(src: RegView, tgt: RegView, init: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:
-    """All ICP stages but the last, on the mid-voxel clouds (cheap; within ~1 mm of the fine result)."""
-    T = init
-    sp, tp, tn = ((src.mid_points, tgt.mid_points, tgt.mid_normals) if src.mid_points is not None
-                  else (src.icp_points, tgt.icp_points, tgt.icp_normals))
-    for r in cfg.icp_radii_mm[:-1]:
-        T = icp(sp, tp, tn, T, r * 1e-3, kernel=cfg.kernel, max_iter=cfg.icp_max_iter).transform
-    return T
-
-
-def _refine_fine(src: RegView, tgt: RegView, init: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:
-    """The last (narrowest) ICP stage on the full ICP clouds."""
-    return icp(src.icp_points, tgt.icp_points, tgt.icp_normals, init, cfg.icp_radii_mm[-1] * 1e-3, kernel=cfg.kernel,
-               max_iter=cfg.fine_max_iter).transform
-
-
-def refine_pair(src: RegView, tgt: RegView, init: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:
-    """The pair's ICP from ``init`` (every stage: the mid-voxel ones, then the fine one), as the
-    registration refines a pair from an initial pose. (4, 4) source camera -> target camera [m]."""
-    return _refine_fine(src, tgt, _refine_mid(src, tgt, init, cfg), cfg)
-
-
-def yaw_hops(src: RegView, tgt: RegView, T: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:
-    """``T`` (source -> target, (4, 4) [m]) after the hops of ``cfg.yaw_hops_deg``: the last ICP stage
-    from ``T`` turned about the target's support-plane normal through its object centre, kept where
-    it matches a larger share of the object points (:func:`object_fitness` at the last ICP radius)
-    by more than ``cfg.yaw_hop_min_gain`` and still within the largest hop of ``T`` (the hops look
-    for a better minimum nearby, not for another hypothesis); repeated from the new pose. Without
-    a support plane or hops, ``T`` itself."""
-    if not cfg.yaw_hops_deg or tgt.plane is None or src.plane is None:
-        return T
-    r_final = cfg.icp_radii_mm[-1] * 1e-3
-    F = _plane_frame(tgt.plane, tgt.obj_points)
-    Fi = np.linalg.inv(F)
-    T0, reach = T, max(abs(a) for a in cfg.yaw_hops_deg)
-    fit = object_fitness(src, tgt, T, r_final)[0]
-    for _ in range(cfg.yaw_hop_rounds):
-        best = None
-        for a in np.radians(cfg.yaw_hops_deg):
-            Rz = np.eye(4)
-            Rz[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
-            T1 = _refine_fine(src, tgt, F @ Rz @ Fi @ T, cfg)
-            f1 = object_fitness(src, tgt, T1, r_final)[0]
-            if (f1 > fit + cfg.yaw_hop_min_gain and (best is None or f1 > best[0])
-                    and rotation_angle_deg(np.linalg.inv(T0) @ T1) <= reach):
-                best = (f1, T1)
-        if best is None:
-            break
-        fit, T = best
-    return T
-
-
 def _coarse_fitness(src: RegView, tgt: RegView, T: np.ndarray, radius_m: float) -> tuple[float, float]:
     """Share of the source coarse points within ``radius_m`` of the target coarse points, and their RMS [m]."""
     p = src.coarse_points @ T[:3, :3].T + T[:3, 3]
@@ -246,11 +183,11 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
 
     cands = []
     if init is not None:
-        T = _refine_mid(src, tgt, init, cfg)
+        T = refine_mid(src, tgt, init, cfg)
         E = np.linalg.inv(init) @ T
         jump_deg = rotation_angle_deg(E)
         if global_search or (jump_deg <= cfg.max_loop_jump_deg and np.linalg.norm(E[:3, 3]) * 1e3 <= cfg.max_loop_jump_mm):
-            T = _refine_fine(src, tgt, T, cfg)
+            T = refine_fine(src, tgt, T, cfg)
             cands.append((*object_fitness(src, tgt, T, r_final), T, "init+icp", vis(T)))
     if global_search and (not cands or not _passes(cands[0][0], cands[0][1], cfg) or not plane_consistent(src, tgt, cands[0][2])
                           or cands[0][4] > cfg.max_see_through):
@@ -346,7 +283,7 @@ def _ir_turned(src: RegView, tgt: RegView, i: int, j: int, T0: np.ndarray, cfg: 
                vis, method: str, sweep: dict) -> PairResult:
     """The hypothesis of a yaw the IR pattern chose (``T0``, source -> target), refined: the geometric
     ICP, and the photometric one where it lines the pattern up better at the same fitness."""
-    T = _refine_fine(src, tgt, T0, cfg)
+    T = refine_fine(src, tgt, T0, cfg)
     fit, rmse = object_fitness(src, tgt, T, r_final)
     c = ir_agreement(src, tgt, T, r_final)
     if cfg.ir_icp:
@@ -404,7 +341,7 @@ def _search(src: RegView, tgt: RegView, cfg: RegistrationConfig, coarse: list, c
     # the winner, and every other distinct one that passes the gates, get the last ICP stage
     mids = []
     for c in distinct[:cfg.refine_candidates]:
-        T = _refine_mid(src, tgt, c[2], cfg)
+        T = refine_mid(src, tgt, c[2], cfg)
         if plane_consistent(src, tgt, T):
             mids.append((*object_fitness(src, tgt, T, r_final), T, c[3], vis(T)))
     mids.sort(key=key)
@@ -413,7 +350,7 @@ def _search(src: RegView, tgt: RegView, cfg: RegistrationConfig, coarse: list, c
         if k > 0 and not (_passes(fit0, rm0, cfg) and v0 <= cfg.max_see_through
                           and all(not _same_pose(T, c[2]) for c in cands)):
             continue
-        T = _refine_fine(src, tgt, T, cfg)
+        T = refine_fine(src, tgt, T, cfg)
         if plane_consistent(src, tgt, T) and all(not _same_pose(T, c[2]) for c in cands):
             cands.append((*object_fitness(src, tgt, T, r_final), T, how, vis(T)))
 
