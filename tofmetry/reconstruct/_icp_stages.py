@@ -27,6 +27,13 @@ def plane_frame(plane: np.ndarray, obj: np.ndarray) -> np.ndarray:
     return F
 
 
+def yaw_in_frame(a_rad: float) -> np.ndarray:
+    """(4, 4) rotation by ``a_rad`` about the z axis of a :func:`plane_frame` (the support plane's normal)."""
+    Rz = np.eye(4)
+    Rz[:2, :2] = [[np.cos(a_rad), -np.sin(a_rad)], [np.sin(a_rad), np.cos(a_rad)]]
+    return Rz
+
+
 def refine_mid(src: RegView, tgt: RegView, init: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:
     """All ICP stages but the last, on the mid-voxel clouds (cheap; within ~1 mm of the fine result)."""
     T = init
@@ -66,9 +73,7 @@ def yaw_hops(src: RegView, tgt: RegView, T: np.ndarray, cfg: RegistrationConfig)
     for _ in range(cfg.yaw_hop_rounds):
         best = None
         for a in np.radians(cfg.yaw_hops_deg):
-            Rz = np.eye(4)
-            Rz[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
-            T1 = refine_fine(src, tgt, F @ Rz @ Fi @ T, cfg)
+            T1 = refine_fine(src, tgt, F @ yaw_in_frame(a) @ Fi @ T, cfg)
             f1 = object_fitness(src, tgt, T1, r_final)[0]
             if (f1 > fit + cfg.yaw_hop_min_gain and (best is None or f1 > best[0])
                     and rotation_angle_deg(np.linalg.inv(T0) @ T1) <= reach):

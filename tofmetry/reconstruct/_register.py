@@ -20,7 +20,7 @@ from scipy.spatial import cKDTree
 
 from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.reconstruct._config import RegistrationConfig
-from tofmetry.reconstruct._icp_stages import plane_frame, refine_fine, refine_mid, yaw_hops
+from tofmetry.reconstruct._icp_stages import plane_frame, refine_fine, refine_mid, yaw_hops, yaw_in_frame
 from tofmetry.reconstruct._photometric import ir_agreement, ir_yaw_sweep, photometric_icp
 from tofmetry.reconstruct._o3d import (
     global_register,
@@ -58,9 +58,7 @@ def yaw_candidates(src: RegView, tgt: RegView, step_deg: float = 30.0,
     out = []
     yaws = np.arange(0.0, 360.0, step_deg) if angles_deg is None else np.asarray(angles_deg, np.float64)
     for a in np.radians(yaws):
-        Rz = np.eye(4)
-        Rz[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
-        out.append(Ft @ Rz @ np.linalg.inv(Fs))
+        out.append(Ft @ yaw_in_frame(a) @ np.linalg.inv(Fs))
     return out
 
 
