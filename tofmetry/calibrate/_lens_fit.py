@@ -11,6 +11,7 @@ and of its four corner regions (:mod:`._coverage`; warnings where no board reach
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 
 import cv2
@@ -125,6 +126,13 @@ RESTART_GAIN = 0.01
 MAX_RESTARTS = 3
 
 
+def _cv_reason(exc: Exception) -> str:
+    """The message of a ``cv2.error`` without OpenCV's source location (``... error: (-211:...) X in function``)."""
+    msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+    m = re.search(r"error: \(-?\d+:[^)]*\)\s*(.*?)(?: in function .*)?$", msg)
+    return (m.group(1) if m and m.group(1) else msg).strip()
+
+
 def _calib(obj, img, size, flags):
     """One ``calibrateCameraExtended`` fit, restarted from its own solution while that helps.
     Returns rms, (9,) values, (9,) std, (V,) per-view RMS, K, dist, rvecs, tvecs.
@@ -135,10 +143,19 @@ def _calib(obj, img, size, flags):
     limit; one restart from that solution (``CALIB_USE_INTRINSIC_GUESS``) reached 1e-5 px. The
     restart is kept only where it lowers the RMS."""
     crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12)
-    out = cv2.calibrateCameraExtended(obj, img, size, np.eye(3), np.zeros(5), flags=flags, criteria=crit)
+    try:
+        out = cv2.calibrateCameraExtended(obj, img, size, np.eye(3), np.zeros(5), flags=flags, criteria=crit)
+    except cv2.error as exc:
+        raise EstimationError(
+            f"the Brown-model fit of {len(obj)} views failed in OpenCV ({_cv_reason(exc)}); corners that do not "
+            "match the board's geometry (a wrong board size or square size, mis-detected corners) usually cause "
+            "this") from exc
     for _ in range(MAX_RESTARTS):
-        again = cv2.calibrateCameraExtended(obj, img, size, out[1].copy(), out[2].copy(),
-                                            flags=flags | cv2.CALIB_USE_INTRINSIC_GUESS, criteria=crit)
+        try:
+            again = cv2.calibrateCameraExtended(obj, img, size, out[1].copy(), out[2].copy(),
+                                                flags=flags | cv2.CALIB_USE_INTRINSIC_GUESS, criteria=crit)
+        except cv2.error:
+            break  # OpenCV refuses a guess whose principal point is outside the image: keep the fit
         before = out[0]
         if again[0] < before:
             out = again
@@ -308,14 +325,25 @@ def calibrate_intrinsics(corners: list[np.ndarray], names: list[str] | None, boa
         folds = []
         for j in range(len(imgs)):
             others = imgs[:j] + imgs[j + 1:]
-            folds.append(_calib(objs[:j] + objs[j + 1:], others, size, flags)[1])
+            try:
+                folds.append(_calib(objs[:j] + objs[j + 1:], others, size, flags)[1])
+            except EstimationError as exc:  # the fit without view j fails: j holds the lens up alone
+                folds.append(np.full(len(PARAMS), np.nan))
+                why = _cv_reason(exc.__cause__) if exc.__cause__ is not None else str(exc)
+                res.warnings.append(f"{names[j]}: without it the fit fails ({why}); the lens rests on this view")
             if advance is not None:
                 advance()
         folds = np.array(folds)
-        res.loo = dict(zip(PARAMS, folds.std(axis=0, ddof=1).tolist()))
-        res.loo_range = dict(zip(PARAMS, (folds.max(axis=0) - folds.min(axis=0)).tolist()))
+        ok_f = np.isfinite(folds).all(axis=1)
+        if ok_f.sum() >= 2:
+            res.loo = dict(zip(PARAMS, folds[ok_f].std(axis=0, ddof=1).tolist()))
+            res.loo_range = dict(zip(PARAMS, (folds[ok_f].max(axis=0) - folds[ok_f].min(axis=0)).tolist()))
         safe = np.where(std > 0, std, np.inf)
         for j, nm in enumerate(names):
+            if not ok_f[j]:
+                res.influence[nm] = float("inf")
+                res.flagged.append(nm)
+                continue
             ratio = np.abs(folds[j] - vals) / safe
             res.influence[nm] = float(np.max(ratio))
             if res.influence[nm] > 1.0:
@@ -365,22 +393,30 @@ def cross_validate_intrinsics(corners: list[np.ndarray], board: tuple[int, int],
     Returns
     -------
     dict: ``per_view_rms_px`` (V,) [px], ``rms_px``, ``median_px``, ``max_px``, ``k``, ``views``
-    (indices used).
+    (indices used), ``failed_views`` (indices whose fold's fit failed in OpenCV; their error is
+    ``inf``, and so is ``rms_px``).
     """
     keep = [i for i in range(len(corners)) if i not in set(exclude or [])]
     cs = [corners[i] for i in keep]
     os_ = None if object_points is None else [object_points[i] for i in keep]
     held = np.full(len(cs), np.nan)
+    failed: list[int] = []
     folds = _folds(len(cs), k, seed)
     for test in folds:
         tset = set(test.tolist())
         train = [c for i, c in enumerate(cs) if i not in tset]
         train_o = None if os_ is None else [o for i, o in enumerate(os_) if i not in tset]
-        fit = calibrate_intrinsics(train, None, board, square_mm, image_size, leave_one_out=False, fix_k3=fix_k3,
-                                   min_coverage=0.0, reject_px=None, object_points=train_o)
+        try:
+            fit = calibrate_intrinsics(train, None, board, square_mm, image_size, leave_one_out=False,
+                                       fix_k3=fix_k3, min_coverage=0.0, reject_px=None, object_points=train_o)
+        except EstimationError:
+            held[test] = np.inf  # the lens fitted without these views fails: they are not predicted at all
+            failed += [keep[i] for i in test]
+            continue
         if os_ is None:
             held[test] = reprojection_rms_with(fit.intrinsics, [cs[i] for i in test], board, square_mm)
         else:
             held[test] = [_pnp_rms(fit.intrinsics, os_[i], cs[i]) for i in test]
     return {"per_view_rms_px": held, "rms_px": float(np.sqrt(np.mean(held ** 2))),
-            "median_px": float(np.median(held)), "max_px": float(np.max(held)), "k": len(folds), "views": keep}
+            "median_px": float(np.median(held)), "max_px": float(np.max(held)), "k": len(folds), "views": keep,
+            "failed_views": failed}

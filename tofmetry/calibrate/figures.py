@@ -210,15 +210,17 @@ def fig_intrinsics_per_image(run):
                       label=f"rejection threshold {res.reject_threshold_px:.2f} px")
     ax[0].axhline(res.rms_px, color="k", lw=0.8, label=f"overall RMS {res.rms_px:.3f} px (kept views)")
     cv = run.cv or {}
-    if "rms_px" in cv:
+    if np.isfinite(cv.get("rms_px", np.nan)):  # inf where a fold's fit failed (cv["failed_views"])
         ax[0].axhline(cv["rms_px"], color="C2", lw=0.8, ls=":", label=f"{cv['k']}-fold held-out RMS {cv['rms_px']:.3f} px")
     ax[0].set_ylabel("reprojection RMS [px]")
     ax[0].set_yscale("log")
     ax[0].set_title(f"Per-image reprojection error ({len(res.used)} kept, {len(res.rejected_views)} rejected in red)")
     ax[0].legend(fontsize=7)
     ax[0].grid(alpha=0.3)
-    infl = [res.influence.get(n, np.nan) for n in names]
-    ax[1].bar(x, infl, color=colours)
+    infl = np.array([res.influence.get(n, np.nan) for n in names], float)
+    ax[1].bar(x, np.where(np.isinf(infl), np.nan, infl), color=colours)
+    for j in np.flatnonzero(np.isinf(infl)):  # the fit without this view failed
+        ax[1].text(x[j], 1.0, "fit fails\nwithout it", rotation=90, fontsize=6, ha="center", va="bottom", color="C3")
     ax[1].axhline(1.0, color="C1", ls="--", lw=1, label="1 standard uncertainty (flagged above, orange)")
     ax[1].set_ylabel("leave-one-out influence [std]")
     ax[1].set_title("Stability: largest parameter change when the image is removed")
