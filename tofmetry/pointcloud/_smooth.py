@@ -49,7 +49,7 @@ def project_to_local_planes(points: np.ndarray, k: int = 12) -> np.ndarray:
         raise InputError(f"project_to_local_planes: k must be >= 3 (a plane needs 3 points), found {k}")
     if len(p) <= k:
         return p
-    _, idx = cKDTree(p).query(p, int(k))
+    _, idx = cKDTree(p).query(p, int(k), workers=-1)
     nb = p[idx]
     m = nb.mean(1)
     q = nb - m[:, None]

@@ -135,7 +135,7 @@ def _correspondences(views, P, g, z_ref_m, r, cos_max, pairs=None, curve=None,
         for j in range(V):
             if i == j or (pairs is not None and (i, j) not in pairs):
                 continue
-            d, idx = trees[j].query(src[i], distance_upper_bound=r)
+            d, idx = trees[j].query(src[i], distance_upper_bound=r, workers=-1)
             ok = np.flatnonzero(np.isfinite(d))
             if len(ok) == 0:
                 continue
