@@ -12,7 +12,7 @@
 * :mod:`._validate` — before/after evaluation, leave-one-station-out cross-validation
 * IR lens calibration (study §4.1): :mod:`._corners` (find the grid, refine and check every
   corner; the X-junction fit in :mod:`._corner_fit`), :mod:`._board_pose` (object points, board
-  pose), :mod:`._lens_fit` (Brown model, outlier views, covariance, coverage, cross-validation),
+  pose), :mod:`._lens_fit` (Brown model, outlier views, covariance, coverage), :mod:`._lens_cv` (cross-validation),
   :mod:`._ray_error` (judging a lens by ray error, predicted ray error)
 * IR–colour extrinsics: :mod:`._stereo` (``cv2.stereoCalibrate``, jackknife uncertainty, held-out pairs);
   rigs of sensors seeing a common board: :mod:`._rig`
@@ -59,9 +59,8 @@ from tofmetry.calibrate._charuco import CharucoBoard, CharucoDetection, detect_c
 from tofmetry.calibrate._coverage import (
     corner_coverage, corner_region_corners, corner_region_coverage, coverage_mask, uncovered_corner_regions,
 )
-from tofmetry.calibrate._lens_fit import (
-    IntrinsicsResult, calibrate_intrinsics, cross_validate_intrinsics, intrinsic_covariance,
-)
+from tofmetry.calibrate._lens_cv import cross_validate_intrinsics
+from tofmetry.calibrate._lens_fit import IntrinsicsResult, calibrate_intrinsics, intrinsic_covariance
 from tofmetry.calibrate._ray_error import PARAMS, RayError, predicted_ray_error_px, ray_difference_px, ray_error_px
 # IR-colour extrinsics
 from tofmetry.calibrate._stereo import StereoResult, calibrate_stereo, common_corners, heldout_reprojection

@@ -12,7 +12,7 @@ import numpy as np
 
 from tofmetry.calibrate._board_model import RANGE_VARIABLES, BoardDepthModel, ModelSpec, fit_board_model
 from tofmetry.calibrate._board_support import error_stats
-from tofmetry.calibrate._lens_fit import _folds
+from tofmetry.calibrate._lens_cv import _folds
 from tofmetry.errors import EstimationError, InputError
 
 

@@ -71,7 +71,8 @@ from tofmetry.calibrate._board_support import (
     support_counts,
 )
 from tofmetry.calibrate._corners import detect_corners, normalize_ir
-from tofmetry.calibrate._lens_fit import calibrate_intrinsics, cross_validate_intrinsics
+from tofmetry.calibrate._lens_cv import cross_validate_intrinsics
+from tofmetry.calibrate._lens_fit import calibrate_intrinsics
 from tofmetry.errors import EstimationError
 from tofmetry.sensor.intrinsics import CameraIntrinsics
 
