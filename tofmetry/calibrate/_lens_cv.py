@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 
 from tofmetry.calibrate._board_pose import reprojection_rms_with
-from tofmetry.calibrate._lens_fit import calibrate_intrinsics
+from tofmetry.calibrate._lens_fit import calibrate_intrinsics, opencv_refused
 from tofmetry.errors import EstimationError
 from tofmetry.sensor import CameraIntrinsics
 
@@ -71,7 +71,9 @@ def cross_validate_intrinsics(corners: list[np.ndarray], board: tuple[int, int],
         try:
             fit = calibrate_intrinsics(train, None, board, square_mm, image_size, leave_one_out=False,
                                        fix_k3=fix_k3, min_coverage=0.0, reject_px=None, object_points=train_o)
-        except EstimationError:
+        except EstimationError as exc:
+            if not opencv_refused(exc):
+                raise
             held[test] = np.inf  # the lens fitted without these views fails: they are not predicted at all
             failed += [keep[i] for i in test]
             continue

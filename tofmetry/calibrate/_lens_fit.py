@@ -134,6 +134,12 @@ def _cv_reason(exc: Exception) -> str:
     return (m.group(1) if m and m.group(1) else msg).strip()
 
 
+def opencv_refused(exc: EstimationError) -> bool:
+    """Whether ``exc`` is :func:`_calib`'s failure inside OpenCV (its ``__cause__`` a ``cv2.error``),
+    not a failure of the input (too few views) that every fit would share."""
+    return isinstance(exc.__cause__, cv2.error)
+
+
 def _calib(obj, img, size, flags):
     """One ``calibrateCameraExtended`` fit, restarted from its own solution while that helps.
     Returns rms, (9,) values, (9,) std, (V,) per-view RMS, K, dist, rvecs, tvecs.
@@ -329,9 +335,11 @@ def calibrate_intrinsics(corners: list[np.ndarray], names: list[str] | None, boa
             try:
                 folds.append(_calib(objs[:j] + objs[j + 1:], others, size, flags)[1])
             except EstimationError as exc:  # the fit without view j fails: j holds the lens up alone
+                if not opencv_refused(exc):
+                    raise
                 folds.append(np.full(len(PARAMS), np.nan))
-                why = _cv_reason(exc.__cause__) if exc.__cause__ is not None else str(exc)
-                res.warnings.append(f"{names[j]}: without it the fit fails ({why}); the lens rests on this view")
+                res.warnings.append(f"{names[j]}: without it the fit fails ({_cv_reason(exc.__cause__)}); the lens "
+                                    "rests on this view")
             if advance is not None:
                 advance()
         folds = np.array(folds)
