@@ -40,7 +40,8 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.robustness.family import GATE_DEG, GATE_MM, board_captures, calibrate_sensor, draw_case, override
+from bench.robustness.family import GATE_DEG, GATE_MM, STATION_SETS, board_captures, calibrate_sensor, draw_case, \
+    override
 
 
 def keep_errors(draw, errors: str):
@@ -59,7 +60,7 @@ def keep_errors(draw, errors: str):
 
 
 def drift_case(seed: int, work: Path, errors: str = "all", noise_seed: int | None = None, config=None,
-               n_frames: int = 5) -> dict:
+               n_frames: int = 5, stations: str = "family", tilt: bool = True) -> dict:
     """Scan, prepare and adjust one draw from its true poses; returns one JSON-able row."""
     from tofmetry.evaluate import pose_errors
     from tofmetry.io import ScanDataset, read_json
@@ -70,7 +71,7 @@ def drift_case(seed: int, work: Path, errors: str = "all", noise_seed: int | Non
 
     t0 = time.perf_counter()
     d = keep_errors(draw_case(seed), errors)
-    cal, white, _ = calibrate_sensor(d.sensor, seed)
+    cal, white, _ = calibrate_sensor(d.sensor, seed, distances_mm=STATION_SETS[stations], tilt_work=work if tilt else None)
     scan_dir = work / f"scan-{seed}"
     datasets.scan(scan_dir, n_frames=n_frames, mesh=d.mesh, poses=d.path.poses, sensor=d.sensor,
                   seed=seed if noise_seed is None else noise_seed, force=True, info=d.describe())
@@ -102,7 +103,7 @@ def drift_case(seed: int, work: Path, errors: str = "all", noise_seed: int | Non
     for b in boards:
         shutil.rmtree(b, ignore_errors=True)
     return {"seed": int(seed), "object": d.object.name, "path": d.path.kind, "n_views": int(d.path.n_views),
-            "errors": errors, "noise_seed": noise_seed, "extent_mm": (np.ptp((V - c) @ axes.T, 0) * 1e3).round(1).tolist(),
+            "errors": errors, "noise_seed": noise_seed, "stations": stations, "tilt": tilt, "extent_mm": (np.ptp((V - c) @ axes.T, 0) * 1e3).round(1).tolist(),
             "displacement_mm": disp.round(3).tolist(), "rotation_deg": np.round(rot, 4).tolist(),
             "max_mm": round(float(np.linalg.norm(disp, axis=1).max()), 3), "max_deg": round(max(rot), 4),
             "rot_deg": round(float(pe.rot_deg.max()), 4), "object_mm": round(float(pe.object_mm.max()), 3),
@@ -124,6 +125,9 @@ def main(argv=None) -> int:
     ap.add_argument("--set", action="append", default=[], metavar="STAGE.FIELD=JSON",
                     help="override one field of the reconstruction config (repeatable; for A/B runs)")
     ap.add_argument("-o", "--output", type=Path, default=None, help="folder for drift_rows.jsonl")
+    ap.add_argument("--no-tilt", action="store_true", help="the walls' calibration alone (no depth tilt from boards)")
+    ap.add_argument("--stations", choices=tuple(STATION_SETS), default="family",
+                    help="wall stations of the calibration (bench.robustness.family.STATION_SETS)")
     a = ap.parse_args(argv)
     config = None
     if a.set:
@@ -136,7 +140,8 @@ def main(argv=None) -> int:
     rows = []
     try:
         for s in (int(x) for x in a.seeds.split(",")):
-            r = drift_case(s, work, a.errors, a.noise_seed, None if config is None else config.model_copy(deep=True))
+            r = drift_case(s, work, a.errors, a.noise_seed, None if config is None else config.model_copy(deep=True),
+                           stations=a.stations, tilt=not a.no_tilt)
             rows.append(r)
             if a.output is not None:
                 a.output.mkdir(parents=True, exist_ok=True)

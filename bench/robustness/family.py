@@ -16,8 +16,10 @@ Each draw (one seed) is:
   -> :func:`tofmetry.calibrate.fit_depth_model` (as :mod:`tofmetry.pipelines.depth_family` does),
   plus the white-wall amplitude reference of the near stations, and the amplitude-bias coefficient
   ``k`` measured on two grey-level boards (0.8 and 1.2 m, as ``tofmetry reconstruct
-  --amplitude-board``). The scan is taken with that very sensor, so the residuals are what the real
-  chain leaves. ``--stations study --no-boards`` runs the chain as before both (A/B).
+  --amplitude-board``), and the depth error linear in the image position fitted on 16 checkerboard
+  captures (0.6-1.3 m, as ``tofmetry calibrate depth --tilt-boards``; walls of unknown orientation
+  cannot show it). The scan is taken with that very sensor, so the residuals are what the real
+  chain leaves. ``--stations study --no-boards --no-tilt-boards`` runs the chain as before all three (A/B).
 
 The scan is written by :func:`tofmetry.simulate.datasets.scan` (PNG captures, as a user's), then
 reconstructed by :func:`tofmetry.pipelines.reconstruct.reconstruct_scan` and evaluated by
@@ -52,6 +54,12 @@ from tofmetry.simulate.walls import DEFAULT_DISTANCES_MM, iter_wall_stations, pl
 
 #: wall stations of the family's calibration [mm]: the study's, plus the near range the paths reach
 FAMILY_DISTANCES_MM = (500, 600, 700) + tuple(DEFAULT_DISTANCES_MM)
+#: the calibration's station sets (``--stations``): the family's, the study's, and every 50 mm over the scans'
+#: 0.5-1.6 m (then the study's beyond), as a user who calibrates the range they scan closely
+STATION_SETS = {"family": FAMILY_DISTANCES_MM, "study": tuple(DEFAULT_DISTANCES_MM),
+                "dense": tuple(range(500, 1601, 50)) + tuple(range(1750, 4501, 250))}
+#: checkerboard captures (0.6-1.3 m, tilted up to 35 deg) on which the depth tilt is fitted
+TILT_POSES = 16
 #: distances of the grey-level boards measuring the amplitude-bias coefficient [m]
 BOARD_DISTANCES_M = (0.8, 1.2)
 REPO = Path(__file__).resolve().parents[2]
@@ -119,9 +127,15 @@ def jitter_turntable(d: Draw, seed: int, sigma_deg: float) -> tuple[Draw, list[f
 
 
 def calibrate_sensor(draw, seed: int, n_frames: int = 20, amplitude_max_mm: float = 2500.0,
-                     distances_mm=FAMILY_DISTANCES_MM):
+                     distances_mm=FAMILY_DISTANCES_MM, tilt_work: Path | None = None):
     """Depth calibration of ``draw`` by tofmetry's chain on in-memory wall stations, and the white
     amplitude reference of the stations up to ``amplitude_max_mm`` (as ``--amplitude-reference``).
+
+    ``tilt_work``: a folder for :data:`TILT_POSES` checkerboard captures of the sensor (as a user's
+    IR intrinsics captures, :func:`tofmetry.simulate.board_datasets.board_dataset`) on which the depth
+    error linear in the image position is fitted and folded into the calibration
+    (``tofmetry calibrate depth --tilt-boards``, :func:`tofmetry.pipelines.depth_tilt.tilt_from_boards`);
+    None: the walls' calibration alone, whose tilt stays uncalibrated.
 
     Returns (DepthCalibration, white_map (H, W), seconds)."""
     from tofmetry.reconstruct import corrected_mean_depth, white_amplitude_map
@@ -136,6 +150,14 @@ def calibrate_sensor(draw, seed: int, n_frames: int = 20, amplitude_max_mm: floa
         samples.append(wall_sample(st.mean_mm, st.optical_centre_mm, intr, name=st.name,
                                    sem_mm=st.std_mm / np.sqrt(n_frames), valid_fraction=st.count / n_frames)[0])
     cal = fit_depth_model(samples, intr, DepthFitConfig(), sensor="kinect_v2").calibration
+    if tilt_work is not None:
+        from tofmetry.pipelines.depth_tilt import tilt_from_boards
+        from tofmetry.simulate.board_datasets import board_dataset
+
+        bd = board_dataset(Path(tilt_work) / f"tilt-boards-{seed}", n_poses=TILT_POSES, board="checkerboard",
+                           seed=seed + 31, sensor=draw, force=True)
+        cal = tilt_from_boards(bd, cal).calibration
+        shutil.rmtree(bd, ignore_errors=True)
     # amplitude reference: a few frames with IR of the near stations (another noise stream)
     near = [d for d in distances_mm if d <= amplitude_max_mm]
     em = draw.errors
@@ -160,8 +182,10 @@ def board_captures(draw, seed: int, work: Path, n_frames: int = 10) -> list[Path
 
 def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, mesh_dir: Path | None = MESH_DIR,
              keep: bool = False, config=None, stations_mm=FAMILY_DISTANCES_MM, boards: bool = True,
-             complete_to: float | None = None, turntable: float | None = None, turntable_jitter: float = 0.0) -> dict:
+             complete_to: float | None = None, turntable: float | None = None, turntable_jitter: float = 0.0,
+             tilt_boards: bool = True) -> dict:
     """Simulate, calibrate, reconstruct and evaluate one draw (``complete_to``: :func:`draw_case`;
+    ``tilt_boards``: the depth tilt fitted on checkerboard captures, :func:`calibrate_sensor`;
     ``turntable``: a turntable path's step is declared, ``registration.turntable_step_deg``, with
     this accuracy [deg], as a user with a turntable does; ``turntable_jitter``: a turntable path's
     views turned about the vertical through the object by N(0, jitter) [deg] each, as a manual
@@ -178,12 +202,14 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
     if turntable_jitter and d.path.kind == "turntable":
         d, row["turntable_jitter_deg"] = jitter_turntable(d, seed, turntable_jitter)
     t0 = time.perf_counter()
-    cal, white, t_cal = calibrate_sensor(d.sensor, seed, distances_mm=stations_mm)
+    cal, white, t_cal = calibrate_sensor(d.sensor, seed, distances_mm=stations_mm, tilt_work=work if tilt_boards else None)
     row["true_k_mm_per_ln"] = round(d.sensor.errors.amplitude_slope_mm_per_ln(), 3)
     board_dirs = board_captures(d.sensor, seed, work) if boards else None
     row["calibration"] = {"seconds": round(t_cal, 1), "model": cal.prediction.get("method"),
                           "predicted_central_mm": (cal.prediction.get("interpolation") or {}).get("central_abs_mm", {})
-                          .get("predicted"), "warnings": len(cal.prediction.get("warnings", []))}
+                          .get("predicted"), "warnings": len(cal.prediction.get("warnings", [])),
+                          "tilt": (cal.diagnostics or {}).get("tilt"),
+                          "true_tilt_mm_1m": list(d.sensor.errors.deform_tilt_mm_1m)}
     scan_dir = work / f"scan-{seed}"
     t1 = time.perf_counter()
     datasets.scan(scan_dir, n_frames=n_frames, mesh=d.mesh, poses=d.path.poses,
@@ -338,9 +364,12 @@ def main(argv=None) -> int:
     ap.add_argument("-o", "--output", type=Path, default=Path("bench/results"))
     ap.add_argument("--range-curve", type=int, default=None, metavar="DEGREE",
                     help="registration.range_curve_degree of the reconstructions (default: the config's)")
-    ap.add_argument("--stations", choices=("family", "study"), default="family",
-                    help="wall stations of the calibration: 0.5-4.5 m (family) or the study's 0.8-4.5 m")
+    ap.add_argument("--stations", choices=tuple(STATION_SETS), default="family",
+                    help="wall stations of the calibration: 0.5-4.5 m (family), the study's 0.8-4.5 m, or every 50 mm "
+                    "over 0.5-1.6 m (dense)")
     ap.add_argument("--no-boards", action="store_true", help="correct with the study's k (no grey-level boards)")
+    ap.add_argument("--no-tilt-boards", action="store_true", help="the walls' calibration alone: no depth tilt "
+                    "fitted on checkerboard captures (its tilt stays uncalibrated, as before 2026-11-29)")
     ap.add_argument("--complete-to", type=float, default=None, metavar="SHARE",
                     help="add the views tofmetry plan proposes so that the predicted completeness reaches SHARE "
                     "(tofmetry.plan.complete, with the object's mesh) after each drawn path")
@@ -372,9 +401,9 @@ def main(argv=None) -> int:
         for k, s in enumerate(seeds):
             r = run_case(s, work, a.frames, a.reduced, keep=a.keep,
                          config=None if config is None else config.model_copy(deep=True),
-                         stations_mm=FAMILY_DISTANCES_MM if a.stations == "family" else DEFAULT_DISTANCES_MM,
+                         stations_mm=STATION_SETS[a.stations],
                          boards=not a.no_boards, complete_to=a.complete_to, turntable=a.turntable,
-                         turntable_jitter=a.turntable_jitter)
+                         turntable_jitter=a.turntable_jitter, tilt_boards=not a.no_tilt_boards)
             rows.append(r)
             with open(jl, "a") as fh:
                 fh.write(json.dumps(r, default=float) + "\n")

@@ -132,3 +132,28 @@ def test_station_beyond_range_is_skipped_with_a_note(walls, tmp_path):
     files = write_depth_report(run, tmp_path / "rep")
     assert {f.name for f in files} == {"fit.json", "range_curve.png", "std_vs_range.png"}
     assert json.loads((tmp_path / "rep" / "fit.json").read_text())["notes"] == run.notes
+
+
+def test_tilt_boards_complete_a_wall_calibration(walls, tmp_path):
+    """``--tilt-boards``: the walls leave a tilt uncalibrated; board captures of the same sensor fit it."""
+    from tofmetry.pipelines import load_calibration
+    from tofmetry.simulate import ErrorModel
+    from tofmetry.simulate.board_datasets import board_dataset
+
+    train, _ = walls
+    em = ErrorModel().with_(wiggle_amps_mm=(4.5, 0.0, 0.0), deform_tilt_mm_1m=(5.0, 8.0))
+    boards = board_dataset(tmp_path / "boards", n_poses=10, board="checkerboard", seed=5, errors=em)
+    r = _run("calibrate", "depth", train, "-o", tmp_path / "plain.npz")
+    assert r.exit_code == 0, r.output
+    assert "--tilt-boards" in r.output  # the uncalibrated tilt is said, with the way to fit it
+    r = _run("calibrate", "depth", train, "-o", tmp_path / "cal.npz", "--tilt-boards", boards)
+    assert r.exit_code == 0, r.output
+    assert "tilt from" in r.output and "folded into the calibration" in r.output
+    t = load_calibration(tmp_path / "cal.npz").prediction["tilt"]
+    # the walls were taken with the default sensor (no tilt): the boards' sensor adds (5, 8) mm
+    # per unit, and the 5-station calibration's per-pixel residual under the small boards adds up
+    # to ~1 mm per unit to the views' common tilt besides its standard error
+    assert np.all(np.abs(np.array(t["tilt_mm"]) - (5.0, 8.0)) <= 4 * np.array(t["sigma_mm"]) + 1.0), t
+    r = _run("calibrate", "depth", boards, "-o", tmp_path / "b.npz", "--tilt-boards", boards)
+    assert isinstance(r.exception, InputError) and "already fix the tilt" in str(r.exception)
+    assert not (tmp_path / "b.npz").exists()

@@ -66,12 +66,25 @@ def print_prediction(cal) -> None:
             console.print(f"  [yellow]warning:[/] {w}")
         if pred.get("tilt_calibrated") is False:
             console.print("  [yellow]not calibrated:[/] a tilt-like (linear in x, y) deformation cannot be told from the "
-                          "walls' tilt and is left in")
+                          "walls' tilt and is left in (it turns a scan's camera poses by about |tilt| / Z): fit it "
+                          "with --tilt-boards on board captures")
+        if pred.get("tilt"):
+            print_tilt(pred["tilt"])
     if cal.support is not None:
         s = cal.support.summary()
         console.print(f"support: depths {s['range_mm'][0]:.0f}-{s['range_mm'][1]:.0f} mm over "
                       f"{100 * s['covered_fraction']:.0f} % of the image; outside it: fallback '{cal.fallback}' "
                       "(pixels counted by correct / cloud / reconstruct)")
+
+
+def print_tilt(t: dict) -> None:
+    """The depth tilt fitted on board poses (:meth:`tofmetry.calibrate.TiltFit.to_dict`)."""
+    slope = "" if t["model"] == "constant" else (f", changing by ({t['slope_mm_per_m'][0]:+.2f}, "
+                                                 f"{t['slope_mm_per_m'][1]:+.2f}) per m")
+    console.print(f"  tilt from {t['n_views']} board poses ({t['z_span_mm'][0]:.0f}-{t['z_span_mm'][1]:.0f} mm): "
+                  f"({t['tilt_mm'][0]:+.2f} +- {t['sigma_mm'][0]:.2f}, {t['tilt_mm'][1]:+.2f} +- {t['sigma_mm'][1]:.2f}) "
+                  f"mm per unit of x / z, y / z at {t['z_ref_mm']:.0f} mm{slope} ({t['angle_deg_at_1m']:.2f} deg at 1 m; "
+                  f"views scatter by ({t['scatter_mm'][0]:.1f}, {t['scatter_mm'][1]:.1f})); folded into the calibration")
 
 
 def print_prediction_check(check: dict) -> None:
@@ -221,6 +234,10 @@ def depth(
                                         "COLSxROWS (not inner corners; --squares is the square choice above)."),
     marker_mm: float = typer.Option(56.0, "--marker-mm", help="Board, --board charuco: " + MARKER_HELP),
     dictionary: str = typer.Option("DICT_4X4_100", "--dictionary", help="Board, --board charuco: " + DICTIONARY_HELP),
+    tilt_boards: Optional[Path] = typer.Option(None, "--tilt-boards", help="Wall: a board dataset (board.json + "
+                                               "poses/, e.g. the IR intrinsics captures) on which the depth error "
+                                               "linear in the image position, which walls of unknown orientation cannot "
+                                               "show, is fitted and folded into the calibration."),
     report: Optional[Path] = typer.Option(None, "--report", help="Folder for the fit report (JSON + figures)."),
     force: bool = typer.Option(False, "--force", help="Overwrite the output (and the report's files)."),
     accept_implausible: bool = typer.Option(False, "--accept-implausible", help=ACCEPT_IMPLAUSIBLE_HELP),
@@ -242,6 +259,9 @@ def depth(
     if board is not None:
         spec, charuco = parse_board(board, square_mm, charuco_squares, marker_mm, dictionary)
         board_arg = charuco if charuco is not None else spec
+    if tilt_boards is not None and (dataset / "board.json").is_file():
+        raise InputError(f"--tilt-boards completes a wall calibration; {dataset} is a board dataset, whose board "
+                         "planes already fix the tilt")
     with progress(f"calibrating depth on {dataset.name}", None) as adv:
         if (dataset / "board.json").is_file():
             from tofmetry.pipelines.board import calibrate_board
@@ -256,6 +276,13 @@ def depth(
                                           tilted=tilted, reference_offset_mm=reference_offset_mm, advance=adv,
                                           squares=squares, k_folds=folds, provenance={"command": " ".join(sys.argv)},
                                           accept_implausible=accept_implausible)
+        if tilt_boards is not None:
+            from tofmetry.pipelines.depth_tilt import tilt_from_boards
+
+            tr = tilt_from_boards(tilt_boards, run.calibration, advance=adv)
+            run.calibration = tr.calibration
+            run.fit["tilt"] = tr.to_dict()
+            run.notes += [f"tilt boards: {n}" for n in tr.notes]
     _notes(run.notes)
     print_plausibility(run.plausibility)
     cal = run.calibration

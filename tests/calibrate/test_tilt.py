@@ -1,0 +1,87 @@
+"""The depth tilt from board poses: geometry -> render -> recover, folding into a calibration, file round trip."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tofmetry.calibrate import fit_depth_tilt, with_depth_tilt
+from tofmetry.calibrate.board import BoardSamples, constant_shift_calibration
+from tofmetry.errors import EstimationError, InputError
+from tofmetry.pipelines.depth_tilt import tilt_from_boards
+from tofmetry.simulate import ErrorModel
+from tofmetry.simulate.family import default_sensor
+
+TRUE_TILT = (6.0, -9.0)  # mm per unit of x / z and y / z: 0.62 deg at 1 m
+
+
+@pytest.fixture(scope="module")
+def tilted_boards(tmp_path_factory):
+    from tofmetry.simulate.board_datasets import board_dataset
+
+    em = ErrorModel.only("deformation", "noise", deform_corner_mm_1m=0.0, deform_centre_mm_1m=0.0,
+                         deform_skew_mm_1m=0.0, deform_tilt_mm_1m=TRUE_TILT, deform_range_kind="constant")
+    return board_dataset(tmp_path_factory.mktemp("tilt") / "boards", n_poses=10, board="checkerboard", seed=3,
+                         errors=em)
+
+
+def test_the_tilt_of_a_sensor_is_recovered_from_its_board_poses(tilted_boards):
+    intr = default_sensor().intrinsics
+    run = tilt_from_boards(tilted_boards, intrinsics=intr)
+    f = run.fit
+    assert f.model == "constant"  # the simulated tilt does not change with distance
+    assert len(f.view_z_mm) >= 8
+    # the per-view tilts scatter by the board poses' rotation error (Z times its angle) and the
+    # noise; the mean's standard error is that scatter over sqrt(views). 0.3 mm per unit (0.02 deg
+    # at 1 m) allows for the 1 mm quantisation of the depth.
+    err = np.abs(f.tilt_mm - TRUE_TILT)
+    assert np.all(err <= np.maximum(4 * f.sigma_mm, 0.3)), (f.tilt_mm, f.sigma_mm)
+    assert 0 < f.sigma_mm.max() < 1.0
+    d = run.to_dict()["tilt"]
+    assert d["angle_deg_at_1m"] == pytest.approx(np.degrees(np.hypot(*TRUE_TILT) / 1000), abs=0.05)
+
+
+def test_a_folded_tilt_is_taken_off_every_frame_and_survives_the_file(tilted_boards, tmp_path):
+    from tofmetry.calibrate import apply_depth_calibration
+    from tofmetry.pipelines import load_calibration, save_calibration
+
+    intr = default_sensor().intrinsics
+    base = constant_shift_calibration(0.0, intr)
+    run = tilt_from_boards(tilted_boards, base)
+    cal = run.calibration
+    assert cal.diagnostics["tilt_calibrated"] and cal.diagnostics["tilt"]["n_views"] == len(run.fit.view_z_mm)
+    rays = intr.ray_table(True)
+    z = np.full(intr.shape, 900.0)
+    measured = z + TRUE_TILT[0] * rays[..., 0] + TRUE_TILT[1] * rays[..., 1]
+    out = apply_depth_calibration(measured, cal)
+    # what is left is the fit's own error over the image (|x|, |y| < 0.8)
+    bound = 0.8 * np.sum(np.maximum(4 * run.fit.sigma_mm, 0.3))
+    assert np.max(np.abs(out - z)) <= bound
+    save_calibration(tmp_path / "cal.npz", cal)
+    back = load_calibration(tmp_path / "cal.npz")
+    assert back.diagnostics["tilt"] == cal.diagnostics["tilt"]
+    np.testing.assert_allclose(apply_depth_calibration(measured, back), out, atol=1e-4)
+    with pytest.raises(InputError, match="already has a tilt"):
+        with_depth_tilt(back, run.fit)
+
+
+def _plane_samples(intr, tilt, z0, rng, n=400):
+    u = rng.integers(100, 400, n)
+    v = rng.integers(80, 340, n)
+    xy = intr.ray_table(True)[v, u]
+    ref = np.full(n, z0)
+    meas = ref + tilt[0] * xy[:, 0] + tilt[1] * xy[:, 1] + rng.normal(0, 1.0, n)
+    white = np.ones(n, bool)
+    return BoardSamples(u, v, meas, ref, white, ~white, 0.1, float("nan"))
+
+
+def test_too_few_views_and_a_gross_view_are_said():
+    intr = default_sensor().intrinsics
+    rng = np.random.default_rng(0)
+    with pytest.raises(EstimationError, match="3 usable board views, at least 4"):
+        fit_depth_tilt([_plane_samples(intr, (5, 5), 900, rng) for _ in range(3)], intr)
+    views = [_plane_samples(intr, (5, 5), 800 + 40 * k, rng) for k in range(8)]
+    views.append(_plane_samples(intr, (60, 5), 900, rng))  # a board pose 3 deg off
+    f = fit_depth_tilt(views, intr)
+    assert "view008" in [n for n, _ in f.skipped] and len(f.view_z_mm) == 8
+    assert np.allclose(f.tilt_mm, (5, 5), atol=4 * f.sigma_mm.max() + 0.1)

@@ -1,0 +1,226 @@
+"""The depth error linear in the image position, measured on board poses, for a wall calibration.
+
+A wall's orientation is not known to a fraction of a degree, so a wall calibration fits it per
+station (``free_tilt``) and cannot tell a depth error ``a x + b y`` (``x = X / Z``, ``y = Y / Z``
+the undistorted normalised ray) from a tilted wall. Such an error is harmless to the shape of a
+single view, but it turns every view's points by about ``(a, b) / Z`` rad in the camera's own frame,
+and the views of a scan cannot show it (it is consistent among them): left in, the camera poses of
+a scan come out turned by it. Measured on the family of ``bench/robustness`` (2026-11-29): a rocker
+arm whose sensor carries 9 / 13 mm per unit of x / y ends 0.57 deg off when its joint fit starts
+at the true poses, 0.03 deg with noise alone.
+
+A board seen by the IR camera fixes its plane's orientation independently of the depth
+(:func:`~tofmetry.calibrate._board_pose.solve_board_pose`: depth and IR share one lens), so the
+board samples of the IR intrinsics captures measure it. Per view, the depth already corrected by
+the wall calibration is compared with the board plane on the white squares, and
+``e = c_k + t_x x + t_y y`` is fitted (an offset per view: the pose's distance and the residual
+range error). The per-view tilts scatter by the board pose's own rotation error (about Z times
+its angle) and by the calibration's per-pixel residual under the board; their weighted mean over
+the views is the sensor's tilt, optionally linear in the views' distance, chosen by leave-one-view-
+out prediction; the standard error comes from that scatter (:class:`TiltFit`).
+
+:func:`with_depth_tilt` folds the tilt into the calibration's per-pixel surfaces (held constant
+outside the boards' distances) and marks the calibration ``tilt_calibrated``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from tofmetry.calibrate._board_samples import BoardSamples
+from tofmetry.calibrate._model import DepthCalibration
+from tofmetry.errors import EstimationError, InputError
+from tofmetry.sensor import CameraIntrinsics
+
+#: fewest usable views for a tilt, and fewest white-square pixels of a view
+MIN_VIEWS, MIN_PIXELS = 4, 100
+#: views spanning at least this many mm in distance may give a tilt linear in the distance
+MIN_SPAN_LINEAR_MM = 300.0
+#: a view's tilt is gross only beyond 4 robust sigma and beyond this [mm per unit] (0.11 deg at 1 m)
+GROSS_FLOOR_MM = 2.0
+
+
+@dataclass(frozen=True)
+class TiltFit:
+    """A depth error linear in the image position, ``t(Z) = t0 + t1 (Z - z_ref)`` per axis.
+
+    Attributes
+    ----------
+    tilt_mm : (2,) ``t0`` [mm per unit of x / z and of y / z] at ``z_ref_mm``
+    slope_mm_per_m : (2,) ``t1`` [mm per unit per m of distance] (zeros for the constant model)
+    sigma_mm : (2,) standard error of ``t0`` [mm per unit]
+    z_ref_mm : distance where ``t0`` holds [mm] (the views' weighted mean)
+    z_span_mm : (2,) distances of the views [mm]; outside, ``t`` is held at the nearest end
+    model : ``"constant"`` or ``"linear in distance"``
+    per_view_mm : (V, 2) each view's own tilt [mm per unit]; view_z_mm : (V,) its median board depth [mm]
+    view_names : (V,) names of the views used
+    scatter_mm : (2,) RMS of the per-view tilts about the model [mm per unit]
+    cv_rms_mm : dict model -> leave-one-view-out RMS of the per-view tilts [mm per unit]
+    skipped : list of (name, reason) of the views not used
+    """
+
+    tilt_mm: np.ndarray
+    slope_mm_per_m: np.ndarray
+    sigma_mm: np.ndarray
+    z_ref_mm: float
+    z_span_mm: tuple[float, float]
+    model: str
+    per_view_mm: np.ndarray
+    view_z_mm: np.ndarray
+    view_names: tuple
+    scatter_mm: np.ndarray
+    cv_rms_mm: dict
+    skipped: list
+
+    def at(self, z_mm) -> np.ndarray:
+        """(..., 2) tilt [mm per unit] at distances ``z_mm`` (held outside ``z_span_mm``)."""
+        z = np.clip(np.asarray(z_mm, np.float64), *self.z_span_mm)
+        return self.tilt_mm + np.multiply.outer(z - self.z_ref_mm, self.slope_mm_per_m * 1e-3)
+
+    def angle_deg(self, z_mm: float) -> float:
+        """Rotation [deg] the tilt gives a view's points at distance ``z_mm``: ``|t| / Z``."""
+        return float(np.degrees(np.linalg.norm(self.at(z_mm)) / z_mm))
+
+    def to_dict(self) -> dict:
+        r = lambda a, n=3: [round(float(x), n) for x in np.ravel(a)]
+        return {"tilt_mm": r(self.tilt_mm), "slope_mm_per_m": r(self.slope_mm_per_m), "sigma_mm": r(self.sigma_mm),
+                "z_ref_mm": round(self.z_ref_mm, 1), "z_span_mm": r(self.z_span_mm, 1), "model": self.model,
+                "n_views": int(len(self.view_z_mm)), "scatter_mm": r(self.scatter_mm),
+                "cv_rms_mm": {k: round(float(v), 3) for k, v in self.cv_rms_mm.items()},
+                "angle_deg_at_1m": round(self.angle_deg(1000.0), 4), "skipped": [list(s) for s in self.skipped]}
+
+
+def view_tilt(s: BoardSamples, rays: np.ndarray) -> tuple[np.ndarray, float, float]:
+    """One view's ``e = c + t_x x + t_y y`` on its white squares (two Huber-like passes: pixels beyond
+    3 robust sigma dropped).
+
+    Parameters
+    ----------
+    s : the view's board samples, ``measured_mm`` already corrected by the calibration [mm]
+    rays : (H, W, 2) undistorted normalised rays of the intrinsics
+
+    Returns
+    -------
+    (t (2,) [mm per unit], median board depth [mm], residual RMS [mm]).
+    """
+    w = s.select("white")
+    if len(w.u) < MIN_PIXELS:
+        raise EstimationError(f"{len(w.u)} white-square pixels (at least {MIN_PIXELS})")
+    xy = rays[w.v, w.u]
+    e = w.measured_mm - w.reference_mm
+    A = np.column_stack([np.ones(len(e)), xy[:, 0], xy[:, 1]])
+    keep = np.isfinite(e)
+    for _ in range(3):
+        coef = np.linalg.lstsq(A[keep], e[keep], rcond=None)[0]
+        r = e - A @ coef
+        sig = 1.4826 * np.median(np.abs(r[keep])) + 1e-6
+        keep = np.isfinite(e) & (np.abs(r) <= 3 * sig)
+    span = np.ptp(xy[keep], axis=0)
+    if np.any(span < 0.05):
+        raise EstimationError(f"the board spans too little of the image ({span[0]:.2f} x {span[1]:.2f} in x / z, y / z)")
+    return coef[1:], float(np.median(w.reference_mm)), float(np.sqrt(np.mean(r[keep] ** 2)))
+
+
+def _fit_models(t: np.ndarray, z: np.ndarray, linear: bool) -> tuple[np.ndarray, np.ndarray, float]:
+    """Least squares ``t = t0 + t1 (z - zr)`` (``t1 = 0`` unless ``linear``): (t0 (2,), t1 (2,) per mm, zr)."""
+    zr = float(np.mean(z))
+    if not linear:
+        return t.mean(0), np.zeros(2), zr
+    A = np.column_stack([np.ones(len(z)), z - zr])
+    c = np.linalg.lstsq(A, t, rcond=None)[0]
+    return c[0], c[1], zr
+
+
+def fit_depth_tilt(samples: list[BoardSamples], intr: CameraIntrinsics, names: list[str] | None = None) -> TiltFit:
+    """The depth error linear in the image position from board views (module docstring).
+
+    Parameters
+    ----------
+    samples : per view, the board samples (:func:`~tofmetry.calibrate.board.board_samples`) of
+        the depth **corrected by the calibration** the tilt is for (or raw depth, to measure the
+        sensor's own tilt) [mm]
+    intr : IR/depth intrinsics (the rays ``x = X / Z``, ``y = Y / Z``)
+    names : view names (default ``view000`` ...)
+
+    Returns
+    -------
+    TiltFit
+
+    Raises
+    ------
+    EstimationError : fewer than 4 usable views.
+    """
+    names = list(names) if names is not None else [f"view{k:03d}" for k in range(len(samples))]
+    if len(names) != len(samples):
+        raise InputError(f"fit_depth_tilt: {len(names)} names for {len(samples)} views")
+    rays = intr.ray_table(True)
+    tilts, zs, used, skipped = [], [], [], []
+    for n, s in zip(names, samples):
+        try:
+            t, z, _ = view_tilt(s, rays)
+        except EstimationError as exc:
+            skipped.append((n, str(exc)))
+            continue
+        tilts.append(t)
+        zs.append(z)
+        used.append(n)
+    if len(tilts) < MIN_VIEWS:
+        raise EstimationError(f"fit_depth_tilt: {len(tilts)} usable board views, at least {MIN_VIEWS} needed"
+                              + (f" (skipped: {'; '.join(f'{a}: {b}' for a, b in skipped[:5])})" if skipped else ""))
+    T, Z = np.array(tilts), np.array(zs)
+    V = len(T)
+    # gross per-view tilts (a board pose off): beyond 4 robust sigma (at least GROSS_FLOOR_MM) of the
+    # views' trend with distance, dropped
+    t0, t1, zr = _fit_models(T, Z, np.ptp(Z) >= MIN_SPAN_LINEAR_MM and V >= 6)
+    dev = T - (t0 + t1 * (Z - zr)[:, None])
+    dev = dev - np.median(dev, 0)
+    mad = np.maximum(1.4826 * np.median(np.abs(dev), 0), GROSS_FLOOR_MM / 4)
+    ok = np.all(np.abs(dev) <= 4 * mad, axis=1)
+    for k in np.flatnonzero(~ok):
+        skipped.append((used[k], f"its tilt ({T[k, 0]:+.1f}, {T[k, 1]:+.1f}) mm is beyond 4 robust sigma of the views'"))
+    if ok.sum() >= MIN_VIEWS:
+        T, Z, used = T[ok], Z[ok], [u for u, o in zip(used, ok) if o]
+        V = len(T)
+    candidates = ["constant"] + (["linear in distance"] if np.ptp(Z) >= MIN_SPAN_LINEAR_MM and V >= 6 else [])
+    cv = {}
+    for m in candidates:
+        err = []
+        for k in range(V):
+            keep = np.arange(V) != k
+            t0, t1, zr = _fit_models(T[keep], Z[keep], m != "constant")
+            err.append(T[k] - (t0 + t1 * (Z[k] - zr)))
+        cv[m] = float(np.sqrt(np.mean(np.square(err))))
+    model = min(cv, key=cv.get)
+    t0, t1, zr = _fit_models(T, Z, model != "constant")
+    res = T - (t0 + t1[None] * (Z - zr)[:, None])
+    dof = max(V - (2 if model != "constant" else 1), 1)
+    scatter = np.sqrt(np.sum(res ** 2, 0) / dof)
+    return TiltFit(np.asarray(t0, float), np.asarray(t1, float) * 1e3, scatter / np.sqrt(V), zr,
+                   (float(Z.min()), float(Z.max())), model, T, Z, tuple(used), scatter, cv, skipped)
+
+
+def with_depth_tilt(cal: DepthCalibration, fit: TiltFit) -> DepthCalibration:
+    """``cal`` with the tilt removed by its per-pixel surfaces (``S += t(node) . (x, y)``: the
+    correction ``d - S`` then takes ``t . (x, y)`` off) and marked ``tilt_calibrated`` (its
+    prediction and diagnostics carry the fit, :meth:`TiltFit.to_dict`).
+
+    Raises
+    ------
+    InputError : the calibration already has a tilt folded in.
+    """
+    if (cal.diagnostics or {}).get("tilt"):
+        raise InputError("with_depth_tilt: this calibration already has a tilt from boards "
+                         f"({cal.diagnostics['tilt'].get('tilt_mm')} mm per unit); start from the wall calibration")
+    rays = cal.intrinsics.ray_table(True)
+    t = fit.at(cal.node_mm)  # (K, 2)
+    surf = cal.surfaces.astype(np.float64) + (t[:, 0, None, None] * rays[None, ..., 0]
+                                              + t[:, 1, None, None] * rays[None, ..., 1])
+    info = fit.to_dict()
+    pred = dict(cal.prediction or {})
+    if pred:
+        pred["tilt_calibrated"] = True
+        pred["tilt"] = info
+    return replace(cal, surfaces=surf.astype(np.float32), prediction=pred,
+                   diagnostics={**(cal.diagnostics or {}), "tilt_calibrated": True, "tilt": info})
