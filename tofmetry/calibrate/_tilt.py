@@ -15,9 +15,15 @@ board samples of the IR intrinsics captures measure it. Per view, the depth alre
 the wall calibration is compared with the board plane on the white squares, and
 ``e = c_k + t_x x + t_y y`` is fitted (an offset per view: the pose's distance and the residual
 range error). The per-view tilts scatter by the board pose's own rotation error (about Z times
-its angle) and by the calibration's per-pixel residual under the board; their weighted mean over
-the views is the sensor's tilt, optionally linear in the views' distance, chosen by leave-one-view-
-out prediction; the standard error comes from that scatter (:class:`TiltFit`).
+its angle) and by the calibration's per-pixel residual under the board. They also carry the
+amplitude-related bias a turned board adds: a white wall is seen frontally, a board turned by
+35 deg returns less light where its incidence is larger, and ToF depth reads longer there
+(``k ln(1 / cos(incidence))``, the study's amplitude effect), which tilts each view by ``k G``
+(``G``: the slope of ``ln(1 / cos)`` over the board, known from its plane). On family sensors it
+biased the mean of the views by 2.6-3.7 mm per unit (0.15-0.2 deg at 1 m) until this term was
+fitted. The sensor's tilt is then the views' model ``t_v = t0 [+ t1 (Z_v - z_ref)] [+ k G_v]``, the
+terms chosen by leave-one-view-out prediction; the standard error comes from the views' scatter
+about it (:class:`TiltFit`).
 
 :func:`with_depth_tilt` folds the tilt into the calibration's per-pixel surfaces (held constant
 outside the boards' distances) and marks the calibration ``tilt_calibrated``.
@@ -53,12 +59,14 @@ class TiltFit:
     sigma_mm : (2,) standard error of ``t0`` [mm per unit]
     z_ref_mm : distance where ``t0`` holds [mm] (the views' weighted mean)
     z_span_mm : (2,) distances of the views [mm]; outside, ``t`` is held at the nearest end
-    model : ``"constant"`` or ``"linear in distance"``
+    model : ``"constant"`` or ``"linear in distance"``, either with ``" + incidence"``
     per_view_mm : (V, 2) each view's own tilt [mm per unit]; view_z_mm : (V,) its median board depth [mm]
     view_names : (V,) names of the views used
     scatter_mm : (2,) RMS of the per-view tilts about the model [mm per unit]
     cv_rms_mm : dict model -> leave-one-view-out RMS of the per-view tilts [mm per unit]
     skipped : list of (name, reason) of the views not used
+    incidence_k_mm : the white board's amplitude-related bias per unit of ``ln(1 / cos(incidence))``
+        [mm] taken off the views' tilts (0 unless the model says ``+ incidence``)
     """
 
     tilt_mm: np.ndarray
@@ -73,6 +81,7 @@ class TiltFit:
     scatter_mm: np.ndarray
     cv_rms_mm: dict
     skipped: list
+    incidence_k_mm: float = 0.0
 
     def at(self, z_mm) -> np.ndarray:
         """(..., 2) tilt [mm per unit] at distances ``z_mm`` (held outside ``z_span_mm``)."""
@@ -89,12 +98,17 @@ class TiltFit:
                 "z_ref_mm": round(self.z_ref_mm, 1), "z_span_mm": r(self.z_span_mm, 1), "model": self.model,
                 "n_views": int(len(self.view_z_mm)), "scatter_mm": r(self.scatter_mm),
                 "cv_rms_mm": {k: round(float(v), 3) for k, v in self.cv_rms_mm.items()},
+                "incidence_k_mm": round(float(self.incidence_k_mm), 3),
                 "angle_deg_at_1m": round(self.angle_deg(1000.0), 4), "skipped": [list(s) for s in self.skipped]}
 
 
-def view_tilt(s: BoardSamples, rays: np.ndarray) -> tuple[np.ndarray, float, float]:
+def view_tilt(s: BoardSamples, rays: np.ndarray) -> tuple[np.ndarray, float, float, np.ndarray]:
     """One view's ``e = c + t_x x + t_y y`` on its white squares (two Huber-like passes: pixels beyond
-    3 robust sigma dropped).
+    3 robust sigma dropped), and the same fit of ``g = ln(1 / cos(incidence))`` over the same pixels.
+
+    ``g`` is what the board's tilt adds to a white surface's amplitude-related bias (``k g``: a
+    white wall is seen frontally, a board turned by 35 deg returns ``cos`` of its incidence); its
+    slope over the board, ``G``, lets :func:`fit_depth_tilt` separate that bias from the tilt.
 
     Parameters
     ----------
@@ -103,7 +117,7 @@ def view_tilt(s: BoardSamples, rays: np.ndarray) -> tuple[np.ndarray, float, flo
 
     Returns
     -------
-    (t (2,) [mm per unit], median board depth [mm], residual RMS [mm]).
+    (t (2,) [mm per unit], median board depth [mm], residual RMS [mm], G (2,) [per unit]).
     """
     w = s.select("white")
     if len(w.u) < MIN_PIXELS:
@@ -120,17 +134,36 @@ def view_tilt(s: BoardSamples, rays: np.ndarray) -> tuple[np.ndarray, float, flo
     span = np.ptp(xy[keep], axis=0)
     if np.any(span < 0.05):
         raise EstimationError(f"the board spans too little of the image ({span[0]:.2f} x {span[1]:.2f} in x / z, y / z)")
-    return coef[1:], float(np.median(w.reference_mm)), float(np.sqrt(np.mean(r[keep] ** 2)))
+    # the board plane from its reference points (exactly on it), its normal, each pixel's incidence
+    ray3 = np.column_stack([xy, np.ones(len(xy))])
+    P = ray3 * w.reference_mm[:, None]
+    n = np.linalg.svd(P - P.mean(0), full_matrices=False)[2][-1]
+    cos_i = np.abs(ray3 @ n) / np.linalg.norm(ray3, axis=1)
+    g = np.log(1.0 / np.clip(cos_i, 0.05, 1.0))
+    G = np.linalg.lstsq(A[keep], g[keep], rcond=None)[0][1:]
+    return coef[1:], float(np.median(w.reference_mm)), float(np.sqrt(np.mean(r[keep] ** 2))), G
 
 
-def _fit_models(t: np.ndarray, z: np.ndarray, linear: bool) -> tuple[np.ndarray, np.ndarray, float]:
-    """Least squares ``t = t0 + t1 (z - zr)`` (``t1 = 0`` unless ``linear``): (t0 (2,), t1 (2,) per mm, zr)."""
+def _fit_models(t: np.ndarray, z: np.ndarray, G: np.ndarray, linear: bool,
+                incidence: bool) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """Least squares ``t_v = t0 + t1 (z_v - zr) + k G_v`` over the views, both axes at once (``t1 = 0``
+    unless ``linear``, ``k = 0`` unless ``incidence``): (t0 (2,), t1 (2,) per mm, zr, k [mm])."""
     zr = float(np.mean(z))
-    if not linear:
-        return t.mean(0), np.zeros(2), zr
-    A = np.column_stack([np.ones(len(z)), z - zr])
-    c = np.linalg.lstsq(A, t, rcond=None)[0]
-    return c[0], c[1], zr
+    V = len(z)
+    cols = [np.kron(np.eye(2), np.ones((V, 1)))]            # t0x, t0y
+    if linear:
+        cols.append(np.kron(np.eye(2), (z - zr)[:, None]))  # t1x, t1y
+    if incidence:
+        cols.append(np.concatenate([G[:, 0], G[:, 1]])[:, None])
+    A = np.hstack(cols)
+    c = np.linalg.lstsq(A, np.concatenate([t[:, 0], t[:, 1]]), rcond=None)[0]
+    t1 = c[2:4] if linear else np.zeros(2)
+    return c[:2], t1, zr, float(c[-1]) if incidence else 0.0
+
+
+def _predict(m: tuple, z: np.ndarray, G: np.ndarray) -> np.ndarray:
+    t0, t1, zr, k = m
+    return t0 + np.multiply.outer(z - zr, t1) + k * G
 
 
 def fit_depth_tilt(samples: list[BoardSamples], intr: CameraIntrinsics, names: list[str] | None = None) -> TiltFit:
@@ -156,49 +189,66 @@ def fit_depth_tilt(samples: list[BoardSamples], intr: CameraIntrinsics, names: l
     if len(names) != len(samples):
         raise InputError(f"fit_depth_tilt: {len(names)} names for {len(samples)} views")
     rays = intr.ray_table(True)
-    tilts, zs, used, skipped = [], [], [], []
+    tilts, zs, grads, used, skipped = [], [], [], [], []
     for n, s in zip(names, samples):
         try:
-            t, z, _ = view_tilt(s, rays)
+            t, z, _, G = view_tilt(s, rays)
         except EstimationError as exc:
             skipped.append((n, str(exc)))
             continue
         tilts.append(t)
         zs.append(z)
+        grads.append(G)
         used.append(n)
     if len(tilts) < MIN_VIEWS:
         raise EstimationError(f"fit_depth_tilt: {len(tilts)} usable board views, at least {MIN_VIEWS} needed"
                               + (f" (skipped: {'; '.join(f'{a}: {b}' for a, b in skipped[:5])})" if skipped else ""))
-    T, Z = np.array(tilts), np.array(zs)
+    T, Z, Gr = np.array(tilts), np.array(zs), np.array(grads)
     V = len(T)
+    can_linear = bool(np.ptp(Z) >= MIN_SPAN_LINEAR_MM and V >= 6)
     # gross per-view tilts (a board pose off): beyond 4 robust sigma (at least GROSS_FLOOR_MM) of the
-    # views' trend with distance, dropped
-    t0, t1, zr = _fit_models(T, Z, np.ptp(Z) >= MIN_SPAN_LINEAR_MM and V >= 6)
-    dev = T - (t0 + t1 * (Z - zr)[:, None])
+    # views' trend, dropped
+    dev = T - _predict(_fit_models(T, Z, Gr, can_linear, V >= 6), Z, Gr)
     dev = dev - np.median(dev, 0)
     mad = np.maximum(1.4826 * np.median(np.abs(dev), 0), GROSS_FLOOR_MM / 4)
     ok = np.all(np.abs(dev) <= 4 * mad, axis=1)
     for k in np.flatnonzero(~ok):
         skipped.append((used[k], f"its tilt ({T[k, 0]:+.1f}, {T[k, 1]:+.1f}) mm is beyond 4 robust sigma of the views'"))
     if ok.sum() >= MIN_VIEWS:
-        T, Z, used = T[ok], Z[ok], [u for u, o in zip(used, ok) if o]
+        T, Z, Gr, used = T[ok], Z[ok], Gr[ok], [u for u, o in zip(used, ok) if o]
         V = len(T)
-    candidates = ["constant"] + (["linear in distance"] if np.ptp(Z) >= MIN_SPAN_LINEAR_MM and V >= 6 else [])
+    candidates = {"constant": (False, False)}
+    if V >= 6:
+        candidates["constant + incidence"] = (False, True)
+    if can_linear:
+        candidates["linear in distance"] = (True, False)
+        candidates["linear in distance + incidence"] = (True, True)
     cv = {}
-    for m in candidates:
+    for name, (lin, inc) in candidates.items():
         err = []
         for k in range(V):
             keep = np.arange(V) != k
-            t0, t1, zr = _fit_models(T[keep], Z[keep], m != "constant")
-            err.append(T[k] - (t0 + t1 * (Z[k] - zr)))
-        cv[m] = float(np.sqrt(np.mean(np.square(err))))
+            m = _fit_models(T[keep], Z[keep], Gr[keep], lin, inc)
+            err.append(T[k] - _predict(m, Z[k:k + 1], Gr[k:k + 1])[0])
+        cv[name] = float(np.sqrt(np.mean(np.square(err))))
     model = min(cv, key=cv.get)
-    t0, t1, zr = _fit_models(T, Z, model != "constant")
-    res = T - (t0 + t1[None] * (Z - zr)[:, None])
-    dof = max(V - (2 if model != "constant" else 1), 1)
-    scatter = np.sqrt(np.sum(res ** 2, 0) / dof)
-    return TiltFit(np.asarray(t0, float), np.asarray(t1, float) * 1e3, scatter / np.sqrt(V), zr,
-                   (float(Z.min()), float(Z.max())), model, T, Z, tuple(used), scatter, cv, skipped)
+    lin, inc = candidates[model]
+    m = _fit_models(T, Z, Gr, lin, inc)
+    res = T - _predict(m, Z, Gr)
+    n_par = 2 * (1 + lin) + inc
+    dof = max(2 * V - n_par, 1)
+    scatter = np.sqrt(np.sum(res ** 2, 0) / (dof / 2))
+    # standard error of t0 from the model's own normal matrix and that scatter (the incidence term
+    # shares the views with it)
+    zr = m[2]
+    cols = [np.ones(V)] + ([Z - zr] if lin else [])
+    sig = []
+    for a in range(2):
+        A = np.column_stack(cols + ([Gr[:, a]] if inc else []))
+        cov = np.linalg.pinv(A.T @ A) * scatter[a] ** 2
+        sig.append(np.sqrt(cov[0, 0]))
+    return TiltFit(np.asarray(m[0], float), np.asarray(m[1], float) * 1e3, np.array(sig), zr,
+                   (float(Z.min()), float(Z.max())), model, T, Z, tuple(used), scatter, cv, skipped, m[3])
 
 
 def with_depth_tilt(cal: DepthCalibration, fit: TiltFit) -> DepthCalibration:
