@@ -231,7 +231,12 @@ def fit_depth_tilt(samples: list[BoardSamples], intr: CameraIntrinsics, names: l
             m = _fit_models(T[keep], Z[keep], Gr[keep], lin, inc)
             err.append(T[k] - _predict(m, Z[k:k + 1], Gr[k:k + 1])[0])
         cv[name] = float(np.sqrt(np.mean(np.square(err))))
-    model = min(cv, key=cv.get)
+    # a darker return reads longer on a ToF camera (the study's amplitude effect): a negative k is
+    # not that bias but the views' scatter, so those candidates are not taken
+    for name, (lin, inc) in candidates.items():
+        if inc and _fit_models(T, Z, Gr, lin, inc)[3] < 0:
+            cv[name + " (k < 0, not taken)"] = cv.pop(name)
+    model = min((n for n in cv if not n.endswith("not taken)")), key=cv.get)
     lin, inc = candidates[model]
     m = _fit_models(T, Z, Gr, lin, inc)
     res = T - _predict(m, Z, Gr)
