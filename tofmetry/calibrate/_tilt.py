@@ -57,7 +57,7 @@ class TiltFit:
     tilt_mm : (2,) ``t0`` [mm per unit of x / z and of y / z] at ``z_ref_mm``
     slope_mm_per_m : (2,) ``t1`` [mm per unit per m of distance] (zeros for the constant model)
     sigma_mm : (2,) standard error of ``t0`` [mm per unit]
-    z_ref_mm : distance where ``t0`` holds [mm] (the views' weighted mean)
+    z_ref_mm : distance where ``t0`` holds [mm] (the views' mean)
     z_span_mm : (2,) distances of the views [mm]; outside, ``t`` is held at the nearest end
     model : ``"constant"`` or ``"linear in distance"``, either with ``" + incidence"``
     per_view_mm : (V, 2) each view's own tilt [mm per unit]; view_z_mm : (V,) its median board depth [mm]
@@ -223,22 +223,24 @@ def fit_depth_tilt(samples: list[BoardSamples], intr: CameraIntrinsics, names: l
     if can_linear:
         candidates["linear in distance"] = (True, False)
         candidates["linear in distance + incidence"] = (True, True)
-    cv = {}
+    cv, fits = {}, {}
     for name, (lin, inc) in candidates.items():
         err = []
         for k in range(V):
             keep = np.arange(V) != k
             m = _fit_models(T[keep], Z[keep], Gr[keep], lin, inc)
             err.append(T[k] - _predict(m, Z[k:k + 1], Gr[k:k + 1])[0])
+        m = _fit_models(T, Z, Gr, lin, inc)
+        # a darker return reads longer on a ToF camera (the study's amplitude effect): a negative k
+        # is not that bias but the views' scatter, so such a candidate is not taken
+        if m[3] < 0:
+            name += " (k < 0, not taken)"
+        else:
+            fits[name] = m
         cv[name] = float(np.sqrt(np.mean(np.square(err))))
-    # a darker return reads longer on a ToF camera (the study's amplitude effect): a negative k is
-    # not that bias but the views' scatter, so those candidates are not taken
-    for name, (lin, inc) in candidates.items():
-        if inc and _fit_models(T, Z, Gr, lin, inc)[3] < 0:
-            cv[name + " (k < 0, not taken)"] = cv.pop(name)
-    model = min((n for n in cv if not n.endswith("not taken)")), key=cv.get)
+    model = min(fits, key=cv.get)
     lin, inc = candidates[model]
-    m = _fit_models(T, Z, Gr, lin, inc)
+    m = fits[model]
     res = T - _predict(m, Z, Gr)
     n_par = 2 * (1 + lin) + inc
     dof = max(2 * V - n_par, 1)

@@ -183,7 +183,6 @@ def depth_field_prior(calibration_prediction: dict | None, depth_span_mm, intr, 
         return None
     central = max(abs(float(f["central_mm"])) for f in sel)
     fitted = calibration_prediction.get("tilt") or {}
-    tilt_sd = (max(fitted.get("sigma_mm") or [0.0]) if fitted else 0.0) \
-        if calibration_prediction.get("tilt_calibrated") else tilt_sigma_mm
+    tilt_sd = max(fitted.get("sigma_mm") or [0.0]) if calibration_prediction.get("tilt_calibrated") else tilt_sigma_mm
     return DepthFieldPrior((intr.width / 2 / intr.fx, intr.height / 2 / intr.fy), central * 1e-3,
                            max(rms) * 1e-3, degree, tilt_sd * 1e-3)
