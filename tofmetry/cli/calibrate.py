@@ -79,12 +79,15 @@ def print_prediction(cal) -> None:
 
 def print_tilt(t: dict) -> None:
     """The depth tilt fitted on board poses (:meth:`tofmetry.calibrate.TiltFit.to_dict`)."""
-    slope = "" if t["model"] == "constant" else (f", changing by ({t['slope_mm_per_m'][0]:+.2f}, "
-                                                 f"{t['slope_mm_per_m'][1]:+.2f}) per m")
+    slope = "" if not t["model"].startswith("linear") else (f", changing by ({t['slope_mm_per_m'][0]:+.2f}, "
+                                                           f"{t['slope_mm_per_m'][1]:+.2f}) per m")
     console.print(f"  tilt from {t['n_views']} board poses ({t['z_span_mm'][0]:.0f}-{t['z_span_mm'][1]:.0f} mm): "
                   f"({t['tilt_mm'][0]:+.2f} +- {t['sigma_mm'][0]:.2f}, {t['tilt_mm'][1]:+.2f} +- {t['sigma_mm'][1]:.2f}) "
                   f"mm per unit of x / z, y / z at {t['z_ref_mm']:.0f} mm{slope} ({t['angle_deg_at_1m']:.2f} deg at 1 m; "
                   f"views scatter by ({t['scatter_mm'][0]:.1f}, {t['scatter_mm'][1]:.1f})); folded into the calibration")
+    if t.get("incidence_k_mm"):
+        console.print(f"  (a turned board's amplitude bias, {t['incidence_k_mm']:.1f} mm per ln(1 / cos incidence), "
+                      "taken off the views' tilts)")
 
 
 def print_prediction_check(check: dict) -> None:
