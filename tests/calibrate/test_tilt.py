@@ -37,6 +37,8 @@ def test_the_tilt_of_a_sensor_is_recovered_from_its_board_poses(tilted_boards):
     err = np.abs(f.tilt_mm - TRUE_TILT)
     assert np.all(err <= np.maximum(4 * f.sigma_mm, 0.3)), (f.tilt_mm, f.sigma_mm)
     assert 0 < f.sigma_mm.max() < 1.0
+    # held-out blocks of the recording: taking the tilt off lowers their board-plane error
+    assert f.confirmed and f.held_out["rms_mm"] < f.held_out["rms_none_mm"]
     d = run.to_dict()["tilt"]
     assert d["angle_deg_at_1m"] == pytest.approx(np.degrees(np.hypot(*TRUE_TILT) / 1000), abs=0.05)
 
@@ -54,6 +56,31 @@ def test_a_turned_white_board_reads_longer_where_its_incidence_is_larger_and_tha
     f = tilt_from_boards(boards, intrinsics=default_sensor().intrinsics).fit
     assert f.model.endswith("+ incidence") and 0 < f.incidence_k_mm < 16
     assert np.all(np.abs(f.tilt_mm - TRUE_TILT) <= np.maximum(4 * f.sigma_mm, 0.3)), (f.tilt_mm, f.sigma_mm)
+
+
+def test_a_tilt_read_through_biased_board_orientations_is_not_folded_in(tilted_boards, tmp_path):
+    """A principal point 12 px off turns the boards' planes solved from their IR corners: the views'
+    tilts then disagree with their offsets across the image, and the tilt fitted on two blocks of the
+    recording raises the board-plane error of the third (the check that refused the real Kinect v2
+    recording's tilt)."""
+    import dataclasses
+
+    intr = default_sensor().intrinsics
+    base = constant_shift_calibration(0.0, dataclasses.replace(intr, cy=intr.cy + 12.0))
+    run = tilt_from_boards(tilted_boards, base)
+    f = run.fit
+    assert np.abs(f.tilt_mm - TRUE_TILT).max() > 4 * f.sigma_mm.max()  # what the biased views read
+    assert not f.confirmed and f.held_out["rms_mm"] > f.held_out["rms_none_mm"]
+    assert not run.folded and run.calibration.surfaces is base.surfaces
+    assert run.calibration.diagnostics["tilt_not_folded"]["held_out"]["confirmed"] is False
+    assert any("not folded in" in n and "board-plane error" in n for n in run.notes)
+    assert run.to_dict()["folded"] is False
+    # the refused fit travels with the calibration file, for the reader of its diagnostics
+    from tofmetry.pipelines import load_calibration, save_calibration
+
+    save_calibration(tmp_path / "cal.npz", run.calibration)
+    back = load_calibration(tmp_path / "cal.npz").diagnostics
+    assert back["tilt_not_folded"] == run.calibration.diagnostics["tilt_not_folded"] and not back.get("tilt")
 
 
 def test_a_folded_tilt_is_taken_off_every_frame_and_survives_the_file(tilted_boards, tmp_path):

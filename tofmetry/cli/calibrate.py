@@ -64,7 +64,13 @@ def print_prediction(cal) -> None:
                           f"{r['central_mm']:+.2f} mm, RMS {r['rms_mm']:.2f} mm (fallback {r['fallback']})")
         for w in pred.get("warnings", []):
             console.print(f"  [yellow]warning:[/] {w}")
-        if pred.get("tilt_calibrated") is False:
+        tried = (cal.diagnostics or {}).get("tilt_not_folded")
+        if pred.get("tilt_calibrated") is False and tried:
+            t = tried
+            console.print(f"  [yellow]not calibrated:[/] the board poses read a tilt of ({t['tilt_mm'][0]:+.2f} +- "
+                          f"{t['sigma_mm'][0]:.2f}, {t['tilt_mm'][1]:+.2f} +- {t['sigma_mm'][1]:.2f}) mm per unit, "
+                          f"not folded in: {t['held_out']['reason']}")
+        elif pred.get("tilt_calibrated") is False:
             console.print("  [yellow]not calibrated:[/] a tilt-like (linear in x, y) deformation cannot be told from the "
                           "walls' tilt and is left in (it turns a scan's camera poses by about |tilt| / Z): fit it "
                           "with --tilt-boards on board captures")
@@ -85,6 +91,8 @@ def print_tilt(t: dict) -> None:
                   f"({t['tilt_mm'][0]:+.2f} +- {t['sigma_mm'][0]:.2f}, {t['tilt_mm'][1]:+.2f} +- {t['sigma_mm'][1]:.2f}) "
                   f"mm per unit of x / z, y / z at {t['z_ref_mm']:.0f} mm{slope} ({t['angle_deg_at_1m']:.2f} deg at 1 m; "
                   f"views scatter by ({t['scatter_mm'][0]:.1f}, {t['scatter_mm'][1]:.1f})); folded into the calibration")
+    if t.get("held_out"):
+        console.print(f"  held-out check: {t['held_out']['reason']}")
     if t.get("incidence_k_mm"):
         console.print(f"  (a turned board's amplitude bias, {t['incidence_k_mm']:.1f} mm per ln(1 / cos incidence), "
                       "taken off the views' tilts)")

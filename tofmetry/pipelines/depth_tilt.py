@@ -5,14 +5,16 @@
 frames are, each board's plane is solved from its IR corners, and the depth error linear in the
 image position that the walls could not show is fitted over the views
 (:func:`tofmetry.calibrate.fit_depth_tilt`) and folded into the calibration
-(:func:`tofmetry.calibrate.with_depth_tilt`). Without a calibration it measures the raw sensor's
-tilt (nothing is folded in).
+(:func:`tofmetry.calibrate.with_depth_tilt`) when views kept out of the fit confirm it
+(:attr:`tofmetry.calibrate.TiltFit.confirmed`); otherwise the calibration is returned as it was,
+with the reason in the notes. Without a calibration it measures the raw sensor's tilt (nothing is
+folded in).
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +35,10 @@ class TiltRun:
     Attributes
     ----------
     fit : TiltFit (tilt, its standard error, per-view tilts, model, skipped views)
-    calibration : the calibration with the tilt folded in (None when none was given)
+    calibration : the calibration with the tilt folded in, or, when the held-out views do not
+        confirm the tilt, the given one unchanged but for ``diagnostics["tilt_not_folded"]`` (the fit
+        and the reason); None when none was given
+    folded : whether the tilt was folded into ``calibration``
     n_poses : poses in the dataset; notes : what was skipped and why; seconds : run time
     """
 
@@ -42,9 +47,10 @@ class TiltRun:
     n_poses: int
     notes: list[str] = field(default_factory=list)
     seconds: float = 0.0
+    folded: bool = False
 
     def to_dict(self) -> dict:
-        return {"tilt": self.fit.to_dict(), "n_poses": self.n_poses, "notes": list(self.notes),
+        return {"tilt": self.fit.to_dict(), "folded": self.folded, "n_poses": self.n_poses, "notes": list(self.notes),
                 "seconds": round(self.seconds, 2)}
 
 
@@ -99,5 +105,11 @@ def tilt_from_boards(path: Path, calibration: DepthCalibration | None = None,
             used.append(name)
     fit = fit_depth_tilt(samples, intr, used)
     notes += [f"pose {n}: {why}" for n, why in fit.skipped]
-    cal = with_depth_tilt(calibration, fit) if calibration is not None else None
-    return TiltRun(fit, cal, len(names), notes, time.perf_counter() - t0)
+    folded = calibration is not None and fit.confirmed
+    cal = calibration
+    if folded:
+        cal = with_depth_tilt(calibration, fit)
+    elif calibration is not None:
+        notes.append(f"tilt not folded in: {fit.held_out['reason']}")
+        cal = replace(calibration, diagnostics={**(calibration.diagnostics or {}), "tilt_not_folded": fit.to_dict()})
+    return TiltRun(fit, cal, len(names), notes, time.perf_counter() - t0, folded)
