@@ -208,7 +208,8 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
     row["calibration"] = {"seconds": round(t_cal, 1), "model": cal.prediction.get("method"),
                           "predicted_central_mm": (cal.prediction.get("interpolation") or {}).get("central_abs_mm", {})
                           .get("predicted"), "warnings": len(cal.prediction.get("warnings", [])),
-                          "tilt": (cal.diagnostics or {}).get("tilt"),
+                          "tilt": (cal.diagnostics or {}).get("tilt") or (cal.diagnostics or {}).get("tilt_not_folded"),
+                          "tilt_folded": bool((cal.diagnostics or {}).get("tilt")),
                           "true_tilt_mm_1m": list(d.sensor.errors.deform_tilt_mm_1m)}
     scan_dir = work / f"scan-{seed}"
     t1 = time.perf_counter()
@@ -318,6 +319,16 @@ def summarize(rows: list[dict]) -> dict:
            "false_alarms": sum(not r.get("truly_wrong", True) for r in flagged),
            "misses": sum(bool(r.get("truly_wrong")) for r in rel),
            "truly_wrong": len(wrong)}
+    # the printed pose accuracy: how many reliable runs lie within their predicted p90 (worst view)
+    for key, name in (("rot_deg", "rot"), ("object_mm", "object")):
+        for kind in ("calibration", "with_noise"):
+            pairs = []
+            for r in rel:
+                cp = (r.get("adjustment") or {}).get("calibration_pose") or {}
+                cp = cp if kind == "calibration" else cp.get("with_noise") or {}
+                if cp.get(key):
+                    pairs.append(r[key] <= cp[key]["p90"])
+            out[f"pose_p90_covers_{name}_{kind}"] = [sum(pairs), len(pairs)]
     out["false_alarm_rate"] = out["false_alarms"] / max(len(flagged), 1)
     out["miss_rate"] = out["misses"] / max(len(wrong), 1)
     # accuracy figures over the runs the chain vouches for (reliable), and over all
@@ -333,6 +344,11 @@ def table(s: dict) -> str:
     lines = [f"draws {s['n']}, refused {s['refused']}, reliable {s['n_reliable']} ({100 * s['reliable_share']:.0f} %), "
              f"flagged {s['flagged']} of which truly wrong {s['flagged_truly_wrong']} (false alarms {s['false_alarms']}), "
              f"truly wrong {s['truly_wrong']}, missed {s['misses']}",
+             "predicted pose p90 (worst view) covers, of the reliable runs: rotation "
+             f"{'/'.join(map(str, s.get('pose_p90_covers_rot_with_noise', [0, 0])))} with noise "
+             f"({'/'.join(map(str, s.get('pose_p90_covers_rot_calibration', [0, 0])))} calibration alone), object "
+             f"{'/'.join(map(str, s.get('pose_p90_covers_object_with_noise', [0, 0])))} "
+             f"({'/'.join(map(str, s.get('pose_p90_covers_object_calibration', [0, 0])))})",
              "| figure (reliable runs) | median | p90 | worst (seed) | target | n |", "|---|---|---|---|---|---|"]
     for k, d in s["reliable"].items():
         if d["n"] == 0:

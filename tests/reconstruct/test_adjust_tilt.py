@@ -98,6 +98,21 @@ def test_pose_spread_of_a_known_response():
     assert out["object_mm"]["p50"] == pytest.approx(0.0, abs=1e-9)  # points at the rotation centre
 
 
+def test_pose_spread_adds_the_noise_of_the_poses():
+    """The same response (field: 1 mrad about z per unit, sigma 1) plus the poses' noise, 1 mrad
+    about z (sigma) independently: the aligned view keeps half of their sum, |N(0, 2)| * 0.5 mrad,
+    so the median grows by sqrt(2); the field alone stays as it was."""
+    resp = np.zeros((6, 1))
+    resp[2, 0] = 1e-3
+    cov = np.zeros((6, 6))
+    cov[2, 2] = 1e-6
+    out = pose_spread(resp, np.array([1.0]), 2, np.zeros((5, 3)), n_draws=20000, noise_cov=cov)
+    assert out["rot_deg"]["p50"] == pytest.approx(np.degrees(0.674 * 0.5e-3), rel=0.03)
+    assert out["with_noise"]["rot_deg"]["p50"] == pytest.approx(np.degrees(0.674 * 0.5e-3 * np.sqrt(2)), rel=0.03)
+    # a covariance of another size is not used
+    assert "with_noise" not in pose_spread(resp, np.array([1.0]), 2, np.zeros((5, 3)), noise_cov=np.eye(3))
+
+
 def test_field_prior_rms_matches_its_parts():
     """The field's mean square over the image is offset^2 + shape_rms^2 (+ the tilt's)."""
     p = DepthFieldPrior((0.7, 0.58), 0.3e-3, 0.5e-3, degree=3)

@@ -151,10 +151,14 @@ def reconstruct(
                       f"depth gain {adj['depth_gain'] * 100:+.3f} % of (z - {adj['z_ref_mm']:.0f} mm): {adj.get('gain_note', '')}")
         cp = adj.get("calibration_pose") or {}
         if cp.get("rot_deg"):
-            console.print(f"pose accuracy from the depth calibration's residual: worst view "
-                          f"{cp['rot_deg']['p50']:.2f} / {cp['rot_deg']['p90']:.2f} deg, {cp['object_mm']['p50']:.1f} / "
-                          f"{cp['object_mm']['p90']:.1f} mm at the object (p50 / p90 over {cp['n_draws']} residual fields "
-                          f"of the calibration's size)")
+            both = cp.get("with_noise")
+            what = ("the depth calibration's residual and the views' noise" if both else
+                    "the depth calibration's residual")
+            p = both or cp
+            console.print(f"predicted pose accuracy from {what}: worst view "
+                          f"{p['rot_deg']['p50']:.2f} / {p['rot_deg']['p90']:.2f} deg, {p['object_mm']['p50']:.1f} / "
+                          f"{p['object_mm']['p90']:.1f} mm at the object (p50 / p90 over {cp['n_draws']} draws; "
+                          f"the calibration alone {cp['rot_deg']['p90']:.2f} deg / {cp['object_mm']['p90']:.1f} mm at p90)")
         if (adj.get("albedo") or {}).get("used"):
             console.print(f"IR albedo: held the rotation about the vertical the geometry leaves free "
                           f"({adj['albedo']['n']} residuals, scale {adj['albedo']['scale']:.3f})")

@@ -43,7 +43,7 @@ from tofmetry.reconstruct._adjust_albedo import albedo_gradients, albedo_terms
 from tofmetry.reconstruct._adjust_field import DepthFieldPrior, pose_spread
 from tofmetry.reconstruct._adjust_prior import pose_prior_terms
 from tofmetry.reconstruct._adjust_result import AdjustResult
-from tofmetry.reconstruct._adjust_sigma import curve_sigmas, gain_sigmas, pose_sigmas
+from tofmetry.reconstruct._adjust_sigma import curve_sigmas, gain_sigmas, pose_covariance, pose_sigmas
 from tofmetry.reconstruct._adjust_terms import (
     AdjustView,
     _correlation_with_gain,
@@ -386,7 +386,8 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         note = f"estimated: the views determine it to +-{100 * sigma_data:.3f} %"
     res = AdjustResult(P, g, sigma_g, z_ref_m, it, np.array(rms_hist), counts, pair_rms, moved_deg, moved_mm, converged,
                        estimate_gain, sigma_data, note, sig_deg, sig_mm, sigma_sys)
-    res.final_state = (views, P.copy(), g, z_ref_m, corr, k, estimate_gain, cv(), ampv(), tv(), H_solve)
+    res.final_state = (views, P.copy(), g, z_ref_m, corr, k, estimate_gain, cv(), ampv(), tv(), H_solve,
+                       pose_covariance(H_data, s2, V, estimate_gain, sigma_inflation))
     res.albedo = alb_info
     if depth_field is not None:
         res.calibration_pose = calibration_pose(res, depth_field)
@@ -426,14 +427,15 @@ def calibration_pose(res: AdjustResult, depth_field: DepthFieldPrior) -> dict:
 
     Returns
     -------
-    dict of :func:`~tofmetry.reconstruct._adjust_field.pose_spread` with the prior's size
-    (``offset_sigma_mm``, ``shape_rms_mm``, ``degree``)
+    dict of :func:`~tofmetry.reconstruct._adjust_field.pose_spread` (the field alone, and
+    ``with_noise``: with the poses' own noise covariance from the data, as ``pose_sigma_deg``) with
+    the prior's size (``offset_sigma_mm``, ``shape_rms_mm``, ``degree``)
     """
-    views, P, g, z_ref_m, corr, k, estimate_gain, curve, amp, tilt, H_solve = res.final_state
+    views, P, g, z_ref_m, corr, k, estimate_gain, curve, amp, tilt, H_solve, noise_cov = res.final_state
     V = len(views)
     F = _normal_equations(views, P, g, z_ref_m, corr, k, estimate_gain, curve, amp, tilt, depth_field.basis)[-1]
     resp = -np.linalg.solve(H_solve, F)[:6 * (V - 1)]
     obj = np.concatenate([v.source @ T[:3, :3].T + T[:3, 3] for v, T in zip(views, P)])
-    return pose_spread(resp, depth_field.coefficient_sigmas(), V, obj) | {
+    return pose_spread(resp, depth_field.coefficient_sigmas(), V, obj, noise_cov=noise_cov) | {
         "offset_sigma_mm": round(depth_field.offset_sigma_m * 1e3, 4),
         "shape_rms_mm": round(depth_field.shape_rms_m * 1e3, 4), "degree": depth_field.degree}

@@ -46,16 +46,26 @@ def _gain_information(H: np.ndarray) -> float:
         return 0.0
 
 
-def pose_sigmas(H: np.ndarray | None, s2: float, V: int, with_gain: bool, inflation: float):
-    """Standard errors of the poses (rotation [deg], translation [mm]) from the data-only normal matrix."""
+def pose_covariance(H: np.ndarray | None, s2: float, V: int, with_gain: bool, inflation: float) -> np.ndarray | None:
+    """Covariance of the poses' left increments (rotation vector [rad], translation [m]; view 0
+    fixed) from the data-only normal matrix, times ``inflation^2``: (6 (V - 1), 6 (V - 1)), or None."""
     if H is None:
-        return None, None
+        return None
     Hp = H if with_gain else H[:-1, :-1]
     try:
         C = np.linalg.inv(Hp + np.eye(len(Hp)) * 1e-12 * np.trace(Hp) / len(Hp)) * s2
     except np.linalg.LinAlgError:
+        return None
+    n = 6 * (V - 1)
+    return C[:n, :n] * inflation ** 2
+
+
+def pose_sigmas(H: np.ndarray | None, s2: float, V: int, with_gain: bool, inflation: float):
+    """Standard errors of the poses (rotation [deg], translation [mm]) from the data-only normal matrix."""
+    C = pose_covariance(H, s2, V, with_gain, inflation)
+    if C is None:
         return None, None
-    d = np.sqrt(np.clip(np.diag(C), 0, None)) * inflation
+    d = np.sqrt(np.clip(np.diag(C), 0, None))
     deg, mm = np.zeros(V), np.zeros(V)
     for v in range(1, V):
         deg[v] = np.degrees(np.linalg.norm(d[6 * (v - 1):6 * (v - 1) + 3]))
