@@ -83,6 +83,40 @@ def test_a_tilt_read_through_biased_board_orientations_is_not_folded_in(tilted_b
     assert back["tilt_not_folded"] == run.calibration.diagnostics["tilt_not_folded"] and not back.get("tilt")
 
 
+def test_the_held_out_check_has_three_outcomes():
+    """``held_out_check`` on per-view tilts and board pixels made to order (12 views, 400 pixels each,
+    x, y over +-0.2, 1 mm of noise, the views' tilts scattering by 1 mm per unit as board poses
+    make them): a tilt the pixels carry is confirmed; a tilt the views' slopes read but the pixels
+    do not carry (the board orientations biased) raises the held-out error and is contradicted; a
+    tilt of 0.05 mm per unit (plus the views' mean scatter) changes their mean square by far less
+    than the noise of the check: the share the pixels carry is as near 0 as 1, and it is only
+    bounded."""
+    from tofmetry.calibrate._tilt import held_out_check
+
+    V, N = 12, 400
+    Z, G = np.linspace(700, 1300, V), np.zeros((V, 2))
+    sig = np.array([0.3, 0.3])
+    for seed in range(5):
+        rng = np.random.default_rng(seed)
+        xy = [rng.uniform(-0.2, 0.2, (N, 2)) for _ in range(V)]
+        scatter = rng.normal(0, 1.0, (V, 2))  # each view's own tilt error (its board pose)
+
+        def check(carried, read):
+            pix = [np.column_stack([p, p @ (np.asarray(carried) + s) + rng.normal(0, 1.0, N)])
+                   for p, s in zip(xy, scatter)]
+            T = np.asarray(read, float) + scatter
+            return held_out_check(T, Z, G, pix, False, False, T.mean(0), sig)
+
+        ok = check((6.0, -9.0), (6.0, -9.0))
+        assert ok["confirmed"] and ok["rms_mm"] < ok["rms_none_mm"] and ok["bound_mm"] is None
+        bad = check((0.0, 0.0), (6.0, -9.0))
+        assert not bad["confirmed"] and bad["rms_mm"] > bad["rms_none_mm"] and bad["bound_mm"] is None
+        small = check((0.0, 0.0), (0.05, 0.05))
+        f, sf = small["carried"], small["carried_se"]
+        assert not small["confirmed"] and small["bound_mm"] is not None, small
+        assert np.all(np.array(small["bound_mm"]) >= 0.6)
+
+
 def test_a_folded_tilt_is_taken_off_every_frame_and_survives_the_file(tilted_boards, tmp_path):
     from tofmetry.calibrate import apply_depth_calibration
     from tofmetry.pipelines import load_calibration, save_calibration

@@ -217,8 +217,9 @@ def test_the_raw_depth_of_this_kinect_is_tilted_against_its_ir_frame(judged_run)
     model does not capture (README, "The tilt from board poses").
 
     Since 2026-11-29 the estimator checks itself on blocks of the recording kept out of the fit:
-    taken off them, this tilt raises their board-plane error (10.2 -> 16.5 mm RMS on the raw
-    depth), so it is not confirmed and a calibration given to ``tilt_from_boards`` is not changed."""
+    their board-plane offsets across the image carry only 0.53 +- 0.04 of this tilt (the rest is
+    the slope within each board against its orientation from the IR corners), so it is contradicted
+    and a calibration given to ``tilt_from_boards`` is not changed."""
     from pathlib import Path
 
     from tofmetry.pipelines.depth_tilt import tilt_from_boards
@@ -226,4 +227,5 @@ def test_the_raw_depth_of_this_kinect_is_tilted_against_its_ir_frame(judged_run)
     f = tilt_from_boards(Path(judged_run.path), intrinsics=judged_run.intrinsics).fit
     assert len(f.view_z_mm) >= 50 and f.sigma_mm.max() < 3.0
     assert f.tilt_mm[1] > 10 * f.sigma_mm[1]
-    assert not f.confirmed and f.held_out["rms_mm"] > f.held_out["rms_none_mm"]
+    h = f.held_out
+    assert not f.confirmed and h["bound_mm"] is None and h["carried"] + 2 * h["carried_se"] < 1.0

@@ -143,4 +143,9 @@ def test_field_prior_from_a_calibrations_folds():
     assert p.half_extent == pytest.approx((256 / 365.0, 212 / 365.0))
     assert p.tilt_sigma_m == pytest.approx(10e-3)
     assert depth_field_prior(pred | {"tilt_calibrated": True}, (830.0, 994.0), intr, tilt_sigma_mm=10.0).tilt_sigma_m == 0
+    # boards that found the tilt too small to measure bound it; a bound above the default is not taken
+    bounded = pred | {"tilt_bound": {"bound_mm": [0.8, 1.4]}}
+    assert depth_field_prior(bounded, (830.0, 994.0), intr, tilt_sigma_mm=10.0).tilt_sigma_m == pytest.approx(1.4e-3)
+    wide = pred | {"tilt_bound": {"bound_mm": [0.8, 31.0]}}
+    assert depth_field_prior(wide, (830.0, 994.0), intr, tilt_sigma_mm=10.0).tilt_sigma_m == pytest.approx(10e-3)
     assert depth_field_prior(None, (830.0, 994.0), intr) is None

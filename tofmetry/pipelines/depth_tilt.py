@@ -37,7 +37,9 @@ class TiltRun:
     fit : TiltFit (tilt, its standard error, per-view tilts, model, skipped views)
     calibration : the calibration with the tilt folded in, or, when the held-out views do not
         confirm the tilt, the given one unchanged but for ``diagnostics["tilt_not_folded"]`` (the fit
-        and the reason); None when none was given
+        and the reason) and, when the tilt is too small for the boards to measure,
+        ``prediction["tilt_bound"]`` (what they bound it by, :func:`tofmetry.calibrate._tilt.held_out_check`);
+        None when none was given
     folded : whether the tilt was folded into ``calibration``
     n_poses : poses in the dataset; notes : what was skipped and why; seconds : run time
     """
@@ -111,5 +113,9 @@ def tilt_from_boards(path: Path, calibration: DepthCalibration | None = None,
         cal = with_depth_tilt(calibration, fit)
     elif calibration is not None:
         notes.append(f"tilt not folded in: {fit.held_out['reason']}")
-        cal = replace(calibration, diagnostics={**(calibration.diagnostics or {}), "tilt_not_folded": fit.to_dict()})
+        pred = dict(calibration.prediction or {})
+        if pred and fit.held_out.get("bound_mm"):  # too small to measure: what the boards bound it by
+            pred["tilt_bound"] = {"bound_mm": list(fit.held_out["bound_mm"]), "reason": fit.held_out["reason"]}
+        cal = replace(calibration, prediction=pred,
+                      diagnostics={**(calibration.diagnostics or {}), "tilt_not_folded": fit.to_dict()})
     return TiltRun(fit, cal, len(names), notes, time.perf_counter() - t0, folded)

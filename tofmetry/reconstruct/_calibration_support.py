@@ -175,7 +175,9 @@ def depth_field_prior(calibration_prediction: dict | None, depth_span_mm, intr, 
     intr : Intrinsics of the depth image (the field of view in normalised coordinates)
     tilt_sigma_mm : size of a term linear in the image position that the calibration did not
         calibrate [mm per unit of x / z]; when its ``tilt_calibrated`` is true, the standard error
-        of the tilt fitted on boards (its ``tilt``, :func:`tofmetry.calibrate.fit_depth_tilt`), or 0
+        of the tilt fitted on boards (its ``tilt``, :func:`tofmetry.calibrate.fit_depth_tilt`)
+        is used instead, and when boards found the tilt too small to measure, the larger of the
+        bounds they put on it (its ``tilt_bound``) if that is smaller
     """
     sel = _local_folds(calibration_prediction, depth_span_mm) if calibration_prediction else None
     rms = [float(f["rms_systematic_mm"]) for f in sel or [] if np.isfinite(f.get("rms_systematic_mm", np.nan))]
@@ -183,6 +185,10 @@ def depth_field_prior(calibration_prediction: dict | None, depth_span_mm, intr, 
         return None
     central = max(abs(float(f["central_mm"])) for f in sel)
     fitted = calibration_prediction.get("tilt") or {}
-    tilt_sd = max(fitted.get("sigma_mm") or [0.0]) if calibration_prediction.get("tilt_calibrated") else tilt_sigma_mm
+    bound = (calibration_prediction.get("tilt_bound") or {}).get("bound_mm")
+    if calibration_prediction.get("tilt_calibrated"):
+        tilt_sd = max(fitted.get("sigma_mm") or [0.0])
+    else:
+        tilt_sd = min(max(bound), tilt_sigma_mm) if bound else tilt_sigma_mm
     return DepthFieldPrior((intr.width / 2 / intr.fx, intr.height / 2 / intr.fy), central * 1e-3,
                            max(rms) * 1e-3, degree, tilt_sd * 1e-3)
