@@ -91,7 +91,7 @@ def test_the_held_out_check_has_three_outcomes():
     tilt of 0.05 mm per unit (plus the views' mean scatter) changes their mean square by far less
     than the noise of the check: the share the pixels carry is as near 0 as 1, and it is only
     bounded."""
-    from tofmetry.calibrate._tilt import held_out_check
+    from tofmetry.calibrate import held_out_check
 
     V, N = 12, 400
     Z, G = np.linspace(700, 1300, V), np.zeros((V, 2))

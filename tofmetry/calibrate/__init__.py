@@ -9,7 +9,8 @@
 * :mod:`._fit_study` — the study's method (range spline + one surface per station), a baseline
 * :mod:`._surface` — smooth surfaces over the image (polynomial / tensor spline), for the baseline
 * :mod:`._wall` — wall mode: station statistics, plane fit, wall samples
-* :mod:`._tilt` — the depth error linear in the image position, from board poses, for a wall calibration
+* :mod:`._tilt` — the depth error linear in the image position, from board poses, for a wall calibration;
+  :mod:`._tilt_check` — its view model and the check on views kept out of the fit
 * :mod:`._validate` — before/after evaluation, leave-one-station-out cross-validation
 * IR lens calibration (study §4.1): :mod:`._corners` (find the grid, refine and check every
   corner; the X-junction fit in :mod:`._corner_fit`), :mod:`._board_pose` (object points, board
@@ -43,6 +44,7 @@ from tofmetry.calibrate._prediction import before_after, check_prediction, sampl
 from tofmetry.calibrate._fit_study import StudyFitConfig, StudyFitResult, fit_study_model
 from tofmetry.calibrate._range import fit_range_curve
 from tofmetry.calibrate._tilt import TiltFit, fit_depth_tilt, with_depth_tilt
+from tofmetry.calibrate._tilt_check import held_out_check
 from tofmetry.calibrate._surface import SurfaceSpec, fit_surface
 from tofmetry.calibrate._wall import (
     PlaneFit, StationStats, central_patch, fit_plane, station_statistics, wall_reference, wall_sample,
@@ -75,7 +77,7 @@ __all__ = [
     "DepthSample", "JointSpec", "DepthCalibrationResult", "DepthFitConfig", "fit_depth_model",
     "before_after", "check_prediction", "sample_metrics",
     "StudyFitConfig", "StudyFitResult", "fit_study_model", "fit_range_curve", "SurfaceSpec", "fit_surface",
-    "TiltFit", "fit_depth_tilt", "with_depth_tilt",
+    "TiltFit", "fit_depth_tilt", "held_out_check", "with_depth_tilt",
     "PlaneFit", "StationStats", "central_patch", "fit_plane", "station_statistics", "wall_reference", "wall_sample",
     "METHODS", "StationReport", "central_fraction_mask", "cross_validate", "evaluate_wall_station", "fit_any",
     "summarize",

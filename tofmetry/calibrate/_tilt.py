@@ -38,6 +38,7 @@ import numpy as np
 
 from tofmetry.calibrate._board_samples import BoardSamples
 from tofmetry.calibrate._model import DepthCalibration
+from tofmetry.calibrate._tilt_check import _fit_models, _predict, held_out_check
 from tofmetry.errors import EstimationError, InputError
 from tofmetry.sensor import CameraIntrinsics
 
@@ -47,10 +48,6 @@ MIN_VIEWS, MIN_PIXELS = 4, 100
 MIN_SPAN_LINEAR_MM = 300.0
 #: a view's tilt is gross only beyond 4 robust sigma and beyond this [mm per unit] (0.11 deg at 1 m)
 GROSS_FLOOR_MM = 2.0
-#: the held-out check splits the views, in recording order, into this many blocks
-HELD_OUT_BLOCKS = 3
-#: degree in the distance of the offset common to the views that the held-out check allows
-OFFSET_DEGREE = 2
 
 
 @dataclass(frozen=True)
@@ -159,149 +156,6 @@ def view_tilt(s: BoardSamples, rays: np.ndarray) -> tuple[np.ndarray, float, np.
     g = np.log(1.0 / np.clip(cos_i, 0.05, 1.0))
     G = np.linalg.lstsq(A[keep], g[keep], rcond=None)[0][1:]
     return coef[1:], float(np.median(w.reference_mm)), np.column_stack([xy[keep], e[keep]]), G
-
-
-def _fit_models(t: np.ndarray, z: np.ndarray, G: np.ndarray, linear: bool,
-                incidence: bool, tilt: bool = True) -> tuple[np.ndarray, np.ndarray, float, float]:
-    """Least squares ``t_v = t0 + t1 (z_v - zr) + k G_v`` over the views, both axes at once (``t1 = 0``
-    unless ``linear``, ``k = 0`` unless ``incidence``, ``t0 = t1 = 0`` unless ``tilt``): (t0 (2,),
-    t1 (2,) per mm, zr, k [mm])."""
-    zr = float(np.mean(z))
-    V = len(z)
-    if not tilt:
-        k = 0.0
-        if incidence:
-            g = np.concatenate([G[:, 0], G[:, 1]])
-            k = float(g @ np.concatenate([t[:, 0], t[:, 1]]) / max(float(g @ g), 1e-12))
-        return np.zeros(2), np.zeros(2), zr, k
-    cols = [np.kron(np.eye(2), np.ones((V, 1)))]            # t0x, t0y
-    if linear:
-        cols.append(np.kron(np.eye(2), (z - zr)[:, None]))  # t1x, t1y
-    if incidence:
-        cols.append(np.concatenate([G[:, 0], G[:, 1]])[:, None])
-    A = np.hstack(cols)
-    c = np.linalg.lstsq(A, np.concatenate([t[:, 0], t[:, 1]]), rcond=None)[0]
-    t1 = c[2:4] if linear else np.zeros(2)
-    return c[:2], t1, zr, float(c[-1]) if incidence else 0.0
-
-
-def _predict(m: tuple, z: np.ndarray, G: np.ndarray) -> np.ndarray:
-    t0, t1, zr, k = m
-    return t0 + np.multiply.outer(z - zr, t1) + k * G
-
-
-def held_out_check(T: np.ndarray, Z: np.ndarray, G: np.ndarray, pixels: list[np.ndarray], linear: bool,
-                   incidence: bool, t0: np.ndarray, sigma: np.ndarray, blocks: int = HELD_OUT_BLOCKS) -> dict:
-    """Does the tilt lower the board-plane error of views kept out of its fit?
-
-    The views, in recording order, are split into ``blocks`` contiguous blocks. The tilt fitted on
-    the other blocks is taken off each block's pixels (``e - t(Z_v) . (x, y)``, as folding it into
-    the calibration does) and their error against the board plane, offsets included, is compared
-    with the error left as it is. The per-view tilts measure the tilt *within* a board against the
-    board's orientation from its IR corners; the error against the plane also holds the offsets
-    *across* the image, which a tilt changes away from the centre. The two agree when the tilt is the
-    sensor's. On the real Kinect v2 recording, with a calibration fitted on its poses 0000-0049 (board
-    planes), they did not: the views' tilts read (+3.6, +20.3) mm per unit on those poses, and the
-    held-out poses 0050-0069 predicted them well (their own tilts went 20 -> -2 mm per unit), yet their
-    board-plane error rose from 3.35 to 7.05 mm RMS when it was folded in (a bias of the board
-    orientations, not a tilt of the depth). A random leave-one-out would not see a bias that changes along a recording either.
-
-    Both are taken about an offset common to the views, quadratic in the distance and fitted on the
-    other blocks (a reference offset or the range residual's trend carries no tilt, but left in it
-    couples with each board's place in the image). Taken off a view's pixels, a tilt they carry
-    lowers their mean square by ``q`` (the fold's own mean square over them), one they do not carry raises
-    it by ``q``: the share they carry is ``f = (q - change) / 2q``, with the standard error of the change
-    (paired over the held-out views) over ``2q``. Where that standard error is at most 0.5 (none and
-    all of it 2 standard errors apart), the tilt is contradicted when ``f`` is more than 2 standard
-    errors below 1 and the share not carried, ``(1 - f) |t0|``, exceeds twice the fit's standard
-    error, and ``confirmed`` (may be folded in) when ``f`` is within 2 standard errors of 1 and more
-    than 2 above 0. Otherwise the boards cannot tell: the tilt is too small for them to
-    measure, nothing is folded in, and ``bound_mm`` (``|t0| + 2 sigma`` per axis) bounds the tilt the
-    calibration keeps.
-    ``significant`` (``|t0 / sigma|^2 > 5.99``, 95 % for two axes) is reported as well. Simulated
-    (2026-11-29, a (6, -9) mm per unit tilt, 10 checkerboard poses): with the right intrinsics the
-    views kept out carry 1.24 +- 0.20 of it (confirmed); given a principal point 12 px off, the views
-    read (+5.0, -31.3) or (+30.1, -6.6) and carry 0.33 +- 0.08 or 0.51 +- 0.05 of it (contradicted).
-    On the real recording: 0.53 +- 0.04 on the raw depth, 0.29 +- 0.06 after the board calibration.
-
-    Parameters
-    ----------
-    T : (V, 2) per-view tilts [mm per unit]; Z : (V,) view distances [mm]; G : (V, 2) incidence slopes
-    pixels : per view, (N, 3) ``x``, ``y`` and the error against the board plane [mm] (:func:`view_tilt`)
-    linear, incidence : the model's terms; t0, sigma : (2,) the fitted tilt and its standard error
-    blocks : number of contiguous blocks
-
-    Returns
-    -------
-    dict: ``blocks``, ``rms_mm`` (the held-out board-plane error with the tilt taken off [mm]),
-    ``rms_none_mm`` (without), both None when too few views; ``change_mm2``, ``effect_mm2``
-    (``q``), ``se_mm2`` (the change of the held-out views' mean square, the fold's own, and the
-    change's standard error [mm^2]); ``carried``, ``carried_se`` (``f`` and its standard error); ``bound_mm`` ((2,) [mm per unit] when the tilt is too small to
-    measure, else None), ``significant``, ``confirmed``, ``reason``
-    """
-    V = len(T)
-    chi2 = float(np.sum(np.square(np.asarray(t0) / np.maximum(np.asarray(sigma), 1e-9))))
-    out = {"blocks": int(blocks), "rms_mm": None, "rms_none_mm": None, "bound_mm": None,
-           "significant": bool(chi2 > 5.99)}
-    if V < 2 * blocks:
-        out.update(confirmed=False,
-                   reason=f"{V} views are too few for a check on {blocks} held-out blocks ({2 * blocks} needed)")
-        return out
-    ms, ms0, qs = [], [], []
-    for idx in np.array_split(np.arange(V), blocks):
-        keep = np.ones(V, bool)
-        keep[idx] = False
-        t0b, t1b, zr, _ = _fit_models(T[keep], Z[keep], G[keep], linear, incidence)
-        zk = Z[keep]
-        tilt_at = lambda z: t0b + (np.clip(z, zk.min(), zk.max()) - zr) * t1b
-        # an offset common to the views, quadratic in the distance (a reference offset, the range
-        # residual's trend at the boards' distances), fitted on the training blocks with and without
-        # the fold: it carries no tilt, and left in it would couple with each board's place in the image
-        means = np.array([[np.mean(pixels[j][:, 2] - pixels[j][:, :2] @ tilt_at(Z[j])), np.mean(pixels[j][:, 2])]
-                          for j in np.flatnonzero(keep)])
-        u = (zk - zr) / 1000.0
-        A = np.column_stack([u ** i for i in range(OFFSET_DEGREE + 1)])
-        c_fold, c_none = np.linalg.lstsq(A, means, rcond=None)[0].T
-        for k in idx:
-            t = tilt_at(Z[k])
-            xy, e = pixels[k][:, :2], pixels[k][:, 2]
-            a = ((np.clip(Z[k], zk.min(), zk.max()) - zr) / 1000.0) ** np.arange(OFFSET_DEGREE + 1)
-            ms.append(np.mean(np.square(e - a @ c_fold - xy @ t)))
-            ms0.append(np.mean(np.square(e - a @ c_none)))
-            qs.append(np.mean(np.square(xy @ t)))
-    ms, ms0 = np.array(ms), np.array(ms0)
-    rms, rms0 = float(np.sqrt(np.mean(ms))), float(np.sqrt(np.mean(ms0)))
-    # paired over the held-out views: the fold changes their mean square by d. A tilt the pixels carry
-    # in full lowers it by q (the fold's own mean square over them), one they do not carry raises it
-    # by q: the share they carry is f = (q - d) / 2q, with the standard error se(d) / 2q
-    d = ms - ms0
-    se = float(np.std(d, ddof=1) / np.sqrt(len(d)))
-    q = float(np.mean(qs))
-    f = (q - float(np.mean(d))) / (2 * q) if q > 0 else float("nan")
-    sf = se / (2 * q) if q > 0 else float("inf")
-    bound = np.abs(np.asarray(t0, float)) + 2 * np.asarray(sigma, float)
-    out.update(rms_mm=round(rms, 3), rms_none_mm=round(rms0, 3), change_mm2=round(float(np.mean(d)), 4),
-               effect_mm2=round(q, 4), se_mm2=round(se, 4), carried=round(f, 3) if np.isfinite(f) else None,
-               carried_se=round(sf, 3) if np.isfinite(sf) else None, bound_mm=None)
-    resolved = bool(np.isfinite(f) and sf <= 0.5)  # 0 and 1 at least 2 standard errors apart
-    # the share the offsets do not carry, in mm per unit, beyond the fit's own standard error
-    material = bool(np.isfinite(f) and (1 - f) * np.linalg.norm(t0) > 2 * np.linalg.norm(sigma))
-    if resolved and f + 2 * sf < 1.0 and material:
-        out.update(confirmed=False, reason=f"the views kept out of its fit carry only {f:.2f} +- {sf:.2f} of it across the "
-                                           f"image (their board-plane error {rms0:.2f} -> {rms:.2f} mm RMS with it; {blocks} "
-                                           "blocks in recording order): the views' tilts within a board disagree with "
-                                           "their offsets across the image (a bias of the board orientations, e.g. from "
-                                           "the intrinsics), so the figure is not the sensor's tilt")
-    elif not (resolved and f - 2 * sf > 0.0):
-        out.update(confirmed=False, bound_mm=[round(float(b), 3) for b in bound],
-                   reason=f"too small for these boards to measure (the views kept out of its fit carry {f:.2f} +- {sf:.2f} "
-                          f"of it across the image; {rms0:.2f} -> {rms:.2f} mm RMS): nothing is folded "
-                          f"in; they bound the tilt left by ({bound[0]:.2f}, {bound[1]:.2f}) mm per unit (|tilt| + 2 sigma)")
-    else:
-        out.update(confirmed=True, reason=f"the views kept out of its fit carry it across the image ({f:.2f} +- {sf:.2f} of "
-                                          f"it; their board-plane error {rms0:.2f} -> {rms:.2f} mm RMS, {blocks} blocks in "
-                                          "recording order)")
-    return out
 
 
 def fit_depth_tilt(samples: list[BoardSamples], intr: CameraIntrinsics, names: list[str] | None = None) -> TiltFit:
