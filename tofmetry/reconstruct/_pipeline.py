@@ -223,7 +223,11 @@ class ReconstructionPipeline:
                                                     "reason": rejection_reason(p, rc)}
                                 for p in pg.pairs if not (p.source in keep and p.target in keep)]
             pg = pg.subgraph(keep)
-        return pg.optimize(rc.icp_radii_mm[-1] * 1e-3, rc.edge_prune, rc.gate_max_deg, rc.gate_max_mm)
+        res = pg.optimize(rc.icp_radii_mm[-1] * 1e-3, rc.edge_prune, rc.gate_max_deg, rc.gate_max_mm)
+        for d, p in zip(res.edges, pg.pairs):  # why a pair failed, with its figures and the gates
+            if not p.accepted:
+                d["reason"] = rejection_reason(p, rc)
+        return res
 
     def _select(self, pg: PoseGraphBuilder, regs: list[RegView]) -> None:
         """The multi-view choice of hypotheses; where it had to drop an edge, once more with the
