@@ -73,6 +73,10 @@ def test_small_full_study_writes_a_report_that_renders(tmp_path, inspect):
         "board": "skipped", "mkv": "skipped"}
     assert (out / "study.toml").is_file() and load_config(out / "study.toml").simulation.wall_frames == 4
     assert len(rep["comparison"]) >= 10
+    # the depth tilt the walls cannot show is fitted on the simulated checkerboard captures with depth
+    # and judged on the captures kept out of its fit (folded in, or bounded, or contradicted: said)
+    tilt = rep["stages"]["depth"]["results"]["tilt"]
+    assert tilt["tilt"]["n_views"] >= 10 and tilt["tilt"]["held_out"]["reason"]
     page = inspect(out / "report.html", out / "report.png")
     assert page.console_errors == []
     assert page.broken_images == 0 and page.images >= 15

@@ -30,6 +30,9 @@ class SimulationConfig(_Cfg):
     material_frames: int = Field(20, ge=1, description="Frames of each material/grey board capture.")
     outdoor_frames: int = Field(10, ge=1, description="Frames of the strong-light capture.")
     checkerboard_images: int = Field(20, ge=4, description="Simulated IR checkerboard images (issue: 15-25).")
+    tilt_board_poses: int = Field(12, ge=0, description="Checkerboard captures with IR and depth (0.6-1.3 m, turned up "
+                                  "to 35 deg) on which the depth tilt the walls cannot show is fitted (calibrate depth "
+                                  "--tilt-boards); 0: none.")
     wall_distances_mm: list[float] = Field(
         default_factory=lambda: [800.0] + [1000.0 + 250.0 * i for i in range(21)],
         description="Wall stations [mm] (study: 0.8 m, then 1.0-6.0 m every 0.25 m).",

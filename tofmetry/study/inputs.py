@@ -2,8 +2,8 @@
 
 Writes a DATA_DIR laid out exactly as a user's recordings would be::
 
-    DATA_DIR/warmup/ noise/ materials/ materials-samples/ outdoor/ checkerboard/ wall/ wall-validation/ scan/
-    DATA_DIR/reference.ply
+    DATA_DIR/warmup/ noise/ materials/ materials-samples/ outdoor/ checkerboard/ tilt-boards/ wall/
+    DATA_DIR/wall-validation/ scan/ reference.ply
 
 Each folder carries its own ``truth.json``/``truth.npz``; the study never reads them. The datasets
 are independent, so they are written by a small process pool (one worker per core, at most 2 by
@@ -19,14 +19,17 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Callable
 
-from tofmetry.simulate import datasets
+from tofmetry.simulate import board_datasets, datasets
 from tofmetry.study.config import SimulationConfig
 
 
 def _tasks(data_dir: Path, cfg: SimulationConfig) -> list[tuple[str, str, dict, float]]:
     """(label, dataset function, kwargs, relative cost) for every simulated input."""
     s = cfg.seed
-    return [
+    tilt = [("checkerboard captures with depth", "board_dataset",
+             dict(out=data_dir / "tilt-boards", n_poses=cfg.tilt_board_poses, board="checkerboard", seed=s + 10),
+             cfg.tilt_board_poses * 4)] if cfg.tilt_board_poses else []
+    return tilt + [
         ("wall stations", "wall_dataset", dict(out=data_dir / "wall", distances_mm=cfg.wall_distances_mm,
                                                n_frames=cfg.wall_frames, seed=s + 7), len(cfg.wall_distances_mm) * cfg.wall_frames),
         ("warm-up series", "warmup", dict(out=data_dir / "warmup", duration_s=cfg.warmup_duration_s,
@@ -53,7 +56,7 @@ def _tasks(data_dir: Path, cfg: SimulationConfig) -> list[tuple[str, str, dict, 
 
 
 def _run_task(func: str, kwargs: dict) -> str:
-    getattr(datasets, func)(**kwargs)
+    getattr(board_datasets if func == "board_dataset" else datasets, func)(**kwargs)
     return func
 
 

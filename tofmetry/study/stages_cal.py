@@ -16,7 +16,9 @@ from tofmetry.pipelines import (
     calibrate_depth_dataset, intrinsics_from_images, save_calibration, validate_depth, write_depth_report,
     write_intrinsics_report, write_validation_report,
 )
+from tofmetry.pipelines.depth_tilt import tilt_from_boards
 from tofmetry.study.stage import StageOutcome, StudyContext
+from tofmetry.study.stages_real import TILT_BOARDS
 
 
 def _implausible(record: dict | None) -> list[str]:
@@ -77,6 +79,16 @@ def _dev_range(rows: list[dict], key: str, max_mm: float) -> list[float] | None:
     return [float(min(vals)), float(max(vals))] if vals else None
 
 
+def _tilt_paragraph(tilt) -> str:
+    """The depth tilt fitted on board captures, in words (:func:`tofmetry.pipelines.depth_tilt.tilt_from_boards`)."""
+    f = tilt.fit
+    head = (f"Depth tilt (an error linear in the image position, which walls of unknown orientation cannot show), "
+            f"from {len(f.view_z_mm)} board captures at {f.z_span_mm[0]:.0f}-{f.z_span_mm[1]:.0f} mm: "
+            f"({f.tilt_mm[0]:+.2f} +- {f.sigma_mm[0]:.2f}, {f.tilt_mm[1]:+.2f} +- {f.sigma_mm[1]:.2f}) mm per unit of "
+            f"x / z, y / z ({f.model}); ")
+    return head + ("folded into the calibration: " if tilt.folded else "not folded in: ") + f.held_out["reason"] + "."
+
+
 def stage_depth(ctx: StudyContext, out: StageOutcome) -> None:
     """Range-error B-spline + per-pixel deformation surfaces from the wall stations (§4.2),
     validated on held-out stations never used for fitting (beyond §4.3)."""
@@ -85,6 +97,11 @@ def stage_depth(ctx: StudyContext, out: StageOutcome) -> None:
     dc = ctx.config.depth
     run = calibrate_depth_dataset(wall, intrinsics=ctx.intrinsics, reference_offset_mm=dc.reference_offset_mm,
                                   accept_implausible=ctx.accept_implausible)
+    tilt = None
+    boards = ctx.data_dir / TILT_BOARDS
+    if (boards / "board.json").is_file():  # the depth tilt the walls cannot show, from board captures
+        tilt = tilt_from_boards(boards, run.calibration)
+        run.calibration = tilt.calibration
     cal = run.calibration
     save_calibration(d / "calibration.npz", cal)
     ctx.calibration_path = d / "calibration.npz"
@@ -101,6 +118,12 @@ def stage_depth(ctx: StudyContext, out: StageOutcome) -> None:
         f"Corrected range {cal.valid_range_mm[0]:.0f}–{cal.valid_range_mm[1]:.0f} mm; surfaces: {cal.surface_model}.")
     out.paragraphs += list(run.notes)
     out.paragraphs += _implausible(run.plausibility)
+    if tilt is not None:
+        out.data["tilt"] = tilt.to_dict()
+        out.paragraphs.append(_tilt_paragraph(tilt))
+    else:
+        out.paragraphs.append("The depth tilt (an error linear in the image position, which walls of unknown "
+                              "orientation cannot show) was not calibrated: no tilt-boards/ captures (board.json + poses/ with depth).")
     # training stations (in-sample, the study's own validation)
     tr = validate_depth(wall, cal, intrinsics=ctx.intrinsics, cross_validate=dc.cross_validate,
                         cv_methods=tuple(dc.cv_methods), reference_offset_mm=dc.reference_offset_mm)

@@ -36,10 +36,15 @@ def find_board_recording(root: Path) -> Path | None:
     return None
 
 
+#: the folder of DATA_DIR whose board captures fit the depth tilt of the wall calibration (depth stage)
+TILT_BOARDS = "tilt-boards"
+
+
 def find_board_dataset(root: Path) -> Path | None:
-    """The first folder (DATA_DIR or a sub-folder) holding a board dataset: ``board.json`` and ``poses/``."""
+    """The first folder (DATA_DIR or a sub-folder) holding a board dataset: ``board.json`` and
+    ``poses/`` (not :data:`TILT_BOARDS`, which the depth stage uses)."""
     for p in _candidates(root):
-        if (p / "board.json").is_file() and (p / "poses").is_dir():
+        if p.name != TILT_BOARDS and (p / "board.json").is_file() and (p / "poses").is_dir():
             return p
     return None
 
