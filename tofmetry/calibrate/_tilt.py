@@ -76,9 +76,8 @@ class TiltFit:
     skipped : list of (name, reason) of the views not used
     incidence_k_mm : the white board's amplitude-related bias per unit of ``ln(1 / cos(incidence))``
         [mm] taken off the views' tilts (0 unless the model says ``+ incidence``)
-    held_out : the check on views kept out of the fit (:func:`held_out_check`): ``blocks``,
-        ``rms_mm`` (the model's tilt fitted on the other blocks, against each block's views),
-        ``rms_none_mm`` (no sensor tilt, the same way), ``significant``, ``confirmed``, ``reason``
+    held_out : the check on views kept out of the fit, as :func:`held_out_check` returns it
+        (``confirmed``, ``reason``, the held-out board-plane errors, the share carried, a bound)
     """
 
     tilt_mm: np.ndarray

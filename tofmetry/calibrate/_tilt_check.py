@@ -17,18 +17,11 @@ OFFSET_DEGREE = 2
 
 
 def _fit_models(t: np.ndarray, z: np.ndarray, G: np.ndarray, linear: bool,
-                incidence: bool, tilt: bool = True) -> tuple[np.ndarray, np.ndarray, float, float]:
+                incidence: bool) -> tuple[np.ndarray, np.ndarray, float, float]:
     """Least squares ``t_v = t0 + t1 (z_v - zr) + k G_v`` over the views, both axes at once (``t1 = 0``
-    unless ``linear``, ``k = 0`` unless ``incidence``, ``t0 = t1 = 0`` unless ``tilt``): (t0 (2,),
-    t1 (2,) per mm, zr, k [mm])."""
+    unless ``linear``, ``k = 0`` unless ``incidence``): (t0 (2,), t1 (2,) per mm, zr, k [mm])."""
     zr = float(np.mean(z))
     V = len(z)
-    if not tilt:
-        k = 0.0
-        if incidence:
-            g = np.concatenate([G[:, 0], G[:, 1]])
-            k = float(g @ np.concatenate([t[:, 0], t[:, 1]]) / max(float(g @ g), 1e-12))
-        return np.zeros(2), np.zeros(2), zr, k
     cols = [np.kron(np.eye(2), np.ones((V, 1)))]            # t0x, t0y
     if linear:
         cols.append(np.kron(np.eye(2), (z - zr)[:, None]))  # t1x, t1y
@@ -91,7 +84,7 @@ def held_out_check(T: np.ndarray, Z: np.ndarray, G: np.ndarray, pixels: list[np.
     ``rms_none_mm`` (without), both None when too few views; ``change_mm2``, ``effect_mm2``
     (``q``), ``se_mm2`` (the change of the held-out views' mean square, the fold's own, and the
     change's standard error [mm^2]); ``carried``, ``carried_se`` (``f`` and its standard error);
-    ``bound_mm`` ((2,) [mm per unit] when the tilt is too small to measure, else None),
+    ``bound_mm`` ((2,) [mm per unit] when the tilt is neither confirmed nor contradicted, else None),
     ``significant``, ``confirmed``, ``reason``
     """
     V = len(T)

@@ -37,8 +37,8 @@ class TiltRun:
     fit : TiltFit (tilt, its standard error, per-view tilts, model, skipped views)
     calibration : the calibration with the tilt folded in, or, when the held-out views do not
         confirm the tilt, the given one unchanged but for ``diagnostics["tilt_not_folded"]`` (the fit
-        and the reason) and, when the tilt is too small for the boards to measure,
-        ``prediction["tilt_bound"]`` (what they bound it by, :func:`tofmetry.calibrate._tilt.held_out_check`);
+        and the reason) and, when the tilt is neither confirmed nor contradicted,
+        ``prediction["tilt_bound"]`` (what the boards bound it by, :func:`tofmetry.calibrate.held_out_check`);
         None when none was given
     folded : whether the tilt was folded into ``calibration``
     n_poses : poses in the dataset; notes : what was skipped and why; seconds : run time
@@ -114,7 +114,7 @@ def tilt_from_boards(path: Path, calibration: DepthCalibration | None = None,
     elif calibration is not None:
         notes.append(f"tilt not folded in: {fit.held_out['reason']}")
         pred = dict(calibration.prediction or {})
-        if pred and fit.held_out.get("bound_mm"):  # too small to measure: what the boards bound it by
+        if pred and fit.held_out.get("bound_mm"):  # neither confirmed nor contradicted: what the boards bound it by
             pred["tilt_bound"] = {"bound_mm": list(fit.held_out["bound_mm"]), "reason": fit.held_out["reason"]}
         cal = replace(calibration, prediction=pred,
                       diagnostics={**(calibration.diagnostics or {}), "tilt_not_folded": fit.to_dict()})

@@ -381,13 +381,13 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         fixed.gain_note = (f"implausible: the views ask for {100 * g:+.2f} % (+-{100 * sigma_data:.2f} %), beyond the "
                            f"+-{100 * gain_max_abs:.2f} % the depth calibration can leave; kept at 0")
         return fixed
-    sig_deg, sig_mm = pose_sigmas(H_data, s2, V, estimate_gain, sigma_inflation)
+    pose_cov = pose_covariance(H_data, s2, V, estimate_gain, sigma_inflation)
+    sig_deg, sig_mm = pose_sigmas(pose_cov, V)
     if estimate_gain and note == "estimated":
         note = f"estimated: the views determine it to +-{100 * sigma_data:.3f} %"
     res = AdjustResult(P, g, sigma_g, z_ref_m, it, np.array(rms_hist), counts, pair_rms, moved_deg, moved_mm, converged,
                        estimate_gain, sigma_data, note, sig_deg, sig_mm, sigma_sys)
-    res.final_state = (views, P.copy(), g, z_ref_m, corr, k, estimate_gain, cv(), ampv(), tv(), H_solve,
-                       pose_covariance(H_data, s2, V, estimate_gain, sigma_inflation))
+    res.final_state = (views, P.copy(), g, z_ref_m, corr, k, estimate_gain, cv(), ampv(), tv(), H_solve, pose_cov)
     res.albedo = alb_info
     if depth_field is not None:
         res.calibration_pose = calibration_pose(res, depth_field)

@@ -60,9 +60,9 @@ def pose_covariance(H: np.ndarray | None, s2: float, V: int, with_gain: bool, in
     return C[:n, :n] * inflation ** 2
 
 
-def pose_sigmas(H: np.ndarray | None, s2: float, V: int, with_gain: bool, inflation: float):
-    """Standard errors of the poses (rotation [deg], translation [mm]) from the data-only normal matrix."""
-    C = pose_covariance(H, s2, V, with_gain, inflation)
+def pose_sigmas(C: np.ndarray | None, V: int):
+    """Standard errors of the poses (rotation [deg], translation [mm]) from their covariance
+    (:func:`pose_covariance`), or (None, None) without one."""
     if C is None:
         return None, None
     d = np.sqrt(np.clip(np.diag(C), 0, None))
