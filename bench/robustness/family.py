@@ -126,6 +126,24 @@ def jitter_turntable(d: Draw, seed: int, sigma_deg: float) -> tuple[Draw, list[f
     return replace(d, path=replace(d.path, poses=poses)), [round(float(a), 3) for a in e]
 
 
+def residual_tilt_mm(sensor, z_mm: float) -> list[float]:
+    """The depth tilt a wall calibration leaves on ``sensor`` at ``z_mm`` [mm per unit of x / z and
+    of y / z]: the least-squares plane over the image of its whole per-pixel deformation (walls of
+    unknown orientation take each station's plane out, whatever term carries it: the explicit
+    ``deform_tilt_mm_1m``, an off-centre bowl, Fourier modes, bumps). What
+    ``tofmetry calibrate depth --tilt-boards`` should find; ``deform_tilt_mm_1m`` alone is not it
+    (draw 32: fandisk 74129116 carries (-8.0, +0.5) explicitly, (-11.1, +3.5) in all, fitted (-11.1, +3.6))."""
+    from tofmetry.simulate import deformation as D
+
+    em = sensor.errors
+    if not em.on("deformation"):
+        return [0.0, 0.0]
+    xy = sensor.intrinsics.ray_table(True)[..., :2]
+    d = D.deformation_mm(xy, np.full(xy.shape[:-1], float(z_mm)), em).ravel()
+    A = np.column_stack([np.ones(d.size), xy[..., 0].ravel(), xy[..., 1].ravel()])
+    return [round(float(v), 3) for v in np.linalg.lstsq(A, d, rcond=None)[0][1:]]
+
+
 def calibrate_sensor(draw, seed: int, n_frames: int = 20, amplitude_max_mm: float = 2500.0,
                      distances_mm=FAMILY_DISTANCES_MM, tilt_work: Path | None = None):
     """Depth calibration of ``draw`` by tofmetry's chain on in-memory wall stations, and the white
@@ -211,6 +229,8 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
                           "tilt": (cal.diagnostics or {}).get("tilt") or (cal.diagnostics or {}).get("tilt_not_folded"),
                           "tilt_folded": bool((cal.diagnostics or {}).get("tilt")),
                           "true_tilt_mm_1m": list(d.sensor.errors.deform_tilt_mm_1m)}
+    tilt_fit = row["calibration"]["tilt"] or {}
+    row["calibration"]["true_tilt_mm"] = residual_tilt_mm(d.sensor, tilt_fit.get("z_ref_mm", 1000.0))
     scan_dir = work / f"scan-{seed}"
     t1 = time.perf_counter()
     datasets.scan(scan_dir, n_frames=n_frames, mesh=d.mesh, poses=d.path.poses,
@@ -329,6 +349,13 @@ def summarize(rows: list[dict]) -> dict:
                 if cp.get(key):
                     pairs.append(r[key] <= cp[key]["p90"])
             out[f"pose_p90_covers_{name}_{kind}"] = [sum(pairs), len(pairs)]
+    # the depth tilt fitted on boards against what the walls left (residual_tilt_mm), in its sigmas
+    z = [(np.array(c["tilt"]["tilt_mm"]) - c["true_tilt_mm"]) / np.array(c["tilt"]["sigma_mm"])
+         for c in (r.get("calibration") or {} for r in rows) if c.get("true_tilt_mm") and (c.get("tilt") or {}).get("sigma_mm")]
+    if z:
+        z = np.array(z)
+        out["tilt_error_sigmas"] = {"n": len(z), "rms": np.sqrt((z ** 2).mean(0)).round(2).tolist(),
+                                    "within_2_sigma": (np.abs(z) < 2).mean(0).round(2).tolist()}
     out["false_alarm_rate"] = out["false_alarms"] / max(len(flagged), 1)
     out["miss_rate"] = out["misses"] / max(len(wrong), 1)
     # accuracy figures over the runs the chain vouches for (reliable), and over all
@@ -350,6 +377,11 @@ def table(s: dict) -> str:
              f"{'/'.join(map(str, s.get('pose_p90_covers_object_with_noise', [0, 0])))} "
              f"({'/'.join(map(str, s.get('pose_p90_covers_object_calibration', [0, 0])))})",
              "| figure (reliable runs) | median | p90 | worst (seed) | target | n |", "|---|---|---|---|---|---|"]
+    if s.get("tilt_error_sigmas"):
+        t = s["tilt_error_sigmas"]
+        lines.insert(2, f"depth tilt from boards vs what the walls left, in its sigmas (x, y; {t['n']} sensors): RMS "
+                        f"{t['rms'][0]:.2f}, {t['rms'][1]:.2f}; within 2 sigma {t['within_2_sigma'][0]:.0%}, "
+                        f"{t['within_2_sigma'][1]:.0%}")
     for k, d in s["reliable"].items():
         if d["n"] == 0:
             continue

@@ -50,9 +50,13 @@ MIN_SPAN_LINEAR_MM = 300.0
 GROSS_FLOOR_MM = 2.0
 #: systematic part of the tilt's standard error [mm per unit], added in quadrature to what the
 #: views' scatter gives. Measured on 70 simulated family sensors (draws 29-31, 16 checkerboard
-#: captures each, 2026-11-29): the fit was off its sensor's tilt by 1.2 / 1.5 mm per unit RMS (x /
-#: y) while the scatter claimed 0.2-0.7 (errors 3.9 / 3.4 of it, RMS); with 1.2 added, 0.92 / 1.11
-#: and 97 / 91 % within 2 sigma. A real sensor may need more: the held-out check judges each fit.
+#: captures each), against the tilt the walls leave (the least-squares plane over the image of the
+#: sensor's whole per-pixel deformation at the fit's distance; re-measured 2026-11-29 after the
+#: first count took the deformation's explicit tilt term alone): the fit was off by 0.95 / 1.26 mm
+#: per unit RMS (x / y) while the scatter claimed 0.2-0.7 (errors 3.2 / 2.8 of it, RMS; 70 / 66 %
+#: within 2 sigma); with 1.2 added, 0.70 / 0.92 and 99 / 94 % within 2 sigma (draws 32 and 33, 40
+#: other sensors: 0.60 / 0.83 and 0.41 / 0.30, all within 2 sigma). A real sensor may need more:
+#: the held-out check judges each fit.
 SYSTEMATIC_MM = 1.2
 
 
