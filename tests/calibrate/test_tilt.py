@@ -112,10 +112,13 @@ def test_the_held_out_check_has_three_outcomes():
 
         ok = check((6.0, -9.0), (6.0, -9.0))
         assert ok["confirmed"] and ok["rms_mm"] < ok["rms_none_mm"] and ok["bound_mm"] is None
+        assert ok["contradicted"] is False
         bad = check((0.0, 0.0), (6.0, -9.0))
         assert not bad["confirmed"] and bad["rms_mm"] > bad["rms_none_mm"] and bad["bound_mm"] is None
+        assert bad["contradicted"] is True
         small = check((0.0, 0.0), (0.05, 0.05))
-        assert small["confirmed"] or small["bound_mm"] is not None, small  # never contradicted
+        assert small["contradicted"] is False
+        assert small["confirmed"] or small["bound_mm"] is not None, small
         assert np.all(np.array(small["bound_mm"]) >= 0.6)
 
 
@@ -163,3 +166,28 @@ def test_too_few_views_and_a_gross_view_are_said():
     f = fit_depth_tilt(views, intr)
     assert "view008" in [n for n, _ in f.skipped] and len(f.view_z_mm) == 8
     assert np.allclose(f.tilt_mm, (5, 5), atol=4 * f.sigma_mm.max() + 0.1)
+
+
+def _fit(tilt, sigma, held_out):
+    from tofmetry.calibrate import TiltFit
+
+    return TiltFit(np.array(tilt, float), np.zeros(2), np.array(sigma, float), 1000.0, (700.0, 1300.0), "constant",
+                   np.zeros((6, 2)), np.full(6, 1000.0), tuple("abcdef"), np.ones(2), {}, [], 0.0, held_out)
+
+
+def test_a_fit_is_folded_shrunk_by_its_signal_to_noise_unless_contradicted():
+    """``w = t^2 / (t^2 + sigma^2)`` per axis: a fit at 1 sigma goes in at half, one at 5 sigma at
+    26 / 27; the calibration's surfaces take ``w t . (x, y)``. Contradicted, or not checked (too few
+    views), it is not foldable."""
+    checked = {"rms_mm": 2.0, "rms_none_mm": 1.9, "confirmed": False, "contradicted": False}
+    f = _fit((1.2, -6.0), (1.2, 1.2), checked)
+    assert f.foldable and not f.confirmed
+    np.testing.assert_allclose(f.shrink, [0.5, 25 / 26])
+    cal = constant_shift_calibration(0.0, default_sensor().intrinsics)
+    out = with_depth_tilt(cal, f)
+    rays = cal.intrinsics.ray_table(True)
+    expect = 0.5 * 1.2 * rays[..., 0] - 25 / 26 * 6.0 * rays[..., 1]
+    np.testing.assert_allclose(out.surfaces[0] - cal.surfaces[0], expect, atol=1e-4)
+    assert out.diagnostics["tilt"]["shrink"] == [0.5, round(25 / 26, 3)]
+    assert not _fit((1.2, -6.0), (1.2, 1.2), checked | {"contradicted": True}).foldable
+    assert not _fit((1.2, -6.0), (1.2, 1.2), {"rms_mm": None, "confirmed": False, "contradicted": False}).foldable

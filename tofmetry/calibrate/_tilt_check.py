@@ -61,10 +61,11 @@ def held_out_check(T: np.ndarray, Z: np.ndarray, G: np.ndarray, pixels: list[np.
     it by ``q``: the share they carry is ``f = (q - change) / 2q``, with the standard error of the change
     (paired over the held-out views) over ``2q``. The tilt is contradicted when that standard error
     is at most 0.5 (none and all of it 2 standard errors apart), ``f`` is more than 2 standard errors
-    below 1, and the share not carried, ``(1 - f) |t0|``, exceeds twice the fit's standard error: not
-    folded, the calibration's tilt stays uncalibrated. Otherwise it is ``confirmed`` (may be folded
-    in) when the held-out board-plane error is lower with it, and when it is not, nothing is folded
-    and ``bound_mm`` (``|t0| + 2 sigma`` per axis) bounds the tilt the calibration keeps.
+    below 1, and the share not carried, ``(1 - f) |t0|``, exceeds twice the fit's standard error
+    (``contradicted``): not folded, the calibration's tilt stays uncalibrated. Otherwise it may be
+    folded (:attr:`TiltFit.foldable`, shrunk by its signal-to-noise, :attr:`TiltFit.shrink`); it is
+    ``confirmed`` when the held-out board-plane error is lower with it, and when it is not,
+    ``bound_mm`` (``|t0| + 2 sigma`` per axis) says how large it may be.
     ``significant`` (``|t0 / sigma|^2 > 5.99``, 95 % for two axes) is reported as well. Simulated
     (2026-11-29, a (6, -9) mm per unit tilt, 10 checkerboard poses): with the right intrinsics the
     views kept out carry 1.24 +- 0.20 of it (confirmed); given a principal point 12 px off, the views
@@ -85,14 +86,14 @@ def held_out_check(T: np.ndarray, Z: np.ndarray, G: np.ndarray, pixels: list[np.
     (``q``), ``se_mm2`` (the change of the held-out views' mean square, the fold's own, and the
     change's standard error [mm^2]); ``carried``, ``carried_se`` (``f`` and its standard error);
     ``bound_mm`` ((2,) [mm per unit] when the tilt is neither confirmed nor contradicted, else None),
-    ``significant``, ``confirmed``, ``reason``
+    ``significant``, ``confirmed``, ``contradicted``, ``reason``
     """
     V = len(T)
     chi2 = float(np.sum(np.square(np.asarray(t0) / np.maximum(np.asarray(sigma), 1e-9))))
     out = {"blocks": int(blocks), "rms_mm": None, "rms_none_mm": None, "bound_mm": None,
            "significant": bool(chi2 > 5.99)}
     if V < 2 * blocks:
-        out.update(confirmed=False,
+        out.update(confirmed=False, contradicted=False,
                    reason=f"{V} views are too few for a check on {blocks} held-out blocks ({2 * blocks} needed)")
         return out
     ms, ms0, qs = [], [], []
@@ -135,18 +136,18 @@ def held_out_check(T: np.ndarray, Z: np.ndarray, G: np.ndarray, pixels: list[np.
     # the share the offsets do not carry, in mm per unit, beyond the fit's own standard error
     material = bool(np.isfinite(f) and (1 - f) * np.linalg.norm(t0) > 2 * np.linalg.norm(sigma))
     if resolved and f + 2 * sf < 1.0 and material:
-        out.update(confirmed=False, reason=f"the views kept out of its fit carry only {f:.2f} +- {sf:.2f} of it across the "
+        out.update(confirmed=False, contradicted=True, reason=f"the views kept out of its fit carry only {f:.2f} +- {sf:.2f} of it across the "
                                            f"image (their board-plane error {rms0:.2f} -> {rms:.2f} mm RMS with it; {blocks} "
                                            "blocks in recording order): the views' tilts within a board disagree with "
                                            "their offsets across the image (a bias of the board orientations, e.g. from "
                                            "the intrinsics), so the figure is not the sensor's tilt")
     elif rms < rms0:
-        out.update(confirmed=True, reason=f"it lowers the board-plane error of the views kept out of its fit ({rms0:.2f} -> "
+        out.update(confirmed=True, contradicted=False, reason=f"it lowers the board-plane error of the views kept out of its fit ({rms0:.2f} -> "
                                           f"{rms:.2f} mm RMS; they carry {f:.2f} +- {sf:.2f} of it across the image; "
                                           f"{blocks} blocks in recording order)")
     else:
-        out.update(confirmed=False, bound_mm=[round(float(b), 3) for b in bound],
+        out.update(confirmed=False, contradicted=False, bound_mm=[round(float(b), 3) for b in bound],
                    reason=f"it does not lower the board-plane error of the views kept out of its fit ({rms0:.2f} -> "
-                          f"{rms:.2f} mm RMS; they carry {f:.2f} +- {sf:.2f} of it across the image): nothing is folded "
-                          f"in; they bound the tilt left by ({bound[0]:.2f}, {bound[1]:.2f}) mm per unit (|tilt| + 2 sigma)")
+                          f"{rms:.2f} mm RMS; they carry {f:.2f} +- {sf:.2f} of it across the image), nor do they "
+                          f"contradict it; |tilt| + 2 sigma: ({bound[0]:.2f}, {bound[1]:.2f}) mm per unit")
     return out

@@ -90,7 +90,8 @@ def print_tilt(t: dict) -> None:
     console.print(f"  tilt from {t['n_views']} board poses ({t['z_span_mm'][0]:.0f}-{t['z_span_mm'][1]:.0f} mm): "
                   f"({t['tilt_mm'][0]:+.2f} +- {t['sigma_mm'][0]:.2f}, {t['tilt_mm'][1]:+.2f} +- {t['sigma_mm'][1]:.2f}) "
                   f"mm per unit of x / z, y / z at {t['z_ref_mm']:.0f} mm{slope} ({t['angle_deg_at_1m']:.2f} deg at 1 m; "
-                  f"views scatter by ({t['scatter_mm'][0]:.1f}, {t['scatter_mm'][1]:.1f})); folded into the calibration")
+                  f"views scatter by ({t['scatter_mm'][0]:.1f}, {t['scatter_mm'][1]:.1f})); folded into the calibration"
+                  + (f" at ({t['shrink'][0]:.2f}, {t['shrink'][1]:.2f}) of it (its signal-to-noise)" if t.get("shrink") else ""))
     if t.get("held_out"):
         console.print(f"  held-out check: {t['held_out']['reason']}")
     if t.get("incidence_k_mm"):

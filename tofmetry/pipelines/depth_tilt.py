@@ -5,9 +5,9 @@
 frames are, each board's plane is solved from its IR corners, and the depth error linear in the
 image position that the walls could not show is fitted over the views
 (:func:`tofmetry.calibrate.fit_depth_tilt`) and folded into the calibration
-(:func:`tofmetry.calibrate.with_depth_tilt`) when views kept out of the fit confirm it
-(:attr:`tofmetry.calibrate.TiltFit.confirmed`); otherwise the calibration is returned as it was,
-with the reason in the notes. Without a calibration it measures the raw sensor's tilt (nothing is
+(:func:`tofmetry.calibrate.with_depth_tilt`, shrunk by its signal-to-noise) unless views kept out of
+the fit contradict it (:attr:`tofmetry.calibrate.TiltFit.foldable`); then the calibration is
+returned as it was, with the reason in the notes. Without a calibration it measures the raw sensor's tilt (nothing is
 folded in).
 """
 
@@ -35,11 +35,9 @@ class TiltRun:
     Attributes
     ----------
     fit : TiltFit (tilt, its standard error, per-view tilts, model, skipped views)
-    calibration : the calibration with the tilt folded in, or, when the held-out views do not
-        confirm the tilt, the given one unchanged but for ``diagnostics["tilt_not_folded"]`` (the fit
-        and the reason) and, when the tilt is neither confirmed nor contradicted,
-        ``prediction["tilt_bound"]`` (what the boards bound it by, :func:`tofmetry.calibrate.held_out_check`);
-        None when none was given
+    calibration : the calibration with the tilt folded in, or, when the held-out views contradict
+        the tilt (or are too few to check it), the given one unchanged but for
+        ``diagnostics["tilt_not_folded"]`` (the fit and the reason); None when none was given
     folded : whether the tilt was folded into ``calibration``
     n_poses : poses in the dataset; notes : what was skipped and why; seconds : run time
     """
@@ -107,15 +105,15 @@ def tilt_from_boards(path: Path, calibration: DepthCalibration | None = None,
             used.append(name)
     fit = fit_depth_tilt(samples, intr, used)
     notes += [f"pose {n}: {why}" for n, why in fit.skipped]
-    folded = calibration is not None and fit.confirmed
+    folded = calibration is not None and fit.foldable
     cal = calibration
     if folded:
         cal = with_depth_tilt(calibration, fit)
+        if not fit.confirmed:
+            w = fit.shrink
+            notes.append(f"tilt folded in at ({w[0]:.2f}, {w[1]:.2f}) of its fit (its signal-to-noise), not confirmed "
+                         f"by the views kept out: {fit.held_out['reason']}")
     elif calibration is not None:
         notes.append(f"tilt not folded in: {fit.held_out['reason']}")
-        pred = dict(calibration.prediction or {})
-        if pred and fit.held_out.get("bound_mm"):  # neither confirmed nor contradicted: what the boards bound it by
-            pred["tilt_bound"] = {"bound_mm": list(fit.held_out["bound_mm"]), "reason": fit.held_out["reason"]}
-        cal = replace(calibration, prediction=pred,
-                      diagnostics={**(calibration.diagnostics or {}), "tilt_not_folded": fit.to_dict()})
+        cal = replace(calibration, diagnostics={**(calibration.diagnostics or {}), "tilt_not_folded": fit.to_dict()})
     return TiltRun(fit, cal, len(names), notes, time.perf_counter() - t0, folded)

@@ -176,8 +176,9 @@ def depth_field_prior(calibration_prediction: dict | None, depth_span_mm, intr, 
     tilt_sigma_mm : size of a term linear in the image position that the calibration did not
         calibrate [mm per unit of x / z]; when its ``tilt_calibrated`` is true, the standard error
         of the tilt fitted on boards (its ``tilt``, :func:`tofmetry.calibrate.fit_depth_tilt`)
-        is used instead, and when boards neither confirmed nor contradicted their tilt, the larger of the
-        bounds they put on it (its ``tilt_bound``) if that is smaller
+        is used instead, and when it carries a ``tilt_bound`` (calibrations of 2026-11-29, whose boards
+        neither confirmed nor contradicted their tilt and left it out), the larger of those bounds if
+        that is smaller
     """
     sel = _local_folds(calibration_prediction, depth_span_mm) if calibration_prediction else None
     rms = [float(f["rms_systematic_mm"]) for f in sel or [] if np.isfinite(f.get("rms_systematic_mm", np.nan))]
