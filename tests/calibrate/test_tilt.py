@@ -92,8 +92,8 @@ def test_the_held_out_check_has_three_outcomes():
     make them): a tilt the pixels carry is confirmed; a tilt the views' slopes read but the pixels
     do not carry (the board orientations biased) raises the held-out error and is contradicted; a
     tilt of 0.05 mm per unit (plus the views' mean scatter) is too small for the share the pixels
-    carry to matter: it is folded when it lowers their error and bounded when not, never
-    contradicted."""
+    carry to matter: never contradicted (so foldable, shrunk), confirmed when it lowers their error
+    and otherwise reported with its bound."""
     from tofmetry.calibrate import held_out_check
 
     V, N = 12, 400

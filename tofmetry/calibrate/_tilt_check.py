@@ -136,15 +136,17 @@ def held_out_check(T: np.ndarray, Z: np.ndarray, G: np.ndarray, pixels: list[np.
     # the share the offsets do not carry, in mm per unit, beyond the fit's own standard error
     material = bool(np.isfinite(f) and (1 - f) * np.linalg.norm(t0) > 2 * np.linalg.norm(sigma))
     if resolved and f + 2 * sf < 1.0 and material:
-        out.update(confirmed=False, contradicted=True, reason=f"the views kept out of its fit carry only {f:.2f} +- {sf:.2f} of it across the "
-                                           f"image (their board-plane error {rms0:.2f} -> {rms:.2f} mm RMS with it; {blocks} "
-                                           "blocks in recording order): the views' tilts within a board disagree with "
-                                           "their offsets across the image (a bias of the board orientations, e.g. from "
-                                           "the intrinsics), so the figure is not the sensor's tilt")
+        out.update(confirmed=False, contradicted=True,
+                   reason=f"the views kept out of its fit carry only {f:.2f} +- {sf:.2f} of it across the image (their "
+                          f"board-plane error {rms0:.2f} -> {rms:.2f} mm RMS with it; {blocks} blocks in recording "
+                          "order): the views' tilts within a board disagree with their offsets across the image (a "
+                          "bias of the board orientations, e.g. from the intrinsics), so the figure is not the "
+                          "sensor's tilt")
     elif rms < rms0:
-        out.update(confirmed=True, contradicted=False, reason=f"it lowers the board-plane error of the views kept out of its fit ({rms0:.2f} -> "
-                                          f"{rms:.2f} mm RMS; they carry {f:.2f} +- {sf:.2f} of it across the image; "
-                                          f"{blocks} blocks in recording order)")
+        out.update(confirmed=True, contradicted=False,
+                   reason=f"it lowers the board-plane error of the views kept out of its fit ({rms0:.2f} -> {rms:.2f} "
+                          f"mm RMS; they carry {f:.2f} +- {sf:.2f} of it across the image; {blocks} blocks in "
+                          "recording order)")
     else:
         out.update(confirmed=False, contradicted=False, bound_mm=[round(float(b), 3) for b in bound],
                    reason=f"it does not lower the board-plane error of the views kept out of its fit ({rms0:.2f} -> "

@@ -7,8 +7,8 @@ image position that the walls could not show is fitted over the views
 (:func:`tofmetry.calibrate.fit_depth_tilt`) and folded into the calibration
 (:func:`tofmetry.calibrate.with_depth_tilt`, shrunk by its signal-to-noise) unless views kept out of
 the fit contradict it (:attr:`tofmetry.calibrate.TiltFit.foldable`); then the calibration is
-returned as it was, with the reason in the notes. Without a calibration it measures the raw sensor's tilt (nothing is
-folded in).
+returned as it was, with the reason in the notes. Without a calibration it measures the raw
+sensor's tilt (nothing is folded in).
 """
 
 from __future__ import annotations
