@@ -9,8 +9,9 @@ and largest of its size, and how many sensors keep more than 2 mm per unit [mm p
 Rules: nothing folded; the whole fit when the held-out error confirms it (the rule until 4a1a76c);
 every uncontradicted fit shrunk by ``t^2 / (t^2 + sigma^2)`` (:attr:`tofmetry.calibrate.TiltFit.shrink`,
 the rule since); every fit whole. ``contradicted`` is recomputed from the check's figures where a
-row predates that key. Rows of code before 8f62e64 (draws 30-31) have a sigma without
-:data:`~tofmetry.calibrate._tilt.SYSTEMATIC_MM`: pass ``--add-systematic`` for them.
+row predates that key. Rows of code before 8f62e64 (draws 30-31) have a sigma without the
+systematic part (``SYSTEMATIC_MM`` of :mod:`tofmetry.calibrate`'s tilt fit, 1.2 mm per unit):
+pass ``--add-systematic 1.2`` for them.
 """
 
 from __future__ import annotations
@@ -21,11 +22,10 @@ import json
 import numpy as np
 
 from bench.robustness.family import residual_tilt_mm
-from tofmetry.calibrate._tilt import SYSTEMATIC_MM
 from tofmetry.simulate.family import random_sensor
 
 
-def _cases(paths, add_systematic: bool):
+def _cases(paths, add_systematic: float):
     for p in paths:
         for line in open(p):
             r = json.loads(line)
@@ -34,8 +34,7 @@ def _cases(paths, add_systematic: bool):
             if h.get("carried") is None:
                 continue
             tt, sg = np.array(t["tilt_mm"]), np.array(t["sigma_mm"])
-            if add_systematic:
-                sg = np.hypot(sg, SYSTEMATIC_MM)
+            sg = np.hypot(sg, add_systematic)
             f, sf = h["carried"], h["carried_se"]
             contra = h.get("contradicted")
             if contra is None:  # the rule of held_out_check
@@ -47,7 +46,8 @@ def _cases(paths, add_systematic: bool):
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("rows", nargs="+")
-    ap.add_argument("--add-systematic", action="store_true", help="the rows' sigma lacks SYSTEMATIC_MM")
+    ap.add_argument("--add-systematic", type=float, default=0.0, metavar="MM",
+                    help="added in quadrature to the rows' sigma (1.2 for rows of code before 8f62e64)")
     a = ap.parse_args(argv)
     cases = list(_cases(a.rows, a.add_systematic))
     rules = {"nothing": lambda tt, sg, c, cf: np.zeros(2),
