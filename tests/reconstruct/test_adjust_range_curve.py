@@ -102,3 +102,26 @@ def test_curve_not_estimated_when_views_do_not_observe_it(ring_ranges):
                         curve_prior_m=1e-6, curve_half_span_m=HALF)
     assert not res.range_curve_estimated and res.range_curve_note.startswith("not observable")
     np.testing.assert_array_equal(res.range_curve_m, 0.0)
+
+
+def test_only_the_determined_low_terms_are_kept():
+    """A design whose third curve term nearly repeats the first (two wiggle terms the views cannot
+    tell apart, as over a shallow object): with all three in the fit neither of the pair is
+    determined; with the third left out the first two are, to the precision of the reduced fit,
+    which is what :func:`determined_terms` must return. When even the lowest term alone is not
+    determined it keeps none."""
+    from tofmetry.reconstruct._adjust_sigma import curve_sigmas, determined_terms
+
+    rng = np.random.default_rng(3)
+    n = 400
+    J = rng.normal(size=(n, 6 + 3 + 1))  # 6 pose unknowns, 3 curve terms, the gain
+    J[:, 8] = J[:, 6] + 1e-3 * rng.normal(size=n)  # term 3 ~ term 1
+    H = J.T @ J
+    full = curve_sigmas(H, 1.0, 1.0, 3, False)
+    k, sd = determined_terms(H, 1.0, 1.0, 3, 0, 6, False, prior_m=0.2)
+    keep = np.r_[0:8, 9]
+    assert full[0] > 1.0 and full[2] > 1.0 and full[1] < 0.1, full  # the pair is undetermined together
+    assert k == 2, (k, sd)
+    np.testing.assert_allclose(sd, curve_sigmas(H[np.ix_(keep, keep)], 1.0, 1.0, 2, False))
+    assert np.all(sd < 0.2)
+    assert determined_terms(H, 1.0, 1.0, 3, 0, 6, False, prior_m=1e-6) == (0, None)

@@ -43,7 +43,13 @@ from tofmetry.reconstruct._adjust_albedo import albedo_gradients, albedo_terms
 from tofmetry.reconstruct._adjust_field import DepthFieldPrior, pose_spread
 from tofmetry.reconstruct._adjust_prior import pose_prior_terms
 from tofmetry.reconstruct._adjust_result import AdjustResult
-from tofmetry.reconstruct._adjust_sigma import curve_sigmas, gain_sigmas, pose_covariance, pose_sigmas
+from tofmetry.reconstruct._adjust_sigma import (
+    curve_sigmas,
+    determined_terms,
+    gain_sigmas,
+    pose_covariance,
+    pose_sigmas,
+)
 from tofmetry.reconstruct._adjust_terms import (
     AdjustView,
     _correlation_with_gain,
@@ -112,8 +118,10 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
     curve_prior_m : prior standard deviation of each curve coefficient [m] (the residual the depth
         calibration can leave); the curve is estimated only when the data alone (poses and gain
         marginalised, times ``sigma_inflation``) determine every coefficient better than this prior,
-        checked at the first iteration and at the first of the last radius; otherwise it stays 0
-        and :attr:`AdjustResult.range_curve_note` says why
+        checked at the first iteration and at the first of the last radius; otherwise its highest
+        terms are left out while that makes the rest determined (:func:`determined_terms`: two terms
+        the views cannot tell apart over a shallow object), and when not even the lowest is, it stays
+        0; :attr:`AdjustResult.range_curve_note` says which
     curve_half_span_m : half the depth span of the curve [m]; None: the largest distance from
         ``z_ref_m`` of the central 98 % of all views' ``source`` depths
     amplitude_prior_m : prior standard deviation of the amplitude-bias correction ``dk`` [m per ln
@@ -190,6 +198,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
     curve_sd = np.full(D, np.nan)
     curve_cov = np.zeros((D, D))
     curve_checked = False
+    curve_cut = ""  # what the views left undetermined above the degree kept
     # amplitude bias: dk [m per ln unit], active flag
     amp_on = amplitude_prior_m is not None and all(v.source_amp is not None and v.target_amp is not None
                                                    for v in views)
@@ -266,14 +275,22 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                 off = False
                 if curve_on and not curve_checked:
                     curve_sd, curve_checked = sd[:D], r == radii_m[-1]
-                    if not np.all(curve_sd < curve_prior_m):
+                    kept, kept_sd = (determined_terms(H, s2, sigma_inflation, D, n_extra() - D, 6 * (V - 1),
+                                                      estimate_gain, curve_prior_m)
+                                     if not np.all(curve_sd < curve_prior_m) else (D, curve_sd))
+                    if 0 < kept < D:  # the lower terms the views determine: the curve up to that degree
+                        curve_cut = (f"; up to degree {kept + 1} only: with all {D} terms they were determined "
+                                     "only to +-" + ", ".join(f"{x * 1e3:.3f}" for x in curve_sd)
+                                     + f" mm (prior +-{curve_prior_m * 1e3:.3f} mm)")
+                        D, c_curve, curve_sd, off = kept, c_curve[:kept], kept_sd, True
+                    elif not np.all(curve_sd < curve_prior_m):
                         curve_note = ("not observable: the views determine its coefficients only to +-"
                                       + ", ".join(f"{x * 1e3:.3f}" for x in curve_sd)
                                       + f" mm (prior +-{curve_prior_m * 1e3:.3f} mm); kept at 0")
                         curve_on, c_curve, off = False, np.zeros(D), True
                 if amp_on and not amp_checked:
                     amp_sd, amp_checked = float(sd[i_amp]), r == radii_m[-1]
-                    amp_corr, amp_slope = (_correlation_with_gain(H, 6 * (V - 1) + (D if curve_on else 0))
+                    amp_corr, amp_slope = (_correlation_with_gain(H, 6 * (V - 1) + i_amp)
                                            if estimate_gain else (0.0, 0.0))
                     if not amp_sd < amplitude_prior_m:
                         amp_note = (f"not observable: the views determine dk only to +-{amp_sd * 1e3:.2f} mm per ln "
@@ -413,7 +430,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         res.range_curve_prior_m = float(curve_prior_m)
         res.range_curve_estimated = bool(curve_on)
         res.range_curve_note = ("estimated: the views determine its coefficients to +-"
-                                + ", ".join(f"{x * 1e3:.3f}" for x in curve_sd) + " mm (data alone)") \
+                                + ", ".join(f"{x * 1e3:.3f}" for x in curve_sd) + " mm (data alone)" + curve_cut) \
             if curve_on else curve_note
     return res
 

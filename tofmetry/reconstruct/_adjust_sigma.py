@@ -73,6 +73,31 @@ def pose_sigmas(C: np.ndarray | None, V: int):
     return deg, mm
 
 
+def determined_terms(H: np.ndarray, s2: float, inflation: float, n_curve: int, n_other: int, n_pose: int,
+                     with_gain: bool, prior_m: float) -> tuple[int, np.ndarray | None]:
+    """How many of the range curve's lowest terms the data alone determine better than ``prior_m``
+    when the higher terms are left out of the fit (a wiggle of short period over a deep scan
+    leaves its high terms undetermined, and its low ones determined once those are dropped).
+
+    Parameters
+    ----------
+    H : (P, P) data-only normal matrix: ``n_pose`` pose unknowns, ``n_curve`` curve coefficients
+        (lowest degree first), ``n_other`` further depth-error unknowns, the gain last
+    s2, inflation, with_gain : as :func:`curve_sigmas`; prior_m : the coefficients' prior [m]
+
+    Returns
+    -------
+    (k, (k,) standard errors [m] of the k terms kept) with ``k < n_curve`` the most terms that all
+    pass, or (0, None) when not even the lowest does
+    """
+    for k in range(n_curve - 1, 0, -1):
+        keep = np.setdiff1d(np.arange(len(H)), np.arange(n_pose + k, n_pose + n_curve))
+        sd = curve_sigmas(H[np.ix_(keep, keep)], s2, inflation, k + n_other, with_gain)[:k]
+        if np.all(sd < prior_m):
+            return k, sd
+    return 0, None
+
+
 def curve_sigmas(H: np.ndarray, s2: float, inflation: float, n_curve: int, with_gain: bool) -> np.ndarray:
     """Standard errors of the range-curve coefficients from the data alone (poses and gain
     marginalised, no prior) [m].
