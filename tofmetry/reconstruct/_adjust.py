@@ -279,9 +279,9 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                                                       estimate_gain, curve_prior_m)
                                      if not np.all(curve_sd < curve_prior_m) else (D, curve_sd))
                     if 0 < kept < D:  # the lower terms the views determine: the curve up to that degree
-                        curve_cut = (f"; up to degree {kept + 1} only: with all {D} terms they were determined "
-                                     "only to +-" + ", ".join(f"{x * 1e3:.3f}" for x in curve_sd)
-                                     + f" mm (prior +-{curve_prior_m * 1e3:.3f} mm)")
+                        curve_cut = (f"; up to degree {kept + 1} only (up to degree {D + 1} the views determine its "
+                                     "coefficients only to +-" + ", ".join(f"{x * 1e3:.3f}" for x in curve_sd)
+                                     + f" mm, prior +-{curve_prior_m * 1e3:.3f} mm)")
                         D, c_curve, curve_sd, off = kept, c_curve[:kept], kept_sd, True
                     elif not np.all(curve_sd < curve_prior_m):
                         curve_note = ("not observable: the views determine its coefficients only to +-"
