@@ -275,19 +275,18 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                 off = False
                 if curve_on and not curve_checked:
                     curve_sd, curve_checked = sd[:D], r == radii_m[-1]
-                    kept, kept_sd = (determined_terms(H, s2, sigma_inflation, D, n_extra() - D, 6 * (V - 1),
-                                                      estimate_gain, curve_prior_m)
-                                     if not np.all(curve_sd < curve_prior_m) else (D, curve_sd))
-                    if 0 < kept < D:  # the lower terms the views determine: the curve up to that degree
-                        curve_cut = (f"; up to degree {kept + 1} only (up to degree {D + 1} the views determine its "
-                                     "coefficients only to +-" + ", ".join(f"{x * 1e3:.3f}" for x in curve_sd)
-                                     + f" mm, prior +-{curve_prior_m * 1e3:.3f} mm)")
-                        D, c_curve, curve_sd, off = kept, c_curve[:kept], kept_sd, True
-                    elif not np.all(curve_sd < curve_prior_m):
-                        curve_note = ("not observable: the views determine its coefficients only to +-"
-                                      + ", ".join(f"{x * 1e3:.3f}" for x in curve_sd)
-                                      + f" mm (prior +-{curve_prior_m * 1e3:.3f} mm); kept at 0")
-                        curve_on, c_curve, off = False, np.zeros(D), True
+                    if not np.all(curve_sd < curve_prior_m):
+                        sds = ", ".join(f"{x * 1e3:.3f}" for x in curve_sd)
+                        kept, kept_sd = determined_terms(H, s2, sigma_inflation, D, n_extra() - D, 6 * (V - 1),
+                                                         estimate_gain, curve_prior_m)
+                        if kept:  # the lower terms the views determine: the curve up to that degree
+                            curve_cut = (f"; up to degree {kept + 1} only (up to degree {D + 1} the views determine "
+                                         f"its coefficients only to +-{sds} mm, prior +-{curve_prior_m * 1e3:.3f} mm)")
+                            D, c_curve, curve_sd, off = kept, c_curve[:kept], kept_sd, True
+                        else:
+                            curve_note = (f"not observable: the views determine its coefficients only to +-{sds} mm "
+                                          f"(prior +-{curve_prior_m * 1e3:.3f} mm); kept at 0")
+                            curve_on, c_curve, off = False, np.zeros(D), True
                 if amp_on and not amp_checked:
                     amp_sd, amp_checked = float(sd[i_amp]), r == radii_m[-1]
                     amp_corr, amp_slope = (_correlation_with_gain(H, 6 * (V - 1) + i_amp)

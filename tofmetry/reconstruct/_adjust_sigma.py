@@ -76,8 +76,8 @@ def pose_sigmas(C: np.ndarray | None, V: int):
 def determined_terms(H: np.ndarray, s2: float, inflation: float, n_curve: int, n_other: int, n_pose: int,
                      with_gain: bool, prior_m: float) -> tuple[int, np.ndarray | None]:
     """How many of the range curve's lowest terms the data alone determine better than ``prior_m``
-    when the higher terms are left out of the fit (a wiggle of short period over a deep scan
-    leaves its high terms undetermined, and its low ones determined once those are dropped).
+    when the higher terms are left out of the fit (two terms the views cannot tell apart over a
+    shallow object are undetermined together, and the lower one is determined once the higher is dropped).
 
     Parameters
     ----------
