@@ -22,6 +22,7 @@ import json
 import numpy as np
 
 from bench.robustness.family import residual_tilt_mm
+from tofmetry.calibrate import tilt_contradicted
 from tofmetry.simulate.family import random_sensor
 
 
@@ -37,8 +38,8 @@ def _cases(paths, add_systematic: float):
             sg = np.hypot(sg, add_systematic)
             f, sf = h["carried"], h["carried_se"]
             contra = h.get("contradicted")
-            if contra is None:  # the rule of held_out_check
-                contra = bool(sf <= 0.5 and f + 2 * sf < 1 and (1 - f) * np.linalg.norm(tt) > 2 * np.linalg.norm(sg))
+            if contra is None:  # rows from before the key: held_out_check's rule on their figures
+                contra = tilt_contradicted(f, sf, tt, sg)
             true = np.array(residual_tilt_mm(random_sensor(r["seed"]), t["z_ref_mm"]))
             yield tt, sg, true, contra, h["rms_mm"] < h["rms_none_mm"] and not contra
 

@@ -44,7 +44,7 @@ from tofmetry.calibrate._prediction import before_after, check_prediction, sampl
 from tofmetry.calibrate._fit_study import StudyFitConfig, StudyFitResult, fit_study_model
 from tofmetry.calibrate._range import fit_range_curve
 from tofmetry.calibrate._tilt import TiltFit, fit_depth_tilt, with_depth_tilt
-from tofmetry.calibrate._tilt_check import held_out_check
+from tofmetry.calibrate._tilt_check import held_out_check, tilt_contradicted
 from tofmetry.calibrate._surface import SurfaceSpec, fit_surface
 from tofmetry.calibrate._wall import (
     PlaneFit, StationStats, central_patch, fit_plane, station_statistics, wall_reference, wall_sample,
@@ -77,7 +77,7 @@ __all__ = [
     "DepthSample", "JointSpec", "DepthCalibrationResult", "DepthFitConfig", "fit_depth_model",
     "before_after", "check_prediction", "sample_metrics",
     "StudyFitConfig", "StudyFitResult", "fit_study_model", "fit_range_curve", "SurfaceSpec", "fit_surface",
-    "TiltFit", "fit_depth_tilt", "held_out_check", "with_depth_tilt",
+    "TiltFit", "fit_depth_tilt", "held_out_check", "tilt_contradicted", "with_depth_tilt",
     "PlaneFit", "StationStats", "central_patch", "fit_plane", "station_statistics", "wall_reference", "wall_sample",
     "METHODS", "StationReport", "central_fraction_mask", "cross_validate", "evaluate_wall_station", "fit_any",
     "summarize",

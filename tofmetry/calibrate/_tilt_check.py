@@ -38,6 +38,28 @@ def _predict(m: tuple, z: np.ndarray, G: np.ndarray) -> np.ndarray:
     return t0 + np.multiply.outer(z - zr, t1) + k * G
 
 
+def tilt_contradicted(carried: float, carried_se: float, tilt_mm, sigma_mm) -> bool:
+    """Whether the views kept out of a tilt fit contradict it (:func:`held_out_check`'s rule).
+
+    Parameters
+    ----------
+    carried, carried_se : the share of the tilt the held-out views carry across the image, and its
+        standard error (dimensionless; NaN / inf where unknown)
+    tilt_mm, sigma_mm : (2,) the fitted tilt and its standard error [mm per unit of x / z, y / z]
+
+    Returns
+    -------
+    True when the share is resolved (standard error at most 0.5: 0 and 1 at least 2 standard errors
+    apart), below 1 by more than 2 standard errors, and the part not carried, in mm per unit, exceeds
+    twice the fit's own standard error
+    """
+    f, sf = float(carried), float(carried_se)
+    if not (np.isfinite(f) and sf <= 0.5):
+        return False
+    material = (1 - f) * np.linalg.norm(tilt_mm) > 2 * np.linalg.norm(sigma_mm)
+    return bool(f + 2 * sf < 1.0 and material)
+
+
 def held_out_check(T: np.ndarray, Z: np.ndarray, G: np.ndarray, pixels: list[np.ndarray], linear: bool,
                    incidence: bool, t0: np.ndarray, sigma: np.ndarray, blocks: int = HELD_OUT_BLOCKS) -> dict:
     """Does the tilt lower the board-plane error of views kept out of its fit?
@@ -132,10 +154,7 @@ def held_out_check(T: np.ndarray, Z: np.ndarray, G: np.ndarray, pixels: list[np.
     out.update(rms_mm=round(rms, 3), rms_none_mm=round(rms0, 3), change_mm2=round(float(np.mean(d)), 4),
                effect_mm2=round(q, 4), se_mm2=round(se, 4), carried=round(f, 3) if np.isfinite(f) else None,
                carried_se=round(sf, 3) if np.isfinite(sf) else None, bound_mm=None)
-    resolved = bool(np.isfinite(f) and sf <= 0.5)  # 0 and 1 at least 2 standard errors apart
-    # the share the offsets do not carry, in mm per unit, beyond the fit's own standard error
-    material = bool(np.isfinite(f) and (1 - f) * np.linalg.norm(t0) > 2 * np.linalg.norm(sigma))
-    if resolved and f + 2 * sf < 1.0 and material:
+    if tilt_contradicted(f, sf, t0, sigma):
         out.update(confirmed=False, contradicted=True,
                    reason=f"the views kept out of its fit carry only {f:.2f} +- {sf:.2f} of it across the image (their "
                           f"board-plane error {rms0:.2f} -> {rms:.2f} mm RMS with it; {blocks} blocks in recording "
