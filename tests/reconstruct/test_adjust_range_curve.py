@@ -125,3 +125,35 @@ def test_only_the_determined_low_terms_are_kept():
     np.testing.assert_allclose(sd, curve_sigmas(H[np.ix_(keep, keep)], 1.0, 1.0, 2, False))
     assert np.all(sd < 0.2)
     assert determined_terms(H, 1.0, 1.0, 3, 0, 6, False, prior_m=1e-6) == (0, None)
+
+
+def test_the_curves_degree_follows_the_spread_of_the_views_distances():
+    """Views at one distance (a turntable, the object on its axis) keep the base degree; a loop
+    whose distances to the object vary by more than ``range_varied_min`` gets
+    ``range_curve_degree_varied``; the reason names the spread either way."""
+    from types import SimpleNamespace
+
+    from tofmetry.reconstruct._adjust_stage import curve_degree_for, view_distance_spread
+    from tofmetry.reconstruct._config import ReconstructionConfig
+
+    world = np.random.default_rng(3).normal(0.0, 0.05, (500, 3))
+    world -= world.mean(axis=0)  # the object round the origin [m]
+
+    def views(distances):
+        poses = [_look_at(d * np.array([np.cos(a), np.sin(a), 0.3]) / np.hypot(1.0, 0.3), np.zeros(3))
+                 for a, d in zip(np.linspace(0, 2 * np.pi, len(distances), endpoint=False), distances)]
+        regs = [SimpleNamespace(obj_points=world @ T[:3, :3] - T[:3, 3] @ T[:3, :3]) for T in poses]
+        return regs, np.array(poses)
+
+    cfg = ReconstructionConfig()
+    flat = view_distance_spread(*views([1.0] * 8))
+    assert flat < 1e-9
+    degree, why = curve_degree_for(flat, cfg)
+    assert degree == cfg.registration.range_curve_degree and "vary by 0.0 % only" in why
+    varied = view_distance_spread(*views([0.9, 1.1] * 4))
+    assert varied == pytest.approx(0.1, rel=1e-6)  # std 0.1 m over a median of 1.0 m
+    degree, why = curve_degree_for(varied, cfg)
+    assert degree == cfg.registration.range_curve_degree_varied and "10.0 %" in why
+    assert curve_degree_for(float("nan"), cfg)[0] == cfg.registration.range_curve_degree
+    off = ReconstructionConfig.model_validate({"registration": {"range_curve_degree": 0}})
+    assert curve_degree_for(0.07, off) == (0, "")

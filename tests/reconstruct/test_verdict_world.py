@@ -13,7 +13,7 @@ from tofmetry.reconstruct._calibration_support import (
     extrapolation_warning,
     local_prediction,
 )
-from tofmetry.reconstruct._verdict import assess, scale_report
+from tofmetry.reconstruct._verdict import assess, curve_residual_mm, scale_report
 from tofmetry.reconstruct._world import support_plane_frame, transform_plane
 
 
@@ -41,7 +41,7 @@ def test_yaw_free_edge_makes_the_run_unreliable():
     assert not v["reliable"] and e[0]["verdict"] == "yaw free" and "rotation about the vertical" in v["reasons"][0]
 
 
-def test_rejected_dropped_left_out_and_calibration_warning():
+def test_rejected_dropped_left_out_and_calibration_warnings():
     e = [_edge("00", "01"), _edge("01", "02"), _edge("00", "02"),
          _edge("02", "03", accepted=False, kept=False) | {"reason": "rejected: overlap 0.10 < 0.35"},
          _edge("00", "02", accepted=False, kept=False, method="fpfh+icp (dropped: contradicts the other views)")]
@@ -50,7 +50,9 @@ def test_rejected_dropped_left_out_and_calibration_warning():
                calibration_prediction=pred)
     assert e[3]["verdict"] == "rejected" and "overlap" in e[3]["reason"] and e[4]["verdict"] == "dropped"
     assert v["views"]["03"]["verdict"] == "left out"
-    assert not v["reliable"] and "4.2 mm" in v["reasons"][0]
+    # a calibration's predicted error is a warning: the views' own checks judge the poses
+    assert v["reliable"] and not v["reasons"]
+    assert any("4.2 mm" in w and "stations too far apart" in w for w in v["warnings"])
 
 
 def test_spread_loops_beyond_the_pose_gate_are_flagged():
@@ -69,6 +71,28 @@ def test_scale_report_from_the_calibration_and_the_gain():
     r = scale_report({"gain_estimated": False}, pred, 1000.0)
     assert np.isclose(r["gain_sigma"], 0.3 / 125) and r["station_spacing_mm"] == 250
     assert scale_report(None, None, 1000.0)["predicted_scale_sigma_pct"] is None
+
+
+def test_a_range_curve_larger_than_predicted_widens_the_scale_uncertainty():
+    """The joint fit's range curve is the views' own measure of the range error left over the
+    object's depths: above the calibration's predicted error, the gain it can leave follows it; a
+    curve within the prediction, one not estimated, or a self-calibrated gain change nothing."""
+    pred = {"interpolation": {"central_abs_mm": {"predicted": 0.3}},
+            "folds": [{"center_mm": 1000.0 + 250 * k} for k in range(5)]}
+    dz = [-2.4, -0.6, 0.0, 0.6, 1.8]  # [mm]: RMS 1.36 mm
+    curve = {"range_curve": {"estimated": True, "dz_mm": dz}}
+    assert curve_residual_mm(curve) == pytest.approx(np.sqrt(np.mean(np.square(dz))))
+    assert curve_residual_mm({"range_curve": {"estimated": False, "dz_mm": dz}}) is None
+    assert curve_residual_mm(None) is None
+    e_c = curve_residual_mm(curve)
+    r = scale_report({"gain_estimated": False} | curve, pred, 1000.0)
+    assert r["gain_sigma"] == pytest.approx(e_c / 125) and r["curve_residual_mm"] == pytest.approx(e_c)
+    assert r["predicted_offset_sigma_mm"] == 0.3 and "range curve" in r["source"]
+    assert r["predicted_scale_sigma_pct"] == pytest.approx(100 * np.hypot(0.3 / 1000, e_c / 250))
+    small = {"range_curve": {"estimated": True, "dz_mm": [-0.2, 0.0, 0.0, 0.1, 0.2]}}
+    assert scale_report({"gain_estimated": False} | small, pred, 1000.0)["gain_sigma"] == pytest.approx(0.3 / 125)
+    est = {"depth_gain": 0.001, "gain_estimated": True, "gain_sigma_data": 0.0004} | curve
+    assert scale_report(est, pred, 1000.0)["gain_sigma"] == pytest.approx(0.0004)
 
 
 def test_the_chains_own_scale_error_is_added_in_quadrature():
@@ -235,7 +259,7 @@ def test_the_calibrations_error_is_taken_where_the_object_lies():
     assert mid["local"]["stations_mm"] == [1000.0, 1250.0]
     assert mid["interpolation"]["central_abs_mm"]["predicted"] == pytest.approx(2.9)
     v = assess(_names(2), [_edge("00", "01")], {"reasons": [], "loops": []}, calibration_prediction=mid)
-    assert not v["reliable"] and "1050-1200 mm" in v["reasons"][0]
+    assert v["reliable"] and any("1050-1200 mm" in w and "2.9 mm" in w for w in v["warnings"])
     assert local_prediction(pred, (2500.0, 2700.0))["local"]["stations_mm"] == [1500.0, 2000.0]
     assert near["local"]["spacing_mm"] == 100.0 and mid["local"]["spacing_mm"] == 250.0
     assert local_prediction(None, (0, 1)) is None and local_prediction({"folds": []}, (0, 1)) == {"folds": []}

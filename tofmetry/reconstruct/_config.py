@@ -224,6 +224,15 @@ class RegistrationConfig(BaseModel):
                                     "better than its prior. Measured on 6 fresh family draws: the pose error drops "
                                     "or stays on every run whose registration is right (0.34 -> 0.17 deg, 1.13 -> "
                                     "0.28 deg); no verdict changed (README)")
+    range_curve_degree_varied: int = Field(5, ge=0, description="the range curve's degree when the views' distances "
+                                           "to the object vary by at least range_varied_min (a hand-held loop: they "
+                                           "see the same surfaces at different ranges); measured from the true "
+                                           "poses on 16 hand-held family scans, degree 5 left 3 beyond the pose gate "
+                                           "instead of 7 (on 9 turntables it made 4 worse, so they keep "
+                                           "range_curve_degree)")
+    range_varied_min: float = Field(0.04, ge=0, description="relative spread (std / median) of the views' distances "
+                                    "to the object from which range_curve_degree_varied applies (a turntable: 0; "
+                                    "a hand-held loop at +-12 % jitter: about 7 %)")
     range_curve_prior_mm: float | None = Field(None, gt=0, description="prior standard deviation of each range-curve "
                                                "coefficient [mm]; None: the depth calibration's predicted central "
                                                "error between its stations (1 mm without one)")
@@ -269,8 +278,9 @@ class RegistrationConfig(BaseModel):
                                    "(neighbouring points of a view share their depth error: ~25 px patches per "
                                    "independent sample)")
     max_calibration_mm: float = Field(1.5, gt=0, description="a depth calibration that predicts a larger central error "
-                                      "between its stations makes the run unreliable (a calibration that only doubts its prediction "
-                                      "is a warning) [mm]")
+                                      "between its stations is a warning; the views' own checks judge the poses "
+                                      "(as a reason, on 104 family runs, every wrong run it flagged was flagged "
+                                      "by another reason too, and it flagged 4 right ones alone) [mm]")
     restart_check: bool = Field(True, description="when the global adjustment moved a view by more than half the pose "
                                 "gate, restart it from the pose graph's poses reflected through its solution (moved at "
                                 "least the pose gate); a restart that ends more than half the pose gate away makes the run "
