@@ -44,8 +44,9 @@ def view_distance_spread(regs: list[RegView], poses: np.ndarray) -> float:
     varies it by several per cent. NaN with fewer than two views."""
     if len(regs) < 2:
         return float("nan")
-    c = np.concatenate([transform_points(r.obj_points, T) for r, T in zip(regs, poses)]).mean(axis=0)
-    z = np.array([(np.linalg.inv(T) @ np.r_[c, 1.0])[2] for T in poses])
+    P = np.asarray(poses, float)
+    c = np.concatenate([transform_points(r.obj_points, T) for r, T in zip(regs, P)]).mean(axis=0)
+    z = np.einsum("vi,vi->v", P[:, :3, 2], c - P[:, :3, 3])  # along each camera's optical axis
     return float(np.std(z) / np.median(z))
 
 

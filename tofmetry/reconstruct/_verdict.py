@@ -371,8 +371,8 @@ def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z
     is the views' own measure of the range error the calibration left there; when it exceeds ``e``,
     the gain a calibration can leave is taken from it instead (``curve_residual_mm``). Measured on the
     35 reliable runs of family draws 30-34 with a scale: two ended 2.7 and 2.8 sigma off (an igea
-    -0.60 % against 0.21 %, its curve 1.2 mm RMS where the calibration predicted 0.36 mm); recomputed
-    with the curve, 1 run beyond 2 sigma, |error| / sigma p68 0.31 (0.40 before), p90 0.76 (1.32).
+    -0.60 % against 0.21 %, its curve 1.43 mm RMS where the calibration predicted 0.36 mm); recomputed
+    with the curve, 1 run beyond 2 sigma, |error| / sigma p68 0.31 (0.40 before), p90 0.78 (1.32).
 
     ``floor_pct`` [%], the modelling chain's own scale error (registration, fusion, meshing; a
     configured figure, :attr:`RegistrationConfig.scale_floor_pct`), is added in quadrature to the
