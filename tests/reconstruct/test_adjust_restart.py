@@ -104,13 +104,20 @@ def test_the_verdict_flags_a_slide_and_keeps_the_move_gate_when_the_fit_comes_ba
     stay = [{"source": 1, "target": 2, "deg": 0.05, "mm": 0.4}, {"source": 2, "target": 0, "deg": 0.2, "mm": 1.2}]
     v = verdict(big, {"deg": 0.02, "mm": 0.1, "view": 2, "start_deg": 0.9, "pairs": stay})
     assert v["reliable"] and "stay there" in v["warnings"][0] and "pose graph had been off" in v["warnings"][0]
-    walk = stay[:1] + [{"source": 2, "target": 0, "deg": 0.2, "mm": 1.6}]  # 1.6 mm at the object: beyond 1.5
+    walk = stay[:1] + [{"source": 2, "target": 0, "deg": 0.2, "mm": 3.2}]  # 3.2 mm at the object: beyond 3
     v = verdict(big, {"deg": 0.02, "mm": 0.1, "view": 2, "start_deg": 0.9, "pairs": walk})
-    assert not v["reliable"] and "pair 02->00 walks 0.20 deg / 1.6 mm" in v["reasons"][0]
+    assert not v["reliable"] and "pair 02->00 walks 0.20 deg / 3.2 mm" in v["reasons"][0]
     # a slide: a reason whatever the move, naming the view
-    v = verdict(small, {"deg": 0.3, "mm": 1.0, "view": 2, "start_deg": 0.5})
+    v = verdict(small, {"deg": 0.6, "mm": 1.0, "view": 2, "start_deg": 0.5})
     assert not v["reliable"] and "do not pin the joint fit down" in v["reasons"][0] and "view 02" in v["reasons"][0]
-    assert not verdict(small, {"deg": 0.1, "mm": 2.0, "view": 1, "start_deg": 0.5})["reliable"]  # at the object
+    assert not verdict(small, {"deg": 0.1, "mm": 3.1, "view": 1, "start_deg": 0.5})["reliable"]  # at the object
+    # within the gate, but beyond half of it: only where the share asks for half
+    half = {"deg": 0.3, "mm": 1.6, "view": 2, "start_deg": 0.5}
+    v = verdict(small, half)
+    assert v["reliable"] and "determine the poses only to about that" in v["warnings"][0]
+    v = assess(names, _edges(names), cons, adjustment=dict(adj, moved_deg=small, restart=half),
+               calibration_prediction={}, restart_share=0.5)
+    assert not v["reliable"] and "limit 0.25 deg / 1.5 mm" in v["reasons"][0]
     # under the gate and come back: nothing to say
     v = verdict(small, {"deg": 0.01, "mm": 0.1, "view": 2, "start_deg": 0.5})
     assert v["reliable"] and not v["warnings"]

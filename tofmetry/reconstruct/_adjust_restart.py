@@ -95,11 +95,12 @@ def restart_probe(solution: np.ndarray, start: np.ndarray, rerun: Callable[[np.n
             "per_view_deg": [round(float(x), 4) for x in deg]}
 
 
-def came_back(restart: dict | None, pose_gate_deg: float, pose_gate_mm: float) -> bool:
-    """Whether a :func:`restart_probe` result ended within half the pose gate of the solution
-    (rotation [deg] and displacement at the object [mm]); False without one or when it failed."""
-    return (restart is not None and "failed" not in restart and restart["deg"] <= pose_gate_deg / 2
-            and restart["mm"] <= pose_gate_mm / 2)
+def came_back(restart: dict | None, pose_gate_deg: float, pose_gate_mm: float, share: float = 1.0) -> bool:
+    """Whether a :func:`restart_probe` result ended within ``share`` of the pose gate of the
+    solution (rotation [deg] and displacement at the object [mm]); False without one or when it
+    failed. ``share``: ``registration.restart_share`` (:class:`~tofmetry.reconstruct.ReconstructionConfig`)."""
+    return (restart is not None and "failed" not in restart and restart["deg"] <= share * pose_gate_deg
+            and restart["mm"] <= share * pose_gate_mm)
 
 
 def pair_walks(solution: np.ndarray, pairs, refine: Callable[[int, int, np.ndarray], np.ndarray],

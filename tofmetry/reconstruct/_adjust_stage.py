@@ -181,7 +181,8 @@ def _pair_walks(res: AdjustResult, regs: list[RegView], edges, cfg: Reconstructi
     of that view registered again from the joint fit (:func:`pair_walks`), in ``res.restart["pairs"]``."""
     rc = cfg.registration
     w = int(np.argmax(res.moved_deg))
-    if float(res.moved_deg[w]) <= rc.pose_gate_deg or not came_back(res.restart, rc.pose_gate_deg, rc.pose_gate_mm):
+    if float(res.moved_deg[w]) <= rc.pose_gate_deg or not came_back(res.restart, rc.pose_gate_deg, rc.pose_gate_mm,
+                                                                     rc.restart_share):
         return
     mine = [(i, j) for i, j in edges if w in (i, j)]
     res.restart["pairs"] = pair_walks(res.poses, mine, lambda i, j, init: refine_pair(regs[i], regs[j], init, rc),

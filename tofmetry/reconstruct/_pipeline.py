@@ -350,7 +350,7 @@ class ReconstructionPipeline:
                          rc.max_calibration_mm,
                          rc.pose_gate_deg, rc.pose_gate_mm, rc.yaw_free_ratio, rc.max_left_out,
                          turntable_accuracy_deg=rc.turntable_accuracy_deg,
-                         turntable_placed=bool(self.turntable))
+                         turntable_placed=bool(self.turntable), restart_share=rc.restart_share)
         if self.turntable and self.turntable.get("axis_from", "").startswith("rejected"):
             verdict["reasons"].append(UNCONFIRMED_REASON)
             verdict["reliable"] = False
