@@ -77,12 +77,12 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                   pose_prior_deg: float | None = None, pose_prior_m: float | None = None,
                   depth_field: DepthFieldPrior | None = None, tilt_prior_m: float | None = None,
                   albedo: bool = False, up: np.ndarray | None = None,
-                  prior_poses: np.ndarray | None = None) -> AdjustResult:
+                  prior_poses: np.ndarray | None = None, symmetric_normals: bool = False) -> AdjustResult:
     """Jointly refine all poses (view 0 fixed) and, optionally, the depth gain.
 
     Each outer iteration matches every view's ``source`` points (gain-corrected, to world) to
     the nearest ``target`` point of every other view within the radius (orientations within
-    ``max_normal_deg``); residual = symmetric point-to-plane distance. Then ``inner_iters`` Gauss-Newton
+    ``max_normal_deg``); residual = point-to-plane distance along the target's normal. Then ``inner_iters`` Gauss-Newton
     steps on these correspondences move all poses (6 parameters each, left-multiplied
     increments) and the gain, with Huber weights (``huber_m``, default radius / 3). After the
     first outer iteration at a radius only the pairs that had correspondences are searched.
@@ -149,6 +149,12 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
     up : (3,) the vertical (support-plane normal) in the frame of ``poses``: the albedo term then acts
         only on each view's rotation about the vertical through the object's centre (the mean of the
         initial world points); None: on all six degrees of freedom
+    symmetric_normals : the residual along the normalised sum of both points' normals (the symmetric
+        point-to-plane of Rusinkiewicz 2019; until 2026-11-29 the default) instead of the target's
+        normal. The source normals come from the sparser, unsmoothed ``source`` cloud; with them, the
+        fit started at the true poses with the sensor's noise alone shrank a box's model by 0.30 mm
+        (0.10 mm with the target's normal), and with every error term it ended beyond the pose gate on
+        7 of 12 family scans instead of 4 (``bench/robustness/README.md``)
 
     Returns
     -------
@@ -228,7 +234,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
 
     def ne(with_gain: bool):
         """The normal equations of the correspondences, with the albedo term when it is on."""
-        out = _normal_equations(views, P, g, z_ref_m, corr, k, with_gain, cv(), ampv(), tv())
+        out = _normal_equations(views, P, g, z_ref_m, corr, k, with_gain, cv(), ampv(), tv(), symmetric=symmetric_normals)
         if alb_on:
             Ha, ba, info = albedo_terms(P, alb_src, alb_tgt, corr, len(out[1]), out[2], alb_axis)
             out[0][:] += Ha
@@ -377,7 +383,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                               gain_prior_sigma, max_normal_deg, tol_deg, tol_m, gain_max_sigma, sigma_inflation,
                               gain_max_abs, systematic_m, curve_degree, curve_prior_m, curve_half_span_m,
                               amplitude_prior_m, pose_prior_deg, pose_prior_m, depth_field, None, albedo, up,
-                              prior_poses)
+                              prior_poses, symmetric_normals)
         fixed.image_tilt_sigma_data_m = tilt_sd
         fixed.image_tilt_note = ("implausible: the views ask for " + ", ".join(f"{x * 1e3:+.1f}" for x in t_xy)
                                  + f" mm per unit, beyond {TILT_MAX_PRIORS:g} x its prior (+-{tilt_prior_m * 1e3:.1f}): "
@@ -389,7 +395,8 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                               curve_degree=curve_degree, curve_prior_m=curve_prior_m,
                               curve_half_span_m=curve_half_span_m, amplitude_prior_m=amplitude_prior_m,
                               pose_prior_deg=pose_prior_deg, pose_prior_m=pose_prior_m, depth_field=depth_field,
-                              tilt_prior_m=tilt_prior_m, albedo=albedo, up=up, prior_poses=prior_poses)
+                              tilt_prior_m=tilt_prior_m, albedo=albedo, up=up, prior_poses=prior_poses,
+                              symmetric_normals=symmetric_normals)
         fixed.gain_sigma_data, fixed.gain_sigma_systematic = sigma_data, sigma_sys
         fixed.gain_refused, fixed.gain_max_abs = float(g), float(gain_max_abs)
         if np.isfinite(amp_slope):  # the gain's trade with dk, from this run where the gain was free
@@ -403,7 +410,8 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         note = f"estimated: the views determine it to +-{100 * sigma_data:.3f} %"
     res = AdjustResult(P, g, sigma_g, z_ref_m, it, np.array(rms_hist), counts, pair_rms, moved_deg, moved_mm, converged,
                        estimate_gain, sigma_data, note, sig_deg, sig_mm, sigma_sys)
-    res.final_state = (views, P.copy(), g, z_ref_m, corr, k, estimate_gain, cv(), ampv(), tv(), H_solve, pose_cov)
+    res.final_state = (views, P.copy(), g, z_ref_m, corr, k, estimate_gain, cv(), ampv(), tv(), H_solve, pose_cov,
+                       symmetric_normals)
     res.albedo = alb_info
     if depth_field is not None:
         res.calibration_pose = calibration_pose(res, depth_field)
@@ -447,9 +455,10 @@ def calibration_pose(res: AdjustResult, depth_field: DepthFieldPrior) -> dict:
     ``with_noise``: with the poses' own noise covariance from the data, as ``pose_sigma_deg``) with
     the prior's size (``offset_sigma_mm``, ``shape_rms_mm``, ``degree``)
     """
-    views, P, g, z_ref_m, corr, k, estimate_gain, curve, amp, tilt, H_solve, noise_cov = res.final_state
+    views, P, g, z_ref_m, corr, k, estimate_gain, curve, amp, tilt, H_solve, noise_cov, sym = res.final_state
     V = len(views)
-    F = _normal_equations(views, P, g, z_ref_m, corr, k, estimate_gain, curve, amp, tilt, depth_field.basis)[-1]
+    F = _normal_equations(views, P, g, z_ref_m, corr, k, estimate_gain, curve, amp, tilt, depth_field.basis,
+                          symmetric=sym)[-1]
     resp = -np.linalg.solve(H_solve, F)[:6 * (V - 1)]
     obj = np.concatenate([v.source @ T[:3, :3].T + T[:3, 3] for v, T in zip(views, P)])
     return pose_spread(resp, depth_field.coefficient_sigmas(), V, obj, noise_cov=noise_cov) | {

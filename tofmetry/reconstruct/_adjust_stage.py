@@ -143,7 +143,8 @@ def joint_adjustment(views, segs, regs: list[RegView], poses: np.ndarray, cfg: R
                              curve_prior_m=curve_prior_mm(cfg, cal) * 1e-3,
                              amplitude_prior_m=None if amplitude_prior_mm is None else amplitude_prior_mm * 1e-3,
                              pose_prior_deg=prior_deg, pose_prior_m=None if prior_mm is None else prior_mm * 1e-3,
-                             tilt_prior_m=tilt_prior, albedo=albedo, up=up, prior_poses=poses)
+                             tilt_prior_m=tilt_prior, albedo=albedo, up=up, prior_poses=poses,
+                             symmetric_normals=rc.adjust_symmetric_normals)
 
     with progress("global adjustment", None):
         try:

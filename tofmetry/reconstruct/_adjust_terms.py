@@ -1,7 +1,8 @@
 """The joint fit's residuals and their normal equations (:func:`tofmetry.reconstruct._adjust.global_adjust`):
 the views' clouds (:class:`AdjustView`) moved by the poses and the depth-error terms, nearest-point
-correspondences between them, and the Gauss-Newton normal equations of the symmetric point-to-plane
-residuals, with the response to a depth-error field when one is asked for.
+correspondences between them, and the Gauss-Newton normal equations of the point-to-plane residuals
+(along the target's normal, or along both points' normals), with the response to a depth-error field
+when one is asked for.
 """
 
 from __future__ import annotations
@@ -147,13 +148,13 @@ def _correspondences(views, P, g, z_ref_m, r, cos_max, pairs=None, curve=None,
 
 
 def _normal_equations(views, P, g, z_ref_m, corr, huber_m, estimate_gain, curve=None, amp=None, tilt=None,
-                      field=None):
+                      field=None, symmetric: bool = False):
     """Gauss-Newton normal equations of all correspondences (view 0 fixed; unknowns: poses, then
     the ``D`` range-curve coefficients when ``curve`` is given, then ``dk`` when ``amp`` is given,
     then the image tilt's two when ``tilt`` is given, last the gain).
 
-    Residual: ``n . (p - q)`` with ``n`` the normalised sum of both points' normals (held fixed
-    in the linearisation). ``field``: a callable mapping camera-frame points (M, 3) to (M, T) depth
+    Residual: ``n . (p - q)`` with ``n`` the target's normal, or with ``symmetric`` the normalised
+    sum of both points' normals (held fixed in the linearisation). ``field``: a callable mapping camera-frame points (M, 3) to (M, T) depth
     displacements [m per unit coefficient] (:class:`~tofmetry.reconstruct._adjust_field.DepthFieldPrior`
     ``.basis``); then ``J^T W B`` (P, T), the gradient's response to each term, is returned last."""
     V = len(views)
@@ -169,9 +170,10 @@ def _normal_equations(views, P, g, z_ref_m, corr, huber_m, estimate_gain, curve=
     F = None
     for i, j, si, qi in corr:
         p, q = src[i][si], tgt[j][qi]
-        # symmetric point-to-plane (sum of both normals; Rusinkiewicz 2019): converges in about half
-        # the iterations of the target-normal form here (measured 6 vs 13 outer iterations)
-        n = tgtn[j][qi] + srcn[i][si]
+        # the target's normal (its cloud projected on its local planes: the smoother of the two), or
+        # the symmetric form (Rusinkiewicz 2019), whose source normals come from the raw, sparser
+        # cloud: see global_adjust's symmetric_normals
+        n = tgtn[j][qi] + srcn[i][si] if symmetric else tgtn[j][qi]
         n = n / np.linalg.norm(n, axis=1, keepdims=True)
         e = np.einsum("ij,ij->i", n, p - q)
         counts[i, j] = len(e)

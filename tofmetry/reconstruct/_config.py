@@ -258,6 +258,11 @@ class RegistrationConfig(BaseModel):
                                         "neighbours; tofmetry.pointcloud.project_to_local_planes): nearest points in "
                                         "two noisy clouds pull the surfaces together (a plaque started at its true "
                                         "poses, noise only: 3.1 -> 1.1 mm at the object). 0: raw targets")
+    adjust_symmetric_normals: bool = Field(False, description="the global adjustment's residual along the sum of "
+                                           "both points' normals (symmetric point-to-plane; the default until "
+                                           "2026-11-29) instead of the target's normal. From the true poses, every "
+                                           "error term, 12 family scans: beyond the pose gate 7 with it, 4 without "
+                                           "(reconstruct._adjust.global_adjust)")
     uncalibrated_tilt_mm: float = Field(10.0, ge=0, description="size (1 sigma) of a depth error linear in the "
                                         "image position assumed when the calibration did not calibrate it [mm per unit "
                                         "of x / z]: it enters the poses' predicted spread under the calibration's residual "
