@@ -148,7 +148,7 @@ def _correspondences(views, P, g, z_ref_m, r, cos_max, pairs=None, curve=None,
 
 
 def _normal_equations(views, P, g, z_ref_m, corr, huber_m, estimate_gain, curve=None, amp=None, tilt=None,
-                      field=None, symmetric: bool = False):
+                      field=None, symmetric: bool = True):
     """Gauss-Newton normal equations of all correspondences (view 0 fixed; unknowns: poses, then
     the ``D`` range-curve coefficients when ``curve`` is given, then ``dk`` when ``amp`` is given,
     then the image tilt's two when ``tilt`` is given, last the gain).
