@@ -115,7 +115,7 @@ def test_recovers_poses_and_depth_gain(ring, symmetric):
     seen from 1 m stays within ~0.03 deg / 0.5 mm (measured 0.03 deg / 0.45 mm): bounds
     0.06 deg / 1 mm, far below the 3 mm start and the 5.7 mm the stretch causes without the
     gain (next test). Gain within 5e-4 (0.05 mm over the 100 mm depth span). The same with the
-    residual along the target's normal (the default) and along both normals (``symmetric_normals``)."""
+    residual along both points' normals (the default) and along the target's (``symmetric_normals=False``)."""
     rng = np.random.default_rng(0)
     gain, z_ref = 0.006, 1.0
     views = _views(ring, gain, z_ref, rng)

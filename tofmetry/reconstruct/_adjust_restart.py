@@ -96,9 +96,9 @@ def restart_probe(solution: np.ndarray, start: np.ndarray, rerun: Callable[[np.n
 
 
 def came_back(restart: dict | None, pose_gate_deg: float, pose_gate_mm: float, share: float = 1.0) -> bool:
-    """Whether a :func:`restart_probe` result ended within ``share`` of the pose gate of the
-    solution (rotation [deg] and displacement at the object [mm]); False without one or when it
-    failed. ``share``: ``registration.restart_share`` (:class:`~tofmetry.reconstruct.ReconstructionConfig`)."""
+    """Whether a :func:`restart_probe` result (or a :func:`pair_walks` entry) ended within ``share``
+    of the pose gate of the solution (rotation [deg] and displacement at the object [mm]); False
+    without one or when it failed. ``share``: ``registration.restart_share`` (:class:`~tofmetry.reconstruct.ReconstructionConfig`)."""
     return (restart is not None and "failed" not in restart and restart["deg"] <= share * pose_gate_deg
             and restart["mm"] <= share * pose_gate_mm)
 

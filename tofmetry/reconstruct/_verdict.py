@@ -317,8 +317,7 @@ def _judge_move(adjustment: dict, names: list[str], pose_gate_deg: float, pose_g
                 f"the joint fit came back to within {rs['deg']:.2f} deg / {rs['mm']:.1f} mm: the points determine it")
         walks = rs.get("pairs") or []
         worst = max(walks, key=lambda w: (w["deg"] / pose_gate_deg, w["mm"] / pose_gate_mm), default=None)
-        if worst is not None and all(w["deg"] <= share * pose_gate_deg and w["mm"] <= share * pose_gate_mm
-                                     for w in walks):
+        if worst is not None and all(came_back(w, pose_gate_deg, pose_gate_mm, share) for w in walks):
             warnings.append(f"{back}; the registrations of its {len(walks)} pair(s), started again at the joint fit, "
                             f"stay there (at most {worst['deg']:.2f} deg / {worst['mm']:.1f} mm away; limit "
                             f"{share * pose_gate_deg:g} deg / {share * pose_gate_mm:g} mm): the pose graph had been off")
