@@ -150,3 +150,41 @@ def test_the_pipeline_keeps_the_reselection_and_says_so(monkeypatch):
 def test_the_pipeline_keeps_the_first_selection_when_the_loops_imply_nothing_better(monkeypatch):
     pipe, pg = _pipeline_selection(monkeypatch, 0.70)  # the implied pose fits as well as the wrong one
     assert pg.selection["dropped"] == ["00->08"] and "loop_implied" not in pg.selection
+
+
+def _bumpy_view():
+    """A bumpy patch 0.2 m square, 1 m in front of the camera (ripples of 10 mm over 50-70 mm):
+    points and normals every 2 mm, the same cloud for every role of a RegView [m]."""
+    from tofmetry.reconstruct._regview import RegView
+
+    x, y = np.meshgrid(np.arange(-0.1, 0.1, 0.002), np.arange(-0.1, 0.1, 0.002))
+    k1, k2 = 2 * np.pi / 0.07, 2 * np.pi / 0.05
+    z = 1.0 + 0.01 * np.sin(k1 * x) * np.cos(k2 * y)
+    gx, gy = 0.01 * k1 * np.cos(k1 * x) * np.cos(k2 * y), -0.01 * k2 * np.sin(k1 * x) * np.sin(k2 * y)
+    p = np.stack([x, y, z], -1).reshape(-1, 3)
+    n = np.stack([gx, gy, -np.ones_like(x)], -1).reshape(-1, 3)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    return RegView("patch", p, n, p, p, n)
+
+
+def test_a_loop_closure_icp_whose_wide_stages_slide_away_falls_back_on_its_last_stage(monkeypatch):
+    """Without the global search, the pair's ICP may move only within the loop-closure jump bound of
+    the pose it starts from. Where the wide stages slide beyond it (as on a smooth object's partial
+    overlap), the last stage alone from that pose gives the hypothesis; where that one leaves the
+    bound too, there is none."""
+    import tofmetry.reconstruct._register as reg
+    from tofmetry._shared.geometry import rotation_angle_deg
+    from tofmetry.reconstruct._config import RegistrationConfig
+
+    v = _bumpy_view()
+    cfg = RegistrationConfig()
+    init = _rot_z(1.0, (0.001, 0.0, 0.0))
+    slide = _rot_z(20.0)
+    monkeypatch.setattr(reg, "refine_mid", lambda src, tgt, T, c: slide @ T)
+    p = reg.register_pair(v, v, 0, 1, cfg, init=init, global_search=False)
+    # the same cloud on both sides: the right pose is the identity, to the ICP's convergence
+    assert p.accepted and p.method.startswith("init+fine-icp")
+    assert rotation_angle_deg(p.transform) < 0.05 and np.linalg.norm(p.transform[:3, 3]) < 2e-4
+    monkeypatch.setattr(reg, "refine_fine", lambda src, tgt, T, c: slide @ T)
+    q = reg.register_pair(v, v, 0, 1, cfg, init=init, global_search=False)
+    assert not q.accepted and q.method == "none"
