@@ -70,11 +70,24 @@ def test_a_yaw_the_points_do_not_decide_is_left_alone():
 
 
 def test_the_hops_look_nearby_only():
-    # two rib periods off, a better pose is 16 deg away: beyond the largest hop (8 deg), not taken
+    # two rib periods off, the best pose is 16 deg away: beyond the reach, not taken (the reach is the
+    # largest hop, 8 deg, unless set; the default's reach, whatever it is, holds the same way)
     v = _view(rib_mm=2.0, boss_mm=8.0)
-    cfg = RegistrationConfig()
+    for cfg in (RegistrationConfig(yaw_hop_reach_deg=None), RegistrationConfig(yaw_hop_reach_deg=12.0),
+                RegistrationConfig()):
+        stuck = refine_fine(v, v, _turned(16.0), cfg)
+        reach = cfg.yaw_hop_reach_deg or 8.0
+        assert rotation_angle_deg(np.linalg.inv(stuck) @ yaw_hops(v, v, stuck, cfg)) <= reach + 1e-6
+
+
+def test_the_hops_reach_as_far_as_asked():
+    # within the reach, two hops in a row bring a pose two rib periods off back to the right one
+    v = _view(rib_mm=2.0, boss_mm=8.0)
+    cfg = RegistrationConfig(yaw_hop_reach_deg=20.0)
     stuck = refine_fine(v, v, _turned(16.0), cfg)
-    assert rotation_angle_deg(np.linalg.inv(stuck) @ yaw_hops(v, v, stuck, cfg)) <= 8.0 + 1e-6
+    assert rotation_angle_deg(stuck) > 15.0
+    T = yaw_hops(v, v, stuck, cfg)
+    assert rotation_angle_deg(T) < 0.1 and np.linalg.norm(T[:3, 3]) < 1e-4
 
 
 def test_views_without_a_support_plane_are_not_hopped():

@@ -78,6 +78,12 @@ class RegistrationConfig(BaseModel):
     yaw_hop_min_gain: float = Field(0.005, ge=0, description="a hop is taken only where it raises the share of "
                                     "object points matched by more than this (its noise, as elsewhere)")
     yaw_hop_rounds: int = Field(3, ge=1, description="at most this many hops in a row")
+    yaw_hop_reach_deg: float | None = Field(None, gt=0, description="the hops never take the pose farther than this "
+                                            "from where they started [deg]; None: the largest hop. 15 (half the yaw "
+                                            "seeds' spacing) was tried on smooth pebbles (2026-11-30): a painted one's "
+                                            "pairs 7.4 -> 1.9 and 2.8 -> 0.1 deg, its run 10.0 -> 1.45 deg off, but "
+                                            "another's 1.38 -> 3.25 deg (all flagged), and 15 held-out runs unchanged; "
+                                            "not the default")
     kernel: str = Field("huber", description="robust kernel: huber | tukey | none (k = radius / 3); measured: Tukey "
                         "with k = 1 mm on ~1 mm noise biases the pose by ~0.1 deg / 2 mm, Huber does not")
     max_incidence_deg: float = Field(70.0, gt=0, le=90, description="registration uses points seen at incidence below this [deg] "

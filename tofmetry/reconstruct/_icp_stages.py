@@ -68,7 +68,7 @@ def yaw_hops(src: RegView, tgt: RegView, T: np.ndarray, cfg: RegistrationConfig)
     r_final = cfg.icp_radii_mm[-1] * 1e-3
     F = plane_frame(tgt.plane, tgt.obj_points)
     Fi = np.linalg.inv(F)
-    T0, reach = T, max(abs(a) for a in cfg.yaw_hops_deg)
+    T0, reach = T, cfg.yaw_hop_reach_deg or max(abs(a) for a in cfg.yaw_hops_deg)
     fit = object_fitness(src, tgt, T, r_final)[0]
     for _ in range(cfg.yaw_hop_rounds):
         best = None
