@@ -82,7 +82,7 @@ class RegistrationConfig(BaseModel):
                                             "from where they started [deg]; None: the largest hop. 15 (half the yaw "
                                             "seeds' spacing) was tried on smooth pebbles (2026-11-30): a painted one's "
                                             "pairs 7.4 -> 1.9 and 2.8 -> 0.1 deg, its run 10.0 -> 1.45 deg off, but "
-                                            "another's 1.38 -> 3.25 deg (all flagged), and 15 held-out runs unchanged; "
+                                            "another's 1.38 -> 3.25 deg (all flagged), and 16 held-out runs unchanged; "
                                             "not the default")
     kernel: str = Field("huber", description="robust kernel: huber | tukey | none (k = radius / 3); measured: Tukey "
                         "with k = 1 mm on ~1 mm noise biases the pose by ~0.1 deg / 2 mm, Huber does not")
