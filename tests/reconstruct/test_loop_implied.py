@@ -7,8 +7,12 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+import tofmetry.reconstruct._register as reg
+from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.reconstruct import PairResult, PoseGraphBuilder
+from tofmetry.reconstruct._config import RegistrationConfig
 from tofmetry.reconstruct._loop_implied import METHOD, loop_implied_hypotheses
+from tofmetry.reconstruct._regview import RegView
 
 
 def _rot_z(deg: float, t=(0.0, 0.0, 0.0)) -> np.ndarray:
@@ -155,8 +159,6 @@ def test_the_pipeline_keeps_the_first_selection_when_the_loops_imply_nothing_bet
 def _bumpy_view():
     """A bumpy patch 0.2 m square, 1 m in front of the camera (ripples of 10 mm over 50-70 mm):
     points and normals every 2 mm, the same cloud for every role of a RegView [m]."""
-    from tofmetry.reconstruct._regview import RegView
-
     x, y = np.meshgrid(np.arange(-0.1, 0.1, 0.002), np.arange(-0.1, 0.1, 0.002))
     k1, k2 = 2 * np.pi / 0.07, 2 * np.pi / 0.05
     z = 1.0 + 0.01 * np.sin(k1 * x) * np.cos(k2 * y)
@@ -172,10 +174,6 @@ def test_a_loop_closure_icp_whose_wide_stages_slide_away_falls_back_on_its_last_
     the pose it starts from. Where the wide stages slide beyond it (as on a smooth object's partial
     overlap), the last stage alone from that pose gives the hypothesis; where that one leaves the
     bound too, there is none."""
-    import tofmetry.reconstruct._register as reg
-    from tofmetry._shared.geometry import rotation_angle_deg
-    from tofmetry.reconstruct._config import RegistrationConfig
-
     v = _bumpy_view()
     cfg = RegistrationConfig()
     init = _rot_z(1.0, (0.001, 0.0, 0.0))

@@ -185,7 +185,7 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
     cands = []
     if init is not None:
         T = refine_mid(src, tgt, init, cfg)
-        if global_search or _within_jump(init, T, cfg):
+        if global_search or _same_pose(init, T, cfg.max_loop_jump_deg, cfg.max_loop_jump_mm):
             T = refine_fine(src, tgt, T, cfg)
             cands.append((*object_fitness(src, tgt, T, r_final), T, "init+icp", vis(T)))
         else:
@@ -193,7 +193,7 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
             # most on a smooth object: a pebble's pair 4 deg from its right pose slid 20 deg away):
             # the last stage alone from the initial pose, within the same bound
             T = refine_fine(src, tgt, init, cfg)
-            if _within_jump(init, T, cfg):
+            if _same_pose(init, T, cfg.max_loop_jump_deg, cfg.max_loop_jump_mm):
                 cands.append((*object_fitness(src, tgt, T, r_final), T, "init+fine-icp", vis(T)))
     if global_search and (not cands or not _passes(cands[0][0], cands[0][1], cfg) or not plane_consistent(src, tgt, cands[0][2])
                           or cands[0][4] > cfg.max_see_through):
@@ -359,12 +359,6 @@ def _search(src: RegView, tgt: RegView, cfg: RegistrationConfig, coarse: list, c
         T = refine_fine(src, tgt, T, cfg)
         if plane_consistent(src, tgt, T) and all(not _same_pose(T, c[2]) for c in cands):
             cands.append((*object_fitness(src, tgt, T, r_final), T, how, vis(T)))
-
-
-def _within_jump(init: np.ndarray, T: np.ndarray, cfg: RegistrationConfig) -> bool:
-    """Whether the ICP's pose ``T`` stayed within the loop-closure jump bound of ``init`` ((4, 4) each)."""
-    E = np.linalg.inv(init) @ T
-    return rotation_angle_deg(E) <= cfg.max_loop_jump_deg and np.linalg.norm(E[:3, 3]) * 1e3 <= cfg.max_loop_jump_mm
 
 
 def _same_pose(A: np.ndarray, B: np.ndarray, deg: float = 3.0, mm: float = 10.0) -> bool:
