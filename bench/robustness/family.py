@@ -272,7 +272,8 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
                           if k in ("changed", "dropped", "spread", "ambiguous_with", "reasons", "ir_vetoed",
                                    "loop_implied")},
                pose_errors=pe.to_dict(),
-               plan=res.diagnostics.get("plan"), amplitude_slope=res.diagnostics.get("amplitude_slope"))
+               plan=res.diagnostics.get("plan"), amplitude_slope=res.diagnostics.get("amplitude_slope"),
+               slab=res.diagnostics.get("slab"))
     model = Geometry(res.mesh_vertices, res.mesh_triangles, source="model")
     try:
         ev = evaluate_model(model, ref, EvaluationConfig(align=True, exclude_normal=(0.0, 0.0, -1.0)), poses=doc)

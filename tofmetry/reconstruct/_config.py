@@ -84,6 +84,25 @@ class RegistrationConfig(BaseModel):
                                             "pairs 7.4 -> 1.9 and 2.8 -> 0.1 deg, its run 10.0 -> 1.45 deg off, but "
                                             "another's 1.38 -> 3.25 deg (all flagged), and 16 held-out runs unchanged; "
                                             "not the default")
+    slab_max_thickness_share: float = Field(0.3, gt=0, le=1, description="an object whose extent along its "
+                                            "thinnest principal axis is at most this share of the next, with views "
+                                            "of both its faces, is a slab whose thickness its rim alone ties: the run "
+                                            "is unreliable (simulated plaques 0.12-0.19 and 1.4-2.9 mm too thin; "
+                                            "the next thinnest objects of draws 39-40: domes 0.34-0.44, seen from "
+                                            "one side of that axis, flat rocker arms 0.60)")
+    icp_seen_only: bool = Field(False, description="each ICP stage of a pair matches only the source points the "
+                                "target camera observed at the current pose (facing it within 65 deg, inside its "
+                                "image, within icp_seen_tol_mm of its depth there); the others have no partner and "
+                                "pull the pose toward what the target saw nearby. Measured (2026-11-30): from the true "
+                                "pose, a plaque's edge-on pairs slid +8.2 and +5.6 deg in yaw with every point, -0.9 "
+                                "and -0.5 deg with the seen ones; over 13 flagged runs of draws 39-40 no verdict "
+                                "changed but a plaque's (flagged since as a slab) and a wrong plaque's 180 -> 1.7 deg "
+                                "(the pairs' yaw hops and the global search still pick the biased poses); not the default")
+    icp_seen_tol_mm: float = Field(10.0, gt=0, description="a source point counts as observed by the target camera "
+                                   "within this distance of the nearest depth it saw around the pixel [mm] (at least "
+                                   "the stage's correspondence radius)")
+    icp_seen_every: int = Field(10, ge=1, description="the observed points are re-selected every this many ICP "
+                                "iterations")
     kernel: str = Field("huber", description="robust kernel: huber | tukey | none (k = radius / 3); measured: Tukey "
                         "with k = 1 mm on ~1 mm noise biases the pose by ~0.1 deg / 2 mm, Huber does not")
     max_incidence_deg: float = Field(70.0, gt=0, le=90, description="registration uses points seen at incidence below this [deg] "

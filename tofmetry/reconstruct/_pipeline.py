@@ -19,6 +19,7 @@ from tofmetry.reconstruct._adjust_stage import joint_adjustment, scale_budget_of
 from tofmetry.reconstruct._calibration_support import extrapolated_points, extrapolation_warning, local_prediction
 from tofmetry.reconstruct._colour import colour_model
 from tofmetry.reconstruct._config import ReconstructionConfig
+from tofmetry.reconstruct._thin_slab import slab_reason, thin_slab_check
 from tofmetry.reconstruct._loop_implied import METHOD as LOOP_IMPLIED, loop_implied_hypotheses
 from tofmetry.reconstruct._model_build import (
     crop_model,
@@ -328,6 +329,8 @@ class ReconstructionPipeline:
             if poisson is not None:
                 poisson = (transform_points(poisson[0], W), poisson[1])
             plane_w = transform_plane(plane_w, W)
+        rc = self.cfg.registration
+        slab = thin_slab_check(P, regs, poses, rc.icp_radii_mm[-1] * 1e-3, rc.slab_max_thickness_share)
         t4 = time.perf_counter()
         colours, colour_diag = None, None
         if self.cfg.color:
@@ -342,7 +345,6 @@ class ReconstructionPipeline:
             amp = adj_d["amplitude_bias"]
             amp["k_mm_per_ln"] = (None if self.white_map is None else
                                   round(self.cfg.preprocess.amplitude_k_mm_per_ln + (amp["dk_mm_per_ln"] or 0.0), 4))
-        rc = self.cfg.registration
         edges = graph.edges + self.other_edges
         pred = None if self.cal is None else (self.cal.prediction or {})
         z_obj = median_object_depth_m(views, segs)
@@ -351,6 +353,9 @@ class ReconstructionPipeline:
                          rc.pose_gate_deg, rc.pose_gate_mm, rc.yaw_free_ratio, rc.max_left_out,
                          turntable_accuracy_deg=rc.turntable_accuracy_deg,
                          turntable_placed=bool(self.turntable), restart_share=rc.restart_share)
+        if slab is not None and slab["slab"]:
+            verdict["reasons"].append(slab_reason(slab, names))
+            verdict["reliable"] = False
         if self.turntable and self.turntable.get("axis_from", "").startswith("rejected"):
             verdict["reasons"].append(UNCONFIRMED_REASON)
             verdict["reliable"] = False
@@ -368,7 +373,7 @@ class ReconstructionPipeline:
                                                       rc.amplitude_k_sigma_mm),
                                       rc.amplitude_k_sigma_mm if self.white_map is not None else None,
                                       rc.scale_floor_pct),
-                "world": world,
+                "world": world, "slab": slab,
                 "views": {v.name: v.stats for v in views}, "fusion": fusion_info, "timings_s": self.timings,
                 "adjustment": adj_d, "left_out": self.left_out, "color": colour_diag, "turntable": self.turntable,
                 "calibrated": self.cal is not None, "amplitude_corrected": self.white_map is not None, "intrinsics": intr.to_dict(),

@@ -15,7 +15,7 @@ from scipy.spatial import cKDTree
 
 from tofmetry.reconstruct._amplitude import amplitude_log_ratio
 from tofmetry.reconstruct._config import RegistrationConfig
-from tofmetry.reconstruct._o3d import voxel_down, voxel_down_values
+from tofmetry.reconstruct._o3d import estimate_normals, voxel_down, voxel_down_values
 from tofmetry.reconstruct._photometric import log_albedo
 from tofmetry.reconstruct._preprocess import ViewData
 from tofmetry.reconstruct._segment import Segmentation
@@ -133,11 +133,7 @@ def free_space_violation(src: RegView, tgt: RegView, T: np.ndarray, tol_m: float
     p = p[front]
     if len(p) == 0:
         return 0.0
-    uv = np.rint(tgt.intr.project(p)).astype(np.int64)
-    H, W = tgt.near_depth_m.shape
-    ok = (uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)
-    d = np.full(len(p), np.inf)
-    d[ok] = tgt.near_depth_m[uv[ok, 1], uv[ok, 0]]
+    d = _observed_depth(tgt, p)
     known = np.isfinite(d)
     if not known.any():
         return 0.0
@@ -171,6 +167,36 @@ def expected_visible(src: RegView, tgt: RegView, T: np.ndarray, max_incidence_de
     return ok
 
 
+def seen_by(points: np.ndarray, normals: np.ndarray, tgt: RegView, T: np.ndarray, tol_m: float,
+            max_incidence_deg: float = 65.0) -> np.ndarray:
+    """Mask of ``points`` ((N, 3) source camera frame [m], unit ``normals`` (N, 3)) that the target
+    camera observed under ``T`` (source -> target, (4, 4)): in front of it, facing it at an incidence
+    below ``max_incidence_deg``, inside its image, and within ``tol_m`` of the nearest depth it
+    observed around that pixel (:attr:`RegView.near_depth_m`, 3x3), so neither hidden behind a nearer
+    surface nor in space it saw through. All True without the target's depth image."""
+    if tgt.near_depth_m is None or tgt.intr is None:
+        return np.ones(len(points), bool)
+    p = points @ T[:3, :3].T + T[:3, 3]
+    ok = (p[:, 2] > 1e-3) & _faces_camera(normals @ T[:3, :3].T, p, max_incidence_deg)
+    d = np.full(len(p), np.inf)
+    d[ok] = _observed_depth(tgt, p[ok])
+    return ok & (np.abs(p[:, 2] - d) <= tol_m)
+
+
+def _observed_depth(tgt: RegView, p: np.ndarray) -> np.ndarray:
+    """(N,) the nearest depth [m] the target camera observed around the pixel of each point ``p``
+    ((N, 3) in front of it, target frame [m]); inf outside its image or over invalid pixels."""
+    with np.errstate(all="ignore"):  # far outside the image the lens model overflows: not observed
+        uv = tgt.intr.project(p) if len(p) else np.zeros((0, 2))
+    ok = np.isfinite(uv).all(axis=1)
+    uv = np.rint(np.where(ok[:, None], uv, -1.0)).astype(np.int64)
+    H, W = tgt.near_depth_m.shape
+    ok &= (uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)
+    d = np.full(len(p), np.inf)
+    d[ok] = tgt.near_depth_m[uv[ok, 1], uv[ok, 0]]
+    return d
+
+
 def object_fitness(src: RegView, tgt: RegView, T: np.ndarray, radius_m: float) -> tuple[float, float]:
     """Share of the source object points the target camera could see (:func:`expected_visible`)
     that lie within ``radius_m`` of the target cloud, and the RMS distance of all matches [m].
@@ -185,6 +211,29 @@ def object_fitness(src: RegView, tgt: RegView, T: np.ndarray, radius_m: float) -
         return 0.0, np.inf
     vis = expected_visible(src, tgt, T)
     return float((ok & vis).sum() / max(vis.sum(), 1)), float(np.sqrt(np.mean(d[ok] ** 2)))
+
+
+def overlap_jacobian(src: RegView, tgt: RegView, T: np.ndarray, radius_m: float, min_matched: int = 30,
+                     normal_radius_m: float = 0.01) -> np.ndarray | None:
+    """(M, 6) point-to-plane Jacobian of the overlap at ``T`` (source -> target, (4, 4) [m]): rows
+    ``[((q - c) x n) / L, n]`` over the target points ``q`` matched by the source object points within
+    ``radius_m`` (``c`` their centroid, ``L`` their RMS distance from it, so that the rotation columns
+    are displacements at the object's size), ``n`` their normals by PCA over ``normal_radius_m`` (see
+    :func:`registration_conditioning`). None where fewer than ``min_matched`` points match."""
+    return _overlap_jacobian(src, tgt, T, radius_m, min_matched, normal_radius_m)[0]
+
+
+def _overlap_jacobian(src, tgt, T, radius_m, min_matched, normal_radius_m):
+    p = src.obj_points @ T[:3, :3].T + T[:3, 3]
+    d, idx = tgt.tree.query(p, distance_upper_bound=radius_m, workers=-1)
+    ok = np.isfinite(d)
+    if ok.sum() < min_matched:
+        return None, int(ok.sum())
+    q = tgt.icp_points[np.unique(idx[ok])]
+    n = estimate_normals(q, normal_radius_m, 60, toward=np.zeros(3))
+    c = q.mean(0)
+    L = float(np.sqrt(np.mean(np.sum((q - c) ** 2, 1))))
+    return np.c_[np.cross(q - c, n) / max(L, 1e-12), n], int(ok.sum())
 
 
 def registration_conditioning(src: RegView, tgt: RegView, T: np.ndarray, radius_m: float,
@@ -210,19 +259,10 @@ def registration_conditioning(src: RegView, tgt: RegView, T: np.ndarray, radius_
     the rotation part), weak_axis (3,) rotation axis of the weakest direction (target frame),
     yaw_ratio (float or None), n_matched
     """
-    from tofmetry.reconstruct._o3d import estimate_normals
-
-    p = src.obj_points @ T[:3, :3].T + T[:3, 3]
-    d, idx = tgt.tree.query(p, distance_upper_bound=radius_m, workers=-1)
-    ok = np.isfinite(d)
-    if ok.sum() < 30:
+    J, n_matched = _overlap_jacobian(src, tgt, T, radius_m, 30, normal_radius_m)
+    if J is None:
         return {"ratio": 0.0, "weak_rotation": 1.0, "weak_axis": [0.0, 0.0, 0.0], "yaw_ratio": None,
-                "n_matched": int(ok.sum())}
-    q = tgt.icp_points[np.unique(idx[ok])]
-    n = estimate_normals(q, normal_radius_m, 60, toward=np.zeros(3))
-    c = q.mean(0)
-    L = float(np.sqrt(np.mean(np.sum((q - c) ** 2, 1))))
-    J = np.c_[np.cross(q - c, n) / L, n]
+                "n_matched": n_matched}
     H = J.T @ J / len(J)
     w, V = np.linalg.eigh(H)
     v = V[:, 0]
@@ -245,7 +285,7 @@ def registration_conditioning(src: RegView, tgt: RegView, T: np.ndarray, radius_
             yaw = 0.0
     return {"ratio": float(w[0] / max(w[-1], 1e-300)), "weak_rotation": round(rot, 3),
             "weak_axis": [round(float(x), 3) for x in v[:3] / max(np.linalg.norm(v[:3]), 1e-12)],
-            "yaw_ratio": yaw, "n_matched": int(ok.sum())}
+            "yaw_ratio": yaw, "n_matched": n_matched}
 
 
 def leaves_yaw_free(conditioning: dict | None, ratio: float) -> bool:
