@@ -45,7 +45,7 @@ def stage_icp(sp: np.ndarray, sn: np.ndarray, tp: np.ndarray, tn: np.ndarray, tg
     point the target did not see has no partner there, and its nearest target point lies on
     whatever the target saw nearby: on a view that sees a thin or smooth object edge-on those pull
     the pose one way (measured from the true pose on edge-on pairs of a plaque: +8.2 and +5.6 deg
-    of yaw with every point, -0.5 and 0.0 deg with the seen ones). Falls back on every point where
+    of yaw with every point, -0.9 and -0.5 deg with the seen ones). Falls back on every point where
     fewer than a tenth (or 30) are seen."""
     if not cfg.icp_seen_only:
         return icp(sp, tp, tn, init, radius_m, kernel=cfg.kernel, max_iter=max_iter).transform

@@ -19,7 +19,6 @@ from tofmetry.reconstruct._adjust_stage import joint_adjustment, scale_budget_of
 from tofmetry.reconstruct._calibration_support import extrapolated_points, extrapolation_warning, local_prediction
 from tofmetry.reconstruct._colour import colour_model
 from tofmetry.reconstruct._config import ReconstructionConfig
-from tofmetry.reconstruct._thin_slab import slab_reason, thin_slab_check
 from tofmetry.reconstruct._loop_implied import METHOD as LOOP_IMPLIED, loop_implied_hypotheses
 from tofmetry.reconstruct._model_build import (
     crop_model,
@@ -33,6 +32,7 @@ from tofmetry.reconstruct._preprocess import ViewData, prepare_view
 from tofmetry.reconstruct._register import register_pair, rejection_reason
 from tofmetry.reconstruct._regview import RegView, leaves_yaw_free, make_reg_view
 from tofmetry.reconstruct._segment import Segmentation, segment_object
+from tofmetry.reconstruct._thin_slab import slab_reason, thin_slab_check
 from tofmetry.reconstruct._turntable import turntable_poses
 from tofmetry.reconstruct._turntable_bridge import UNCONFIRMED_REASON, no_turn_error, turntable_bridges
 from tofmetry.reconstruct._verdict import assess, scale_report

@@ -214,16 +214,13 @@ def object_fitness(src: RegView, tgt: RegView, T: np.ndarray, radius_m: float) -
 
 
 def overlap_jacobian(src: RegView, tgt: RegView, T: np.ndarray, radius_m: float, min_matched: int = 30,
-                     normal_radius_m: float = 0.01) -> np.ndarray | None:
+                     normal_radius_m: float = 0.01) -> tuple[np.ndarray | None, int]:
     """(M, 6) point-to-plane Jacobian of the overlap at ``T`` (source -> target, (4, 4) [m]): rows
     ``[((q - c) x n) / L, n]`` over the target points ``q`` matched by the source object points within
     ``radius_m`` (``c`` their centroid, ``L`` their RMS distance from it, so that the rotation columns
     are displacements at the object's size), ``n`` their normals by PCA over ``normal_radius_m`` (see
-    :func:`registration_conditioning`). None where fewer than ``min_matched`` points match."""
-    return _overlap_jacobian(src, tgt, T, radius_m, min_matched, normal_radius_m)[0]
-
-
-def _overlap_jacobian(src, tgt, T, radius_m, min_matched, normal_radius_m):
+    :func:`registration_conditioning`); None where fewer than ``min_matched`` points match. With it,
+    the number of source points matched."""
     p = src.obj_points @ T[:3, :3].T + T[:3, 3]
     d, idx = tgt.tree.query(p, distance_upper_bound=radius_m, workers=-1)
     ok = np.isfinite(d)
@@ -259,7 +256,7 @@ def registration_conditioning(src: RegView, tgt: RegView, T: np.ndarray, radius_
     the rotation part), weak_axis (3,) rotation axis of the weakest direction (target frame),
     yaw_ratio (float or None), n_matched
     """
-    J, n_matched = _overlap_jacobian(src, tgt, T, radius_m, 30, normal_radius_m)
+    J, n_matched = overlap_jacobian(src, tgt, T, radius_m, 30, normal_radius_m)
     if J is None:
         return {"ratio": 0.0, "weak_rotation": 1.0, "weak_axis": [0.0, 0.0, 0.0], "yaw_ratio": None,
                 "n_matched": n_matched}

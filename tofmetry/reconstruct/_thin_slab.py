@@ -35,7 +35,7 @@ def translation_stiffness(src: RegView, tgt: RegView, T: np.ndarray, radius_m: f
     point [1]), the rotations left free: the Schur complement ``S = H_tt - H_tr^T H_rr^-1 H_tr`` of
     the point-to-plane normal matrix at ``T`` (source -> target, (4, 4) [m]). None where fewer than
     ``min_matched`` object points match within ``radius_m``."""
-    J = overlap_jacobian(src, tgt, T, radius_m, min_matched)
+    J = overlap_jacobian(src, tgt, T, radius_m, min_matched)[0]
     if J is None:
         return None
     H = J.T @ J / len(J)
@@ -157,10 +157,11 @@ def thin_slab_check(points: np.ndarray, regs: list[RegView], poses: np.ndarray, 
     -------
     None without points or views; else dict: ``extents_mm`` (3,) along the principal axes, thinnest
     first, ``axis`` (3,) the thinnest one (world), ``thickness_share``, ``split``
-    (:func:`split_along` the axis: the two sides' views and their tie), ``slab`` (bool: thin, with
+    (:func:`split_along` the axis: the two sides' views and their tie; None where the object is not
+    thin, so that every pair of views is matched only for a thin one), ``slab`` (bool: thin, with
     views of both faces). No view sees both faces of a slab, so the views of its two faces are tied
-    by the rim alone, whatever the tie reads (0.01-0.7 on the plaques of draws 39-40, from the
-    grazing face points and the corners): the tie is reported, not judged.
+    by the rim alone, whatever the tie reads (0.010-0.32 on four right plaques of draws 39-40, from
+    the grazing face points and the corners; 0.95 on one 180 deg off): the tie is reported, not judged.
     """
     if len(points) < 3 or len(regs) < 2:
         return None
@@ -168,8 +169,8 @@ def thin_slab_check(points: np.ndarray, regs: list[RegView], poses: np.ndarray, 
     U = np.linalg.eigh(c.T @ c)[1]
     ext = np.ptp(c @ U, axis=0)
     share = float(ext[0] / max(ext[1], 1e-12))
-    split = split_along(regs, poses, U[:, 0], radius_m)
-    slab = bool(share <= max_thickness_share and split is not None and all(split["groups"]))
+    split = split_along(regs, poses, U[:, 0], radius_m) if share <= max_thickness_share else None
+    slab = bool(split is not None and all(split["groups"]))
     return {"extents_mm": [round(float(x) * 1e3, 1) for x in ext], "axis": [round(float(x), 4) for x in U[:, 0]],
             "thickness_share": round(share, 3), "split": split, "slab": slab}
 
