@@ -45,6 +45,15 @@ class DepthFieldPrior:
     tilt_sigma_m : standard deviation of a term linear in the image position the calibration did
         not calibrate, ``a x + b y`` [m per unit of ``x / z``] (walls of unknown orientation cannot
         show it, and the RMS of its folds leaves it out); 0 when it was calibrated
+    gain_sigma : standard deviation of the depth gain the calibration can leave between its
+        stations, ``dz = g (Z - z_ref)`` (dimensionless; its central error over half the station
+        spacing, as the scale budget takes it); 0: no range term. A residual that changes with the
+        range is the same in every view but not a function of the image position: over an object's
+        depth span its linear part stretches each view along its own line of sight, which the views
+        of a turntable take up as one tilt of every camera about its own x axis (measured: noise and
+        the calibration's residual range error alone put a 16-view pebble 0.75 deg off, every view
+        -0.70 to -0.73 deg about its x axis, where the image-position field predicted 0.27 deg at p90)
+    z_ref_m : depth where that term is zero [m] (the adjustment's ``z_ref``)
     """
 
     half_extent: tuple[float, float]
@@ -52,12 +61,15 @@ class DepthFieldPrior:
     shape_rms_m: float
     degree: int = 3
     tilt_sigma_m: float = 0.0
+    gain_sigma: float = 0.0
+    z_ref_m: float = 0.0
 
     def terms(self) -> list[tuple[int, int]]:
         return [(i, k - i) for k in range(self.degree + 1) for i in range(k + 1)]
 
     def coefficient_sigmas(self) -> np.ndarray:
-        """(T,) standard deviation of each term's coefficient [m]: the constant term's is the
+        """(T,) standard deviation of each term's coefficient [m; the gain's, last when
+        ``gain_sigma`` > 0, dimensionless]: the constant term's is the
         offset's; the others share ``shape_rms_m`` so that the field's expected mean square over
         the image is ``offset^2 + shape_rms^2`` (``<L_i^2 L_k^2> = 1 / ((2i + 1) (2k + 1))``), and
         the two linear terms carry ``tilt_sigma_m`` as well."""
@@ -68,17 +80,19 @@ class DepthFieldPrior:
         for j, (i, k) in enumerate(t):  # a x = (a ax) L1(x / ax): the tilt's coefficient at the image edge
             if (i, k) in ((1, 0), (0, 1)):
                 s[j] = np.hypot(s[j], self.tilt_sigma_m * self.half_extent[0 if i else 1])
-        return s
+        return np.r_[s, self.gain_sigma] if self.gain_sigma > 0 else s
 
     def basis(self, points_cam: np.ndarray) -> np.ndarray:
-        """(M, T) value of each term at camera-frame points (M, 3) [m] (dimensionless)."""
+        """(M, T) value of each term at camera-frame points (M, 3) [m] (dimensionless; the gain's,
+        last when ``gain_sigma`` > 0, is ``Z - z_ref`` [m])."""
         p = np.asarray(points_cam, np.float64)
         u = np.clip(p[:, 0] / p[:, 2] / self.half_extent[0], -1.0, 1.0)
         v = np.clip(p[:, 1] / p[:, 2] / self.half_extent[1], -1.0, 1.0)
         eye = np.eye(self.degree + 1)
         Lu = np.stack([legendre.legval(u, eye[i]) for i in range(self.degree + 1)], 1)
         Lv = np.stack([legendre.legval(v, eye[i]) for i in range(self.degree + 1)], 1)
-        return np.stack([Lu[:, i] * Lv[:, k] for i, k in self.terms()], 1)
+        B = np.stack([Lu[:, i] * Lv[:, k] for i, k in self.terms()], 1)
+        return np.c_[B, p[:, 2] - self.z_ref_m] if self.gain_sigma > 0 else B
 
 
 def pose_spread(response: np.ndarray, coef_sigma: np.ndarray, V: int, object_points_w: np.ndarray,

@@ -130,7 +130,8 @@ def joint_adjustment(views, segs, regs: list[RegView], poses: np.ndarray, cfg: R
     amp_prior = rc.amplitude_k_prior_mm if white_map is not None else None
     degree, degree_why = curve_degree_for(view_distance_spread(regs, poses), cfg)
     field = None if cal is None else depth_field_prior(cal.prediction or {}, object_depth_span_mm(views, segs),
-                                                       regs[0].intr, tilt_sigma_mm=rc.uncalibrated_tilt_mm)
+                                                       regs[0].intr, tilt_sigma_mm=rc.uncalibrated_tilt_mm,
+                                                       z_ref_m=z_ref if rc.predict_gain_pose else None)
     tilt_prior = None if rc.image_tilt_prior_mm is None or (
         cal is not None and (cal.prediction or {}).get("tilt_calibrated")) else rc.image_tilt_prior_mm * 1e-3
 

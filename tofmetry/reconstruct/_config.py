@@ -292,6 +292,13 @@ class RegistrationConfig(BaseModel):
                                            "20 held-out scans of draw 38, the target's normal turned 7 rotations worse "
                                            "by 0.03-0.22 deg and 2 better, and a bar's scale -1.06 % (+0.01 % with it): "
                                            "kept (reconstruct._adjust.global_adjust)")
+    predict_gain_pose: bool = Field(True, description="the poses' predicted spread under the calibration's "
+                                    "residual (the adjustment's calibration_pose) includes the depth gain the "
+                                    "calibration can leave between its stations (its predicted central error over "
+                                    "half the station spacing, as the scale budget takes it): a range error is the "
+                                    "same in every view, and its linear part tilts every camera about its own x axis "
+                                    "(a 16-view pebble 0.75 deg off from noise and the range residual alone). "
+                                    "False: the image-position field only")
     uncalibrated_tilt_mm: float = Field(10.0, ge=0, description="size (1 sigma) of a depth error linear in the "
                                         "image position assumed when the calibration did not calibrate it [mm per unit "
                                         "of x / z]: it enters the poses' predicted spread under the calibration's residual "
