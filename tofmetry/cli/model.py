@@ -152,8 +152,10 @@ def reconstruct(
         cp = adj.get("calibration_pose") or {}
         if cp.get("rot_deg"):
             both = cp.get("with_noise")
-            what = ("the depth calibration's residual and the views' noise" if both else
-                    "the depth calibration's residual")
+            gain = (f" (with a depth gain of +-{cp['gain_sigma_pct']:.2f} % between its stations)"
+                    if cp.get("gain_sigma_pct") else "")
+            what = (f"the depth calibration's residual{gain} and the views' noise" if both else
+                    f"the depth calibration's residual{gain}")
             p = both or cp
             console.print(f"predicted pose accuracy from {what}: worst view "
                           f"{p['rot_deg']['p50']:.2f} / {p['rot_deg']['p90']:.2f} deg, {p['object_mm']['p50']:.1f} / "

@@ -454,7 +454,8 @@ def calibration_pose(res: AdjustResult, depth_field: DepthFieldPrior) -> dict:
     -------
     dict of :func:`~tofmetry.reconstruct._adjust_field.pose_spread` (the field alone, and
     ``with_noise``: with the poses' own noise covariance from the data, as ``pose_sigma_deg``) with
-    the prior's size (``offset_sigma_mm``, ``shape_rms_mm``, ``degree``)
+    the prior's size (``offset_sigma_mm``, ``shape_rms_mm``, ``degree``, ``gain_sigma_pct``: the depth
+    gain's standard deviation [%], 0 without the range term)
     """
     views, P, g, z_ref_m, corr, k, estimate_gain, curve, amp, tilt, H_solve, noise_cov, sym = res.final_state
     V = len(views)
@@ -464,4 +465,5 @@ def calibration_pose(res: AdjustResult, depth_field: DepthFieldPrior) -> dict:
     obj = np.concatenate([v.source @ T[:3, :3].T + T[:3, 3] for v, T in zip(views, P)])
     return pose_spread(resp, depth_field.coefficient_sigmas(), V, obj, noise_cov=noise_cov) | {
         "offset_sigma_mm": round(depth_field.offset_sigma_m * 1e3, 4),
-        "shape_rms_mm": round(depth_field.shape_rms_m * 1e3, 4), "degree": depth_field.degree}
+        "shape_rms_mm": round(depth_field.shape_rms_m * 1e3, 4), "degree": depth_field.degree,
+        "gain_sigma_pct": round(depth_field.gain_sigma * 100, 4)}
