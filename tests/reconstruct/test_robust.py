@@ -90,6 +90,66 @@ def test_wrong_closing_edge_of_a_partial_scan_is_dropped_and_flagged():
     assert not res.consistency["reliable"] and "no closed loop" in " ".join(res.consistency["reasons"])
 
 
+def test_a_dropped_edge_against_an_unchecked_chain_is_flagged():
+    # 7 views round the object: the skip edges 0->2 and 1->3 are both turned over, so the loop
+    # 0-1-3-2 closes (two flips cancel); the right closing edge 0->6 contradicts the chain
+    # 0-2-3-4-5-6 and is dropped, leaving 3-4-5-6 on no loop: one chain against one edge, nothing
+    # decides which is wrong (a family baluster 179 deg off, reported reliable before)
+    P = _circle_poses(7)
+    pg = PoseGraphBuilder(7, [f"{k:02d}" for k in range(7)])
+    pg.add(_edge(P, 0, 1))
+    pg.add(_edge(P, 0, 2, 0.6, flip=True))
+    pg.add(_edge(P, 1, 3, 0.6, flip=True))
+    for i in range(2, 6):
+        pg.add(_edge(P, i, i + 1))
+    pg.add(_edge(P, 0, 6, 0.6))
+    rep = pg.select_hypotheses(2.0, 10.0, 0.05)
+    assert rep["dropped"] == ["00->06"] and rep["undecided"] == ["00->06"], rep
+    assert not pg.optimize(0.003).consistency["reliable"]
+
+
+def test_a_dropped_edge_against_a_checked_chain_is_not_flagged():
+    # the same scan with 2->4 and 4->6 registered too (right): the chain from 0 to 6 is checked by
+    # loops all the way, so the turned-over closing edge 0->6 it contradicts is dropped, not doubted
+    P = _circle_poses(7)
+    pg = PoseGraphBuilder(7, [f"{k:02d}" for k in range(7)])
+    for i in range(6):
+        pg.add(_edge(P, i, i + 1))
+    pg.add(_edge(P, 0, 2))
+    pg.add(_edge(P, 2, 4))
+    pg.add(_edge(P, 4, 6))
+    pg.add(_edge(P, 0, 6, 0.6, flip=True))
+    rep = pg.select_hypotheses(2.0, 10.0, 0.05)
+    assert rep["dropped"] == ["00->06"] and not rep.get("undecided") and not rep["reasons"], rep
+    assert pg.optimize(0.003).consistency["reliable"]
+
+
+def test_a_view_left_out_does_not_void_the_selections_checks():
+    # the indistinguishable flips of the test above, with one more view (06) that no pair links:
+    # the choice is made on the views that are linked, and its ambiguity still flags the run
+    P = _circle_poses(7)
+    pg = PoseGraphBuilder(7, [f"{k:02d}" for k in range(7)])
+    for i in range(5):
+        alts = [_flipped_alt(P, i, i + 1, 0.9)] if i in (1, 3) else []
+        pg.add(_edge(P, i, i + 1, 0.9, alts=alts))
+    pg.add(_edge(P, 0, 5))
+    rep = pg.select_hypotheses(2.0, 10.0, 0.05)
+    assert rep["resolved"] and any("registration ambiguous" in r for r in rep["reasons"]), rep
+
+
+def test_an_unchecked_skip_edge_is_flagged_when_view_0_is_left_out():
+    # 8 views; 00 and 04 link to nothing: the chain 1-2-3-5-6-7 crosses the left-out 04 by the
+    # skip edge 3->5, which no loop checks (a family baluster 90 deg off, reported reliable before:
+    # with view 0 unreached every selection was skipped, and its checks with it)
+    P = _circle_poses(8)
+    pg = PoseGraphBuilder(8, [f"{k:02d}" for k in range(8)])
+    for i, j in ((1, 2), (2, 3), (3, 5), (5, 6), (6, 7)):
+        pg.add(_edge(P, i, j))
+    rep = pg.select_hypotheses(2.0, 10.0, 0.05)
+    assert rep["resolved"] and rep["unverified"] == ["03->05"], rep
+    assert any("between non-successive views" in r for r in rep["reasons"]), rep
+
+
 def test_loop_gate_sees_a_wrong_bridge_when_the_circle_is_broken():
     # successive edge 4->5 missing, bridged by 3->5 (right) and 4->6 (turned over): the successive
     # circle test does not apply; the fundamental cycles through the bridges must fail

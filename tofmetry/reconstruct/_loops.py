@@ -34,20 +34,57 @@ def connected_components(n: int, edges: list[tuple[int, int]]) -> list[list[int]
     return sorted(comps.values(), key=lambda c: c[0])
 
 
-def spanning_tree(n: int, pairs: list[PairResult]) -> tuple[np.ndarray, list[int], np.ndarray, np.ndarray]:
-    """Breadth-first spanning tree of the edges ``pairs`` from view 0 (in edge order).
+def bridges(n: int, edges: list[tuple[int, int]]) -> set[int]:
+    """Indices of the edges whose removal disconnects their end views (on no cycle)."""
+    out = set()
+    for k, (a, b) in enumerate(edges):
+        rest = [e for m, e in enumerate(edges) if m != k]
+        comp = next(c for c in connected_components(n, rest) if a in c)
+        if b not in comp:
+            out.add(k)
+    return out
+
+
+def undecided_drops(n: int, kept: list[tuple[int, int]], dropped: list[tuple[int, int]]) -> list[tuple[int, int]]:
+    """The dropped edges whose end views the kept edges join only through edges on no loop.
+
+    An edge is dropped because it contradicts the loops of the other views; but where every path
+    between its two views in the kept graph crosses an edge that no loop checks (a bridge), the
+    contradiction is one chain against one edge, and nothing decides which is wrong. A nearly
+    symmetric object does this: two skip edges each turned over by its symmetry close a loop
+    together, and the one edge that would have caught them is dropped (a family baluster 179 deg
+    off with every loop closing, 2026-11-30).
+
+    Parameters
+    ----------
+    n : number of views; kept, dropped : (source, target) view indices of the kept and the
+        dropped edges
 
     Returns
     -------
-    poses : (n, 4, 4) chained camera-to-world (NaN for views not reached)
+    the dropped edges whose views no chain of loop-checked edges joins
+    """
+    br = bridges(n, kept)
+    comp = {v: k for k, c in enumerate(connected_components(n, [e for m, e in enumerate(kept) if m not in br]))
+            for v in c}
+    return [(a, b) for a, b in dropped if comp[a] != comp[b]]
+
+
+def spanning_tree(n: int, pairs: list[PairResult], root: int = 0) -> tuple[np.ndarray, list[int], np.ndarray,
+                                                                          np.ndarray]:
+    """Breadth-first spanning tree of the edges ``pairs`` from view ``root`` (in edge order).
+
+    Returns
+    -------
+    poses : (n, 4, 4) chained camera-to-world, the root's the identity (NaN for views not reached)
     tree : indices into ``pairs`` of the tree edges
     parent : (n,) parent view in the tree (-1 for the root / unreached)
-    depth : (n,) edges from view 0 (-1 unreached)
+    depth : (n,) edges from the root (-1 unreached)
     """
     poses = np.full((n, 4, 4), np.nan)
-    poses[0] = np.eye(4)
+    poses[root] = np.eye(4)
     parent, depth = np.full(n, -1), np.full(n, -1)
-    depth[0] = 0
+    depth[root] = 0
     tree = []
     changed = True
     while changed:
@@ -68,7 +105,7 @@ def spanning_tree(n: int, pairs: list[PairResult]) -> tuple[np.ndarray, list[int
 
 
 def loop_closures(n: int, pairs: list[PairResult], names: list[str] | None = None,
-                  centres: np.ndarray | None = None) -> list[dict]:
+                  centres: np.ndarray | None = None, root: int = 0) -> list[dict]:
     """Fundamental cycles of the edges ``pairs``: every edge outside the breadth-first spanning tree
     compared with the tree's chained relative pose.
 
@@ -76,6 +113,7 @@ def loop_closures(n: int, pairs: list[PairResult], names: list[str] | None = Non
     ----------
     centres : (n, 3) optional object centre seen by each view, in its camera frame [m]: the
         closure is then also measured where it matters, as the displacement of the object centre
+    root : the view the spanning tree grows from: only the cycles among the views it reaches count
 
     Returns
     -------
@@ -85,7 +123,7 @@ def loop_closures(n: int, pairs: list[PairResult], names: list[str] | None = Non
     independent errors add as a random walk), closure_object_mm (with ``centres``)
     """
     names = names or [str(k) for k in range(n)]
-    poses, tree, parent, depth = spanning_tree(n, pairs)
+    poses, tree, parent, depth = spanning_tree(n, pairs, root)
     in_tree = set(tree)
     out = []
     for k, p in enumerate(pairs):
@@ -149,7 +187,8 @@ def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg
       tied selections, one whose edges' albedo correlation (``PairResult.ir_corr``), averaged over
       the edges where it differs from each other tied selection, reaches ``ir_min_corr`` and beats
       the other's by ``ir_margin`` is taken (``report["decided_by_ir"]``);
-    * an edge had to be dropped and no loop is left to verify the rest;
+    * an edge had to be dropped and no loop is left to verify the rest, or the views it joins are
+      linked otherwise only through edges no loop checks (:func:`undecided_drops`);
     * an edge between non-successive views is the only link between two parts of the graph
       (no loop verifies it).
 
@@ -171,6 +210,10 @@ def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg
         if abs(p.source - p.target) != 1:
             o.append(None)
         opts.append(o)
+    # views no accepted edge links to the largest group are left out of the model afterwards: the
+    # choice is made on that group (a view left out must not void every selection, and its checks)
+    main = max(connected_components(n, [(pairs[k].source, pairs[k].target) for k in acc]), key=len)
+    root = main[0]
     free = [m for m, o in enumerate(opts) if len(o) > 1]
     # bound the search: the edges whose best alternative is closest to the primary first
     while np.prod([len(opts[m]) for m in free], dtype=float) > max_combos:
@@ -187,11 +230,12 @@ def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg
     for combo in itertools.product(*[range(len(o)) for o in opts]):
         sel = [opts[m][c] for m, c in enumerate(combo)]
         kept = [p for p in sel if p is not None]
-        poses, _, _, depth = spanning_tree(n, kept)
-        if (depth < 0).any():
+        poses, _, _, depth = spanning_tree(n, kept, root)
+        if (depth[main] < 0).any():
             continue
+        poses = poses[main]  # the views a selection places (the others stay NaN)
         n_tested += 1
-        loops = loop_closures(n, kept)
+        loops = loop_closures(n, kept, root=root)
         if all(lp["per_edge_deg"] <= max_deg and lp["per_edge_mm"] <= max_mm for lp in loops):
             consistent.append((sum(p.fitness for p in kept), combo, poses, len(loops)))
     report = {"tested": n_tested, "consistent": len(consistent), "changed": [], "dropped": [], "reasons": [],
@@ -233,9 +277,9 @@ def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg
             f"{a['score_difference']:.3f} lower) but place the cameras differently; the object looks alike from "
             "different sides (symmetry): the camera poses are not determined by the geometry")
     kept = [out[acc[m]] for m, c in enumerate(combo) if opts[m][c] is not None]
-    for e in kept:  # a match between non-successive views that no loop verifies is not trusted
-        if abs(e.source - e.target) != 1 and len(connected_components(n, [(p.source, p.target) for p in kept
-                                                                         if p is not e])) > 1:
+    br = bridges(n, [(p.source, p.target) for p in kept])
+    for k, e in enumerate(kept):  # a match between non-successive views that no loop verifies is not trusted
+        if abs(e.source - e.target) != 1 and k in br:
             report["unverified"] = report.get("unverified", []) + [f"{names[e.source]}->{names[e.target]}"]
     if report.get("unverified"):
         report["reasons"].append(
@@ -245,6 +289,16 @@ def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg
     if report["dropped"] and n_loops == 0:
         report["reasons"].append(f"edge(s) {', '.join(report['dropped'])} contradict the chain of successive views and "
                                  "were dropped; no closed loop is left to verify the registration")
+    elif report["dropped"]:
+        drop = [(pairs[acc[m]].source, pairs[acc[m]].target) for m, c in enumerate(combo) if opts[m][c] is None]
+        und = undecided_drops(n, [(p.source, p.target) for p in kept], drop)
+        if und:
+            report["undecided"] = [f"{names[a]}->{names[b]}" for a, b in und]
+            report["reasons"].append(
+                f"edge(s) {', '.join(report['undecided'])} contradict the other views and were dropped, but the views "
+                "they join are linked otherwise only through edges no loop checks: one chain against one edge, and "
+                "nothing decides which is wrong (a nearly symmetric object matches itself turned over); take more "
+                "views or views with more overlap")
     return out, report
 
 

@@ -53,19 +53,8 @@ from tofmetry.reconstruct._calibration_support import (
     calibration_central_mm,
     station_spacing_mm,
 )
-from tofmetry.reconstruct._loops import connected_components
+from tofmetry.reconstruct._loops import bridges, connected_components
 from tofmetry.reconstruct._regview import leaves_yaw_free
-
-
-def _bridges(n: int, edges: list[tuple[int, int]]) -> set[int]:
-    """Indices of the edges whose removal disconnects their end views (on no cycle)."""
-    out = set()
-    for k, (a, b) in enumerate(edges):
-        rest = [e for m, e in enumerate(edges) if m != k]
-        comp = next(c for c in connected_components(n, rest) if a in c)
-        if b not in comp:
-            out.add(k)
-    return out
 
 
 def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dict | None = None,
@@ -114,7 +103,7 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
     idx = {nm: k for k, nm in enumerate(names)}
     kept = [e for e in edges if e.get("kept") and e["source"] in idx and e["target"] in idx]
     pairs = [(idx[e["source"]], idx[e["target"]]) for e in kept]
-    br = _bridges(len(names), pairs)
+    br = bridges(len(names), pairs)
     reasons = list(consistency.get("reasons", []))
     graph = list(reasons)  # what the pairwise graph says about the pose graph's poses
     warnings = []
