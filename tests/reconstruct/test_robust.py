@@ -61,15 +61,21 @@ def test_selection_takes_the_alternative_that_closes_the_circle():
         np.testing.assert_allclose(res.poses[k], np.linalg.inv(P[0]) @ P[k], atol=1e-6)
 
 
-def test_selection_flags_an_even_number_of_indistinguishable_flips():
-    # a perfectly symmetric object: edges 1->2 and 3->4 both have a turned-over alternative of
-    # the same fitness; flipping both also closes the circle -> the geometry cannot decide
-    P = _circle_poses(6)
-    pg = PoseGraphBuilder(6, [f"{k:02d}" for k in range(6)])
+def _even_flips(n: int) -> PoseGraphBuilder:
+    """Views 0-5 of ``n`` on a circle, a perfectly symmetric object: edges 1->2 and 3->4 both have a
+    turned-over alternative of the same fitness; views 6.. are linked by no pair."""
+    P = _circle_poses(n)
+    pg = PoseGraphBuilder(n, [f"{k:02d}" for k in range(n)])
     for i in range(5):
         alts = [_flipped_alt(P, i, i + 1, 0.9)] if i in (1, 3) else []
         pg.add(_edge(P, i, i + 1, 0.9, alts=alts))
     pg.add(_edge(P, 0, 5))
+    return pg
+
+
+def test_selection_flags_an_even_number_of_indistinguishable_flips():
+    # flipping both edges also closes the circle -> the geometry cannot decide
+    pg = _even_flips(6)
     rep = pg.select_hypotheses(2.0, 10.0, 0.05)
     assert any("registration ambiguous" in r for r in rep["reasons"]), rep
     assert not pg.optimize(0.003).consistency["reliable"]
@@ -127,13 +133,7 @@ def test_a_dropped_edge_against_a_checked_chain_is_not_flagged():
 def test_a_view_left_out_does_not_void_the_selections_checks():
     # the indistinguishable flips of the test above, with one more view (06) that no pair links:
     # the choice is made on the views that are linked, and its ambiguity still flags the run
-    P = _circle_poses(7)
-    pg = PoseGraphBuilder(7, [f"{k:02d}" for k in range(7)])
-    for i in range(5):
-        alts = [_flipped_alt(P, i, i + 1, 0.9)] if i in (1, 3) else []
-        pg.add(_edge(P, i, i + 1, 0.9, alts=alts))
-    pg.add(_edge(P, 0, 5))
-    rep = pg.select_hypotheses(2.0, 10.0, 0.05)
+    rep = _even_flips(7).select_hypotheses(2.0, 10.0, 0.05)
     assert rep["resolved"] and any("registration ambiguous" in r for r in rep["reasons"]), rep
 
 
