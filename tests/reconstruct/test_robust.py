@@ -150,6 +150,19 @@ def test_an_unchecked_skip_edge_is_flagged_when_view_0_is_left_out():
     assert any("between non-successive views" in r for r in rep["reasons"]), rep
 
 
+def test_a_skip_edge_in_a_group_left_out_is_not_judged():
+    # views 0-4 linked in a closed circle; 5 and 7 linked only to each other by a skip edge: that
+    # group is left out of the model (and said so), its unchecked skip edge is no reason
+    P = _circle_poses(8)
+    pg = PoseGraphBuilder(8, [f"{k:02d}" for k in range(8)])
+    for i in range(4):
+        pg.add(_edge(P, i, i + 1))
+    pg.add(_edge(P, 0, 4))
+    pg.add(_edge(P, 5, 7))
+    rep = pg.select_hypotheses(2.0, 10.0, 0.05)
+    assert rep["resolved"] and not rep.get("unverified") and not rep["reasons"], rep
+
+
 def test_loop_gate_sees_a_wrong_bridge_when_the_circle_is_broken():
     # successive edge 4->5 missing, bridged by 3->5 (right) and 4->6 (turned over): the successive
     # circle test does not apply; the fundamental cycles through the bridges must fail

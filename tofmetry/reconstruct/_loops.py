@@ -278,8 +278,9 @@ def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg
             "different sides (symmetry): the camera poses are not determined by the geometry")
     kept = [out[acc[m]] for m, c in enumerate(combo) if opts[m][c] is not None]
     br = bridges(n, [(p.source, p.target) for p in kept])
+    in_main = set(main)  # views of a smaller group are left out of the model (and said so) anyway
     for k, e in enumerate(kept):  # a match between non-successive views that no loop verifies is not trusted
-        if abs(e.source - e.target) != 1 and k in br:
+        if abs(e.source - e.target) != 1 and k in br and e.source in in_main:
             report["unverified"] = report.get("unverified", []) + [f"{names[e.source]}->{names[e.target]}"]
     if report.get("unverified"):
         report["reasons"].append(
@@ -291,7 +292,7 @@ def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg
                                  "were dropped; no closed loop is left to verify the registration")
     elif report["dropped"]:
         drop = [(pairs[acc[m]].source, pairs[acc[m]].target) for m, c in enumerate(combo) if opts[m][c] is None]
-        und = undecided_drops(n, [(p.source, p.target) for p in kept], drop)
+        und = [(a, b) for a, b in undecided_drops(n, [(p.source, p.target) for p in kept], drop) if a in in_main]
         if und:
             report["undecided"] = [f"{names[a]}->{names[b]}" for a, b in und]
             report["reasons"].append(
