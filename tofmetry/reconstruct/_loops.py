@@ -45,7 +45,8 @@ def bridges(n: int, edges: list[tuple[int, int]]) -> set[int]:
     return out
 
 
-def undecided_drops(n: int, kept: list[tuple[int, int]], dropped: list[tuple[int, int]]) -> list[tuple[int, int]]:
+def undecided_drops(n: int, kept: list[tuple[int, int]], dropped: list[tuple[int, int]],
+                    kept_bridges: set[int] | None = None) -> list[tuple[int, int]]:
     """The dropped edges whose end views the kept edges join only through edges on no loop.
 
     An edge is dropped because it contradicts the loops of the other views; but where every path
@@ -59,12 +60,13 @@ def undecided_drops(n: int, kept: list[tuple[int, int]], dropped: list[tuple[int
     ----------
     n : number of views; kept, dropped : (source, target) view indices of the kept and the
         dropped edges
+    kept_bridges : :func:`bridges` of ``kept`` where the caller has them already
 
     Returns
     -------
     the dropped edges whose views no chain of loop-checked edges joins
     """
-    br = bridges(n, kept)
+    br = bridges(n, kept) if kept_bridges is None else kept_bridges
     comp = {v: k for k, c in enumerate(connected_components(n, [e for m, e in enumerate(kept) if m not in br]))
             for v in c}
     return [(a, b) for a, b in dropped if comp[a] != comp[b]]
@@ -277,7 +279,8 @@ def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg
             f"{a['score_difference']:.3f} lower) but place the cameras differently; the object looks alike from "
             "different sides (symmetry): the camera poses are not determined by the geometry")
     kept = [out[acc[m]] for m, c in enumerate(combo) if opts[m][c] is not None]
-    br = bridges(n, [(p.source, p.target) for p in kept])
+    kept_edges = [(p.source, p.target) for p in kept]
+    br = bridges(n, kept_edges)
     in_main = set(main)  # views of a smaller group are left out of the model (and said so) anyway
     for k, e in enumerate(kept):  # a match between non-successive views that no loop verifies is not trusted
         if abs(e.source - e.target) != 1 and k in br and e.source in in_main:
@@ -292,7 +295,7 @@ def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg
                                  "were dropped; no closed loop is left to verify the registration")
     elif report["dropped"]:
         drop = [(pairs[acc[m]].source, pairs[acc[m]].target) for m, c in enumerate(combo) if opts[m][c] is None]
-        und = [(a, b) for a, b in undecided_drops(n, [(p.source, p.target) for p in kept], drop) if a in in_main]
+        und = [(a, b) for a, b in undecided_drops(n, kept_edges, drop, br) if a in in_main]
         if und:
             report["undecided"] = [f"{names[a]}->{names[b]}" for a, b in und]
             report["reasons"].append(

@@ -53,7 +53,7 @@ from tofmetry.reconstruct._calibration_support import (
     calibration_central_mm,
     station_spacing_mm,
 )
-from tofmetry.reconstruct._loops import bridges, connected_components
+from tofmetry.reconstruct._loops import bridges
 from tofmetry.reconstruct._regview import leaves_yaw_free
 
 
