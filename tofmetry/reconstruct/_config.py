@@ -165,6 +165,22 @@ class RegistrationConfig(BaseModel):
                                    "0.80-0.86 on a painted bar at the true poses, below 0.06 on a plain object)")
     ir_icp_min_gain: float = Field(0.03, ge=0, description="... and where that correlation rose by at least this "
                                    "(measured: +0.06 to +0.33 on edges that had slid, at most +0.03 on correct ones)")
+    ir_local_yaw: bool = Field(True, description="where the matched points' IR albedos correlate (a painted pattern), "
+                               "sweep the turn about the support normal near each accepted pairwise pose (the shift "
+                               "along the support fitted at each yaw) and keep the yaw whose pattern lines up best among "
+                               "those that fit as well: a smooth object's geometry leaves several degrees of yaw to its "
+                               "pattern (see tofmetry.reconstruct._ir_yaw_local); needs IR frames")
+    ir_local_yaw_deg: float = Field(15.0, gt=0, le=90, description="half-width of that sweep about the pose's yaw [deg] "
+                                    "(measured: the geometric poses kept on a painted pebble were 3-9 deg off)")
+    ir_local_yaw_step_deg: float = Field(1.0, gt=0, description="yaw step of that sweep [deg] (the albedo correlation's "
+                                         "peak is about 5 deg wide on a pebble's 30-40 mm paint blobs at 0.7-1 m)")
+    ir_local_gate_deg: float = Field(3.0, gt=0, description="the sweep runs only where the yaw turned by this either "
+                                     "way (the shift refitted) fits within ir_local_fit_tol of the pose: elsewhere the "
+                                     "geometry pins the yaw [deg]")
+    ir_local_fit_tol: float = Field(0.02, ge=0, le=1, description="yaws whose fitness lies within this of the best one "
+                                    "count as fitting alike (measured on a painted pebble: 0.01-0.02 over 10 deg)")
+    ir_local_min_gain: float = Field(0.05, ge=0, le=2, description="the pattern's yaw replaces the geometric one only "
+                                     "where its albedo correlation is higher by at least this")
     yaw_free_ratio: float = Field(0.15, gt=0, description="an edge whose yaw stiffness is below this share of its tilt "
                                   "stiffness is yaw free (registration_conditioning: 0.01-0.06 measured on a vase, "
                                   "0.9-2.7 on a bunny and a head)")

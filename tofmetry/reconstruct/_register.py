@@ -21,6 +21,7 @@ from scipy.spatial import cKDTree
 from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.reconstruct._config import RegistrationConfig
 from tofmetry.reconstruct._icp_stages import plane_frame, refine_fine, refine_mid, yaw_hops, yaw_in_frame
+from tofmetry.reconstruct._ir_yaw_local import yaw_sweep_near
 from tofmetry.reconstruct._photometric import ir_agreement, ir_yaw_sweep, photometric_icp
 from tofmetry.reconstruct._o3d import (
     global_register,
@@ -230,9 +231,14 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
     best = out[0]
     if best.accepted:
         best, out = _hopped(src, tgt, best, out, cfg, vis, allowed, r_final)
-    c0 = ir_agreement(src, tgt, best.transform, r_final) if cfg.ir_icp and best.accepted else None
+    c0 = ir_agreement(src, tgt, best.transform, r_final) if (cfg.ir_icp or cfg.ir_local_yaw) and best.accepted else None
     best = replace(best, ir_corr=c0)
-    if c0 is not None and c0 >= 0.5 * cfg.ir_icp_min_corr:  # no pattern at all (a plain object): not tried
+    if (cfg.ir_local_yaw and c0 is not None and c0 >= 0.5 * cfg.ir_icp_min_corr
+            and not (cfg.ir_yaw and leaves_yaw_free(best.conditioning, cfg.yaw_free_ratio))):
+        # a yaw the geometry pins only loosely (a yaw-free edge gets the full turn about its axis below)
+        best, out = _ir_local_yaw(src, tgt, best, out, cfg, vis, allowed, r_final)
+        c0 = best.ir_corr
+    if cfg.ir_icp and c0 is not None and c0 >= 0.5 * cfg.ir_icp_min_corr:  # no pattern at all (a plain object): not tried
         # the IR albedo as a photometric term, kept where the pattern lines up clearly better and the
         # geometry matches as well (the object fitness within its noise, 0.005)
         T = photometric_icp(src, tgt, best.transform, tuple(x * 1e-3 for x in cfg.icp_radii_mm[-2:]),
@@ -283,6 +289,69 @@ def _hopped(src: RegView, tgt: RegView, best: PairResult, out: list[PairResult],
         return best, out
     hopped = _pair_result(src, tgt, best.source, best.target, T, fit, rmse, v, best.method + "+hop", True, r_final)
     return hopped, [hopped] + [a for a in out[1:] if not _same_pose(a.transform, T)]
+
+
+def _ir_local_yaw(src: RegView, tgt: RegView, best: PairResult, out: list[PairResult], cfg: RegistrationConfig, vis,
+                  allowed, r_final: float) -> tuple[PairResult, list[PairResult]]:
+    """The accepted hypothesis, or the yaw near it about the support normal that lines the painted
+    pattern up best (:mod:`._ir_yaw_local`). Where turning it by ``cfg.ir_local_gate_deg`` either
+    way loses more than ``cfg.ir_local_fit_tol`` of fitness, the geometry pins the yaw and the
+    hypothesis stays. Otherwise the yaw is swept over ``+-cfg.ir_local_yaw_deg`` in
+    ``cfg.ir_local_yaw_step_deg`` steps (the shift along the support fitted at each); among the
+    yaws that fit within ``cfg.ir_local_fit_tol`` of the best fitness (of the sweep and of this
+    hypothesis), the one whose matched points' IR albedos correlate most is taken where that
+    correlation reaches ``cfg.ir_icp_min_corr`` and beats this hypothesis's by
+    ``cfg.ir_local_min_gain``, and the pose passes every gate; the parabola through the
+    correlations of its yaw and the two beside it places the peak between the steps. The fine ICP
+    then refines it, kept where it stays within one step of the yaw the pattern chose."""
+    radii = tuple(x * 1e-3 for x in cfg.icp_radii_mm[:-1])
+    gate = cfg.ir_local_gate_deg
+    probe = [object_fitness(src, tgt, T, r_final)[0] for off, T in yaw_sweep_near(src, tgt, best.transform, gate, gate, radii)
+             if off != 0]
+    if len(probe) == 2 and max(probe) < max(best.fitness, *probe) - cfg.ir_local_fit_tol:
+        return best, out  # the geometry pins the yaw: turned by the gate either way, the surfaces part
+    swept = []
+    for off, T in yaw_sweep_near(src, tgt, best.transform, cfg.ir_local_yaw_deg, cfg.ir_local_yaw_step_deg, radii):
+        fit, rmse = object_fitness(src, tgt, T, r_final)
+        c = ir_agreement(src, tgt, T, r_final)
+        if c is not None and _passes(fit, rmse, cfg):
+            swept.append((off, fit, rmse, T, c))
+    if not swept:
+        return best, out
+    f_top = max([best.fitness] + [f[1] for f in swept])
+    near = [f for f in swept if f[1] >= f_top - cfg.ir_local_fit_tol]
+    if not near:
+        return best, out
+    k = swept.index(max(near, key=lambda f: f[4]))
+    off, fit, rmse, T, c = swept[k]
+    if c < cfg.ir_icp_min_corr or c - best.ir_corr < cfg.ir_local_min_gain:
+        return best, out
+    step = cfg.ir_local_yaw_step_deg
+    if 0 < k < len(swept) - 1 and abs(swept[k + 1][0] - swept[k - 1][0] - 2 * step) < 1e-6 * step:
+        # the peak between the steps: the vertex of the parabola through the three correlations
+        cm, cp = swept[k - 1][4], swept[k + 1][4]
+        curv = cm - 2.0 * c + cp
+        delta = float(np.clip(0.5 * (cm - cp) / curv, -0.5, 0.5)) * step if curv < 0 else 0.0
+        if abs(delta) > 1e-3:
+            sub = [U for o, U in yaw_sweep_near(src, tgt, T, abs(delta), abs(delta), radii) if o * delta > 0]
+            if sub:
+                fit_s, rmse_s = object_fitness(src, tgt, sub[0], r_final)
+                c_s = ir_agreement(src, tgt, sub[0], r_final)
+                if c_s is not None and c_s >= c and _passes(fit_s, rmse_s, cfg):
+                    fit, rmse, T, c = fit_s, rmse_s, sub[0], c_s
+    Tf = refine_fine(src, tgt, T, cfg)
+    if rotation_angle_deg(np.linalg.inv(T) @ Tf) <= cfg.ir_local_yaw_step_deg:
+        fit_f, rmse_f = object_fitness(src, tgt, Tf, r_final)
+        c_f = ir_agreement(src, tgt, Tf, r_final)
+        if c_f is not None and _passes(fit_f, rmse_f, cfg):
+            T, fit, rmse, c = Tf, fit_f, rmse_f, c_f
+    v = vis(T)
+    if (_same_pose(T, best.transform, 0.05, 0.5) or v > cfg.max_see_through or not plane_consistent(src, tgt, T)
+            or not allowed(T)):
+        return best, out
+    chosen = _pair_result(src, tgt, best.source, best.target, T, fit, rmse, v, best.method + "+ir-yaw-sweep", True,
+                          r_final, ir_corr=c)
+    return chosen, [chosen] + [a for a in out if not _same_pose(a.transform, T)]
 
 
 def _ir_turned(src: RegView, tgt: RegView, i: int, j: int, T0: np.ndarray, cfg: RegistrationConfig, r_final: float,
