@@ -14,7 +14,8 @@ the pattern picks the yaw.
 
 :func:`plane_yaw_icp` is the point-to-plane ICP with the support planes held on each other: it
 moves only the yaw about the plane normal and the shift along the plane (or the shift alone).
-:func:`yaw_sweep_near` turns a pose's yaw over a range and fits the shift at each yaw.
+:func:`yaw_sweep_near` turns a pose's yaw over a range and fits the shift at each yaw;
+:func:`pattern_yaw` picks the yaw there, where the geometry leaves it loose.
 """
 
 from __future__ import annotations
@@ -22,7 +23,11 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from tofmetry.reconstruct._icp_stages import plane_frame, yaw_in_frame
+from tofmetry._shared.geometry import rotation_angle_deg
+from tofmetry.reconstruct._config import RegistrationConfig
+from tofmetry.reconstruct._icp_stages import plane_frame, refine_fine, yaw_in_frame
+from tofmetry.reconstruct._photometric import ir_agreement
+from tofmetry.reconstruct._regview import object_fitness, passes_gates
 
 
 def plane_yaw_icp(a: np.ndarray, b: np.ndarray, bn: np.ndarray, tree: cKDTree, yaw: float, shift: np.ndarray,
@@ -109,3 +114,66 @@ def yaw_sweep_near(src, tgt, T: np.ndarray, half_width_deg: float, step_deg: flo
             found[m] = Ft @ R @ iFs
             prev = m
     return [(m * step_deg, found[m]) for m in sorted(found)]
+
+
+def pattern_yaw(src: RegView, tgt: RegView, T0: np.ndarray, fit0: float, c0: float, cfg: RegistrationConfig,
+                r_final: float) -> tuple[np.ndarray, float, float, float] | None:
+    """The yaw near the pose ``T0`` (source -> target, (4, 4) [m]; its fitness ``fit0`` and IR
+    albedo correlation ``c0``) about the support normal that lines the painted pattern up best
+    (module docstring), as ``(pose, fitness, RMSE [m], correlation)``; None where it stays.
+
+    Where turning the yaw by ``cfg.ir_local_gate_deg`` either way loses more than
+    ``cfg.ir_local_fit_tol`` of fitness, the geometry pins it and it stays. Otherwise it is swept
+    over ``+-cfg.ir_local_yaw_deg`` in ``cfg.ir_local_yaw_step_deg`` steps (the shift along the
+    support fitted at each); among the yaws that fit within ``cfg.ir_local_fit_tol`` of the best
+    fitness (of the sweep and of ``T0``), the one whose matched points' IR albedos correlate most
+    is taken where that correlation reaches ``cfg.ir_icp_min_corr`` and beats ``c0`` by
+    ``cfg.ir_local_min_gain``; the parabola through the correlations of its yaw and the two beside
+    it places the peak between the steps. The fine ICP then refines it, kept where it stays within
+    one step of the yaw the pattern chose."""
+    radii = tuple(x * 1e-3 for x in cfg.icp_radii_mm[:-1])
+    gate = cfg.ir_local_gate_deg
+    probe = [object_fitness(src, tgt, T, r_final)[0] for off, T in yaw_sweep_near(src, tgt, T0, gate, gate, radii)
+             if off != 0]
+    if len(probe) == 2 and max(probe) < max(fit0, *probe) - cfg.ir_local_fit_tol:
+        return None  # the geometry pins the yaw: turned by the gate either way, the surfaces part
+    swept = []
+    for off, T in yaw_sweep_near(src, tgt, T0, cfg.ir_local_yaw_deg, cfg.ir_local_yaw_step_deg, radii):
+        fit, rmse = object_fitness(src, tgt, T, r_final)
+        c = ir_agreement(src, tgt, T, r_final)
+        if c is not None and passes_gates(fit, rmse, cfg):
+            swept.append((off, fit, rmse, T, c))
+    if not swept:
+        return None
+    f_top = max([fit0] + [f[1] for f in swept])
+    near = [f for f in swept if f[1] >= f_top - cfg.ir_local_fit_tol]
+    if not near:
+        return None
+    k = swept.index(max(near, key=lambda f: f[4]))
+    off, fit, rmse, T, c = swept[k]
+    if c < cfg.ir_icp_min_corr or c - c0 < cfg.ir_local_min_gain:
+        return None
+    step = cfg.ir_local_yaw_step_deg
+    if 0 < k < len(swept) - 1 and abs(swept[k + 1][0] - swept[k - 1][0] - 2 * step) < 1e-6 * step:
+        # the peak between the steps: the vertex of the parabola through the three correlations
+        cm, cp = swept[k - 1][4], swept[k + 1][4]
+        curv = cm - 2.0 * c + cp
+        delta = float(np.clip(0.5 * (cm - cp) / curv, -0.5, 0.5)) * step if curv < 0 else 0.0
+        if abs(delta) > 1e-3:
+            sub = [U for o, U in yaw_sweep_near(src, tgt, T, abs(delta), abs(delta), radii) if o * delta > 0]
+            if sub:
+                fit_s, rmse_s = object_fitness(src, tgt, sub[0], r_final)
+                c_s = ir_agreement(src, tgt, sub[0], r_final)
+                if c_s is not None and c_s >= c and passes_gates(fit_s, rmse_s, cfg):
+                    fit, rmse, T, c = fit_s, rmse_s, sub[0], c_s
+    Tf = refine_fine(src, tgt, T, cfg)
+    if rotation_angle_deg(np.linalg.inv(T) @ Tf) <= step:
+        fit_f, rmse_f = object_fitness(src, tgt, Tf, r_final)
+        c_f = ir_agreement(src, tgt, Tf, r_final)
+        if c_f is not None and passes_gates(fit_f, rmse_f, cfg):
+            T, fit, rmse, c = Tf, fit_f, rmse_f, c_f
+    E = np.linalg.inv(T0) @ T
+    if rotation_angle_deg(E) < 0.05 and np.linalg.norm(E[:3, 3]) < 5e-4:  # where it started
+        return None
+    return T, fit, rmse, c
+

@@ -21,7 +21,7 @@ from scipy.spatial import cKDTree
 from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.reconstruct._config import RegistrationConfig
 from tofmetry.reconstruct._icp_stages import plane_frame, refine_fine, refine_mid, yaw_hops, yaw_in_frame
-from tofmetry.reconstruct._ir_yaw_local import yaw_sweep_near
+from tofmetry.reconstruct._ir_yaw_local import pattern_yaw
 from tofmetry.reconstruct._photometric import ir_agreement, ir_yaw_sweep, photometric_icp
 from tofmetry.reconstruct._o3d import (
     global_register,
@@ -32,6 +32,7 @@ from tofmetry.reconstruct._regview import (
     RegView,
     leaves_yaw_free,
     object_fitness,
+    passes_gates,
     registration_conditioning,
     visibility_violation,
 )
@@ -196,7 +197,7 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
             T = refine_fine(src, tgt, init, cfg)
             if _same_pose(init, T, cfg.max_loop_jump_deg, cfg.max_loop_jump_mm):
                 cands.append((*object_fitness(src, tgt, T, r_final), T, "init+fine-icp", vis(T)))
-    if global_search and (not cands or not _passes(cands[0][0], cands[0][1], cfg) or not plane_consistent(src, tgt, cands[0][2])
+    if global_search and (not cands or not passes_gates(cands[0][0], cands[0][1], cfg) or not plane_consistent(src, tgt, cands[0][2])
                           or cands[0][4] > cfg.max_see_through):
         def fpfh():
             return [(global_register(src.feat_points, src.feat_normals, tgt.feat_points, tgt.feat_normals,
@@ -204,7 +205,7 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
                     for s in range(cfg.ransac_seeds)]
 
         def good(c):
-            return (_passes(c[0], c[1], cfg) and c[4] <= cfg.max_see_through and plane_consistent(src, tgt, c[2])
+            return (passes_gates(c[0], c[1], cfg) and c[4] <= cfg.max_see_through and plane_consistent(src, tgt, c[2])
                     and allowed(c[2]))
 
         if src.plane is not None and tgt.plane is not None:
@@ -224,7 +225,7 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
     ranked = sorted(cands, key=lambda c: (not plane_consistent(src, tgt, c[2]), not allowed(c[2]), *key(c)))
     out = []
     for fit, rmse, T, method, v in ranked:
-        ok = _passes(fit, rmse, cfg) and v <= cfg.max_see_through and allowed(T)
+        ok = passes_gates(fit, rmse, cfg) and v <= cfg.max_see_through and allowed(T)
         if out and not (ok and plane_consistent(src, tgt, T)):
             continue
         out.append(_pair_result(src, tgt, i, j, T, fit, rmse, v, method, ok, r_final))
@@ -247,7 +248,7 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
         c1 = ir_agreement(src, tgt, T, r_final)
         v = vis(T)
         if (c1 is not None and c1 >= cfg.ir_icp_min_corr and c1 - c0 >= cfg.ir_icp_min_gain
-                and fit >= best.fitness - 0.005 and _passes(fit, rmse, cfg) and v <= cfg.max_see_through
+                and fit >= best.fitness - 0.005 and passes_gates(fit, rmse, cfg) and v <= cfg.max_see_through
                 and plane_consistent(src, tgt, T) and allowed(T)):
             best = _pair_result(src, tgt, i, j, T, fit, rmse, v, best.method + "+ir-icp", True, r_final, ir_corr=c1)
             out = [best] + out[1:]
@@ -285,7 +286,7 @@ def _hopped(src: RegView, tgt: RegView, best: PairResult, out: list[PairResult],
         return best, out
     fit, rmse = object_fitness(src, tgt, T, r_final)
     v = vis(T)
-    if not (_passes(fit, rmse, cfg) and v <= cfg.max_see_through and plane_consistent(src, tgt, T) and allowed(T)):
+    if not (passes_gates(fit, rmse, cfg) and v <= cfg.max_see_through and plane_consistent(src, tgt, T) and allowed(T)):
         return best, out
     hopped = _pair_result(src, tgt, best.source, best.target, T, fit, rmse, v, best.method + "+hop", True, r_final)
     return hopped, [hopped] + [a for a in out[1:] if not _same_pose(a.transform, T)]
@@ -293,61 +294,14 @@ def _hopped(src: RegView, tgt: RegView, best: PairResult, out: list[PairResult],
 
 def _ir_local_yaw(src: RegView, tgt: RegView, best: PairResult, out: list[PairResult], cfg: RegistrationConfig, vis,
                   allowed, r_final: float) -> tuple[PairResult, list[PairResult]]:
-    """The accepted hypothesis, or the yaw near it about the support normal that lines the painted
-    pattern up best (:mod:`._ir_yaw_local`). Where turning it by ``cfg.ir_local_gate_deg`` either
-    way loses more than ``cfg.ir_local_fit_tol`` of fitness, the geometry pins the yaw and the
-    hypothesis stays. Otherwise the yaw is swept over ``+-cfg.ir_local_yaw_deg`` in
-    ``cfg.ir_local_yaw_step_deg`` steps (the shift along the support fitted at each); among the
-    yaws that fit within ``cfg.ir_local_fit_tol`` of the best fitness (of the sweep and of this
-    hypothesis), the one whose matched points' IR albedos correlate most is taken where that
-    correlation reaches ``cfg.ir_icp_min_corr`` and beats this hypothesis's by
-    ``cfg.ir_local_min_gain``, and the pose passes every gate; the parabola through the
-    correlations of its yaw and the two beside it places the peak between the steps. The fine ICP
-    then refines it, kept where it stays within one step of the yaw the pattern chose."""
-    radii = tuple(x * 1e-3 for x in cfg.icp_radii_mm[:-1])
-    gate = cfg.ir_local_gate_deg
-    probe = [object_fitness(src, tgt, T, r_final)[0] for off, T in yaw_sweep_near(src, tgt, best.transform, gate, gate, radii)
-             if off != 0]
-    if len(probe) == 2 and max(probe) < max(best.fitness, *probe) - cfg.ir_local_fit_tol:
-        return best, out  # the geometry pins the yaw: turned by the gate either way, the surfaces part
-    swept = []
-    for off, T in yaw_sweep_near(src, tgt, best.transform, cfg.ir_local_yaw_deg, cfg.ir_local_yaw_step_deg, radii):
-        fit, rmse = object_fitness(src, tgt, T, r_final)
-        c = ir_agreement(src, tgt, T, r_final)
-        if c is not None and _passes(fit, rmse, cfg):
-            swept.append((off, fit, rmse, T, c))
-    if not swept:
+    """The accepted hypothesis, or the yaw near it that the painted pattern picks
+    (:func:`pattern_yaw`), where that pose passes every gate."""
+    got = pattern_yaw(src, tgt, best.transform, best.fitness, best.ir_corr, cfg, r_final)
+    if got is None:
         return best, out
-    f_top = max([best.fitness] + [f[1] for f in swept])
-    near = [f for f in swept if f[1] >= f_top - cfg.ir_local_fit_tol]
-    if not near:
-        return best, out
-    k = swept.index(max(near, key=lambda f: f[4]))
-    off, fit, rmse, T, c = swept[k]
-    if c < cfg.ir_icp_min_corr or c - best.ir_corr < cfg.ir_local_min_gain:
-        return best, out
-    step = cfg.ir_local_yaw_step_deg
-    if 0 < k < len(swept) - 1 and abs(swept[k + 1][0] - swept[k - 1][0] - 2 * step) < 1e-6 * step:
-        # the peak between the steps: the vertex of the parabola through the three correlations
-        cm, cp = swept[k - 1][4], swept[k + 1][4]
-        curv = cm - 2.0 * c + cp
-        delta = float(np.clip(0.5 * (cm - cp) / curv, -0.5, 0.5)) * step if curv < 0 else 0.0
-        if abs(delta) > 1e-3:
-            sub = [U for o, U in yaw_sweep_near(src, tgt, T, abs(delta), abs(delta), radii) if o * delta > 0]
-            if sub:
-                fit_s, rmse_s = object_fitness(src, tgt, sub[0], r_final)
-                c_s = ir_agreement(src, tgt, sub[0], r_final)
-                if c_s is not None and c_s >= c and _passes(fit_s, rmse_s, cfg):
-                    fit, rmse, T, c = fit_s, rmse_s, sub[0], c_s
-    Tf = refine_fine(src, tgt, T, cfg)
-    if rotation_angle_deg(np.linalg.inv(T) @ Tf) <= cfg.ir_local_yaw_step_deg:
-        fit_f, rmse_f = object_fitness(src, tgt, Tf, r_final)
-        c_f = ir_agreement(src, tgt, Tf, r_final)
-        if c_f is not None and _passes(fit_f, rmse_f, cfg):
-            T, fit, rmse, c = Tf, fit_f, rmse_f, c_f
+    T, fit, rmse, c = got
     v = vis(T)
-    if (_same_pose(T, best.transform, 0.05, 0.5) or v > cfg.max_see_through or not plane_consistent(src, tgt, T)
-            or not allowed(T)):
+    if v > cfg.max_see_through or not plane_consistent(src, tgt, T) or not allowed(T):
         return best, out
     chosen = _pair_result(src, tgt, best.source, best.target, T, fit, rmse, v, best.method + "+ir-yaw-sweep", True,
                           r_final, ir_corr=c)
@@ -370,7 +324,7 @@ def _ir_turned(src: RegView, tgt: RegView, i: int, j: int, T0: np.ndarray, cfg: 
         if cp is not None and (c is None or cp > c) and fit_p >= fit - 0.005:
             T, fit, rmse, c = Tp, fit_p, rmse_p, cp
     v = vis(T)
-    ok = _passes(fit, rmse, cfg) and v <= cfg.max_see_through
+    ok = passes_gates(fit, rmse, cfg) and v <= cfg.max_see_through
     return _pair_result(src, tgt, i, j, T, fit, rmse, v, method, ok, r_final, ir_yaw=sweep, ir_corr=c)
 
 
@@ -422,7 +376,7 @@ def _search(src: RegView, tgt: RegView, cfg: RegistrationConfig, coarse: list, c
     mids.sort(key=key)
     for k, (fit0, rm0, T, how, v0) in enumerate(mids):
         # alternatives are kept for the multi-view (loop consistency) selection
-        if k > 0 and not (_passes(fit0, rm0, cfg) and v0 <= cfg.max_see_through
+        if k > 0 and not (passes_gates(fit0, rm0, cfg) and v0 <= cfg.max_see_through
                           and all(not _same_pose(T, c[2]) for c in cands)):
             continue
         T = refine_fine(src, tgt, T, cfg)
@@ -451,7 +405,3 @@ def rejection_reason(p: PairResult, cfg: RegistrationConfig) -> str:
     if "dropped" in p.method:
         why.append("dropped: contradicts the loops of the other views")
     return "rejected: " + ("; ".join(why) or "support planes disagree")
-
-
-def _passes(fit: float, rmse_m: float, cfg: RegistrationConfig) -> bool:
-    return fit >= cfg.min_fitness and rmse_m * 1e3 <= cfg.max_rmse_mm

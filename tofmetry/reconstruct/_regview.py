@@ -285,6 +285,12 @@ def registration_conditioning(src: RegView, tgt: RegView, T: np.ndarray, radius_
             "yaw_ratio": yaw, "n_matched": n_matched}
 
 
+def passes_gates(fit: float, rmse_m: float, cfg: RegistrationConfig) -> bool:
+    """A pairwise hypothesis's fitness and RMSE [m] against the registration's gates (``cfg.min_fitness``,
+    ``cfg.max_rmse_mm``)."""
+    return fit >= cfg.min_fitness and rmse_m * 1e3 <= cfg.max_rmse_mm
+
+
 def leaves_yaw_free(conditioning: dict | None, ratio: float) -> bool:
     """Whether a registration's overlap leaves the turn about the vertical free: its
     :func:`registration_conditioning` ``yaw_ratio`` is known and below ``ratio``."""
