@@ -5,9 +5,9 @@ within several degrees about the vertical, and the calibration's residual biases
 range the ICP ends. Measured on a painted pebble of the object family (seed 1698206712, 11
 turntable views; the support planes put on each other and the yaw swept about the plane normal in
 1 deg steps, the shift along the plane fitted at each): the fitness stayed within 0.01-0.02 of its
-best over 10 deg, and the pairwise registration kept poses 3.3-8.7 deg off. The relative IR
+best over 10 deg, and the pairwise registration kept poses 3.3-9.1 deg off. The relative IR
 albedo of the matched points (:func:`~tofmetry.reconstruct._photometric.ir_agreement`) peaked
-within 0.8 deg of the truth on each pair swept (correlation 0.29-0.63 there, 0.18-0.33 at the
+within 0.8 deg of the truth on each pair swept (correlation 0.29-0.63 there, 0.17-0.33 at the
 kept poses). The photometric ICP started near those poses slid 5-38 deg away (on another painted
 pebble, 918864800), so no photometric ICP is run here: the geometry fits the shift at each yaw,
 the pattern picks the yaw.
@@ -27,7 +27,7 @@ from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.reconstruct._config import RegistrationConfig
 from tofmetry.reconstruct._icp_stages import plane_frame, refine_fine, yaw_in_frame
 from tofmetry.reconstruct._photometric import ir_agreement
-from tofmetry.reconstruct._regview import object_fitness, passes_gates
+from tofmetry.reconstruct._regview import RegView, object_fitness, passes_gates
 
 
 def plane_yaw_icp(a: np.ndarray, b: np.ndarray, bn: np.ndarray, tree: cKDTree, yaw: float, shift: np.ndarray,
