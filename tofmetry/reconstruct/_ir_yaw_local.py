@@ -139,10 +139,9 @@ def pattern_yaw(src: RegView, tgt: RegView, T0: np.ndarray, fit0: float, c0: flo
         return None  # the geometry pins the yaw: turned by the gate either way, the surfaces part
     swept = []
     for off, T in yaw_sweep_near(src, tgt, T0, cfg.ir_local_yaw_deg, cfg.ir_local_yaw_step_deg, radii):
-        fit, rmse = object_fitness(src, tgt, T, r_final)
-        c = ir_agreement(src, tgt, T, r_final)
-        if c is not None and passes_gates(fit, rmse, cfg):
-            swept.append((off, fit, rmse, T, c))
+        sc = _scored(src, tgt, T, cfg, r_final)
+        if sc is not None:
+            swept.append((off, *sc))
     if not swept:
         return None
     f_top = max([fit0] + [f[1] for f in swept])
@@ -161,19 +160,24 @@ def pattern_yaw(src: RegView, tgt: RegView, T0: np.ndarray, fit0: float, c0: flo
         delta = float(np.clip(0.5 * (cm - cp) / curv, -0.5, 0.5)) * step if curv < 0 else 0.0
         if abs(delta) > 1e-3:
             sub = [U for o, U in yaw_sweep_near(src, tgt, T, abs(delta), abs(delta), radii) if o * delta > 0]
-            if sub:
-                fit_s, rmse_s = object_fitness(src, tgt, sub[0], r_final)
-                c_s = ir_agreement(src, tgt, sub[0], r_final)
-                if c_s is not None and c_s >= c and passes_gates(fit_s, rmse_s, cfg):
-                    fit, rmse, T, c = fit_s, rmse_s, sub[0], c_s
+            sc = _scored(src, tgt, sub[0], cfg, r_final) if sub else None
+            if sc is not None and sc[3] >= c:
+                fit, rmse, T, c = sc
     Tf = refine_fine(src, tgt, T, cfg)
     if rotation_angle_deg(np.linalg.inv(T) @ Tf) <= step:
-        fit_f, rmse_f = object_fitness(src, tgt, Tf, r_final)
-        c_f = ir_agreement(src, tgt, Tf, r_final)
-        if c_f is not None and passes_gates(fit_f, rmse_f, cfg):
-            T, fit, rmse, c = Tf, fit_f, rmse_f, c_f
+        sc = _scored(src, tgt, Tf, cfg, r_final)
+        if sc is not None:
+            fit, rmse, T, c = sc
     E = np.linalg.inv(T0) @ T
     if rotation_angle_deg(E) < 0.05 and np.linalg.norm(E[:3, 3]) < 5e-4:  # where it started
         return None
     return T, fit, rmse, c
 
+
+def _scored(src: RegView, tgt: RegView, T: np.ndarray, cfg: RegistrationConfig,
+            r_final: float) -> tuple[float, float, np.ndarray, float] | None:
+    """``(fitness, RMSE [m], T, IR albedo correlation)`` of the pose ``T``, or None where the
+    correlation is unknown (no IR, too few matches, no contrast) or the pose fails the pairwise gates."""
+    fit, rmse = object_fitness(src, tgt, T, r_final)
+    c = ir_agreement(src, tgt, T, r_final)
+    return (fit, rmse, T, c) if c is not None and passes_gates(fit, rmse, cfg) else None
