@@ -358,30 +358,36 @@ def plan(
     console.print(f"object ({run.object.source}): {ext[0]:.3f} x {ext[1]:.3f} x {ext[2]:.3f} m; views at "
                   f"{run.settings['distance_m']:.2f} m")
     t = Table(title="candidate view sets (best first)")
-    for col in ("views", "n", "completeness", "min overlap", "mean |d| [mm]", "p95 [mm]"):
+    for col in ("views", "n", "completeness", "range", "min overlap", "mean |d| [mm]", "p95 [mm]"):
         t.add_column(col, justify="right")
     for c in run.candidates[:10]:
         p = c.prediction
-        t.add_row(c.name, str(p.n_views), f"{p.completeness:.1%}", f"{p.min_overlap:.2f}", f"{p.mean_abs_mm:.2f}",
-                  f"{p.p95_mm:.2f}")
+        t.add_row(c.name, str(p.n_views), f"{p.completeness:.1%}", _span(p), f"{p.min_overlap:.2f}",
+                  f"{p.mean_abs_mm:.2f}", f"{p.p95_mm:.2f}")
     console.print(t)
     if run.asked is not None:
         p = run.asked.prediction
-        console.print(f"asked {run.asked.name}: completeness {p.completeness:.1%}, smallest overlap {p.min_overlap:.2f}, "
+        console.print(f"asked {run.asked.name}: completeness {p.completeness:.1%} ({_span(p)}), smallest overlap {p.min_overlap:.2f}, "
                       f"mean |d| {p.mean_abs_mm:.2f} mm")
     if run.completed is not None:
         p = run.completed.prediction
         added = run.completed.params["added_at"]
         console.print(f"completed: {len(added)} view(s) added (at positions {', '.join(map(str, added)) or '-'} of "
-                      f"{p.n_views}): completeness {p.completeness:.1%}, smallest overlap {p.min_overlap:.2f}")
+                      f"{p.n_views}): completeness {p.completeness:.1%} ({_span(p)}), smallest overlap {p.min_overlap:.2f}")
     for w in run.settings.get("warnings", []):
         console.print(f"[yellow]{w}[/yellow]")
     if run.proposal is None:
         console.print(f"[yellow]no candidate reaches {target:.0%} with enough overlap; the best is listed first[/yellow]")
     else:
         p = run.proposal.prediction
-        console.print(f"proposal: {run.proposal.name}: completeness {p.completeness:.1%}, mean |d| {p.mean_abs_mm:.2f} mm")
+        console.print(f"proposal: {run.proposal.name}: completeness {p.completeness:.1%} ({_span(p)}), mean |d| {p.mean_abs_mm:.2f} mm")
     console.print(f"wrote {output}")
+
+
+def _span(p) -> str:
+    """A prediction's completeness range: every grazing surface lost - every one kept."""
+    lo, hi = p.completeness_range
+    return f"{lo:.0%}-{hi:.0%}"
 
 
 def register(app: typer.Typer) -> None:

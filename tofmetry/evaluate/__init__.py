@@ -32,7 +32,7 @@ from tofmetry.evaluate._stats import (
     completeness_fscore,
     deviation_stats,
 )
-from tofmetry.evaluate._visibility import CameraViews, observed_mask
+from tofmetry.evaluate._visibility import CameraViews, observed_mask, view_cosines
 
 __all__ = [
     "AlignmentResult",
@@ -59,5 +59,6 @@ __all__ = [
     "sample_mesh",
     "scale_from_reference",
     "sharp_edge_samples",
+    "view_cosines",
     "write_evaluation",
 ]

@@ -67,6 +67,58 @@ class CameraViews:
                    sp)
 
 
+def _raycaster(mesh: tuple[np.ndarray, np.ndarray] | None):
+    """An Open3D RaycastingScene of ``mesh`` (vertices (V, 3) [m], faces (M, 3)); None without one."""
+    if mesh is None:
+        return None
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(mesh[0], np.float32)),
+                        o3d.core.Tensor(np.ascontiguousarray(mesh[1], np.uint32)))
+    return scene
+
+
+def _seen_by(pts: np.ndarray, nrm: np.ndarray, C: np.ndarray, cameras: CameraViews, scene, cos_max: float,
+             occlusion_tol_m: float, image_margin_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """The samples one camera (camera-to-reference ``C`` (4, 4)) sees (:func:`observed_mask`'s
+    rules): their indices (K,) and the cosines (K,) of their incidence angles."""
+    intr = cameras.intrinsics
+    rays = intr.ray_table(True)
+    xlo, xhi = float(np.nanmin(rays[..., 0])), float(np.nanmax(rays[..., 0]))
+    ylo, yhi = float(np.nanmin(rays[..., 1])), float(np.nanmax(rays[..., 1]))
+    H, W = intr.shape
+    R, c = C[:3, :3], C[:3, 3]
+    pc = (pts - c) @ R  # reference -> camera frame
+    z = pc[:, 2]
+    ok = (z * 1e3 >= cameras.min_mm) & (z * 1e3 <= cameras.max_mm)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x, y = pc[:, 0] / z, pc[:, 1] / z
+    ok &= (x >= xlo) & (x <= xhi) & (y >= ylo) & (y <= yhi)
+    idx = np.flatnonzero(ok)
+    if len(idx):
+        uv = intr.project(pc[idx])
+        m = ((uv[:, 0] >= -0.5 + image_margin_px) & (uv[:, 0] <= W - 0.5 - image_margin_px)
+             & (uv[:, 1] >= -0.5 + image_margin_px) & (uv[:, 1] <= H - 0.5 - image_margin_px))
+        idx = idx[m]
+    if not len(idx):
+        return idx, np.zeros(0)
+    to_cam = c - pts[idx]
+    dist = np.linalg.norm(to_cam, axis=1)
+    cos_i = np.einsum("ij,ij->i", nrm[idx], to_cam) / np.maximum(dist, 1e-12)
+    m = cos_i >= cos_max
+    idx, dist, to_cam, cos_i = idx[m], dist[m], to_cam[m], cos_i[m]
+    if len(idx) and scene is not None:
+        import open3d as o3d
+
+        d = -to_cam / dist[:, None]
+        r = np.concatenate([np.broadcast_to(c, (len(idx), 3)), d], axis=1).astype(np.float32)
+        t_hit = scene.cast_rays(o3d.core.Tensor(np.ascontiguousarray(r)))["t_hit"].numpy().astype(np.float64)
+        front = t_hit >= dist - occlusion_tol_m
+        idx, cos_i = idx[front], cos_i[front]
+    return idx, cos_i
+
+
 def observed_mask(points: np.ndarray, normals: np.ndarray, cameras: CameraViews,
                   world_from_model: np.ndarray | None = None, mesh: tuple[np.ndarray, np.ndarray] | None = None,
                   max_incidence_deg: float = 80.0, occlusion_tol_m: float = 0.003,
@@ -94,47 +146,40 @@ def observed_mask(points: np.ndarray, normals: np.ndarray, cameras: CameraViews,
     pts = np.asarray(points, np.float64)
     nrm = np.asarray(normals, np.float64)
     T = np.eye(4) if world_from_model is None else np.asarray(world_from_model, np.float64)
-    intr = cameras.intrinsics
-    rays = intr.ray_table(True)
-    xlo, xhi = float(np.nanmin(rays[..., 0])), float(np.nanmax(rays[..., 0]))
-    ylo, yhi = float(np.nanmin(rays[..., 1])), float(np.nanmax(rays[..., 1]))
-    H, W = intr.shape
     cos_max = np.cos(np.radians(max_incidence_deg))
-    scene = None
-    if mesh is not None:
-        import open3d as o3d
-
-        scene = o3d.t.geometry.RaycastingScene()
-        scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(mesh[0], np.float32)),
-                            o3d.core.Tensor(np.ascontiguousarray(mesh[1], np.uint32)))
+    scene = _raycaster(mesh)
     count = np.zeros(len(pts), np.int64)
     for P in cameras.poses:
-        C = T @ P  # camera -> reference
-        R, c = C[:3, :3], C[:3, 3]
-        pc = (pts - c) @ R  # reference -> camera frame
-        z = pc[:, 2]
-        ok = (z * 1e3 >= cameras.min_mm) & (z * 1e3 <= cameras.max_mm)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            x, y = pc[:, 0] / z, pc[:, 1] / z
-        ok &= (x >= xlo) & (x <= xhi) & (y >= ylo) & (y <= yhi)
-        idx = np.flatnonzero(ok)
-        if len(idx):
-            uv = intr.project(pc[idx])
-            m = ((uv[:, 0] >= -0.5 + image_margin_px) & (uv[:, 0] <= W - 0.5 - image_margin_px)
-                 & (uv[:, 1] >= -0.5 + image_margin_px) & (uv[:, 1] <= H - 0.5 - image_margin_px))
-            idx = idx[m]
-        if len(idx):
-            to_cam = c - pts[idx]
-            dist = np.linalg.norm(to_cam, axis=1)
-            cos_i = np.einsum("ij,ij->i", nrm[idx], to_cam) / np.maximum(dist, 1e-12)
-            m = cos_i >= cos_max
-            idx, dist, to_cam = idx[m], dist[m], to_cam[m]
-        if len(idx) and scene is not None:
-            import open3d as o3d
-
-            d = -to_cam / dist[:, None]
-            r = np.concatenate([np.broadcast_to(c, (len(idx), 3)), d], axis=1).astype(np.float32)
-            t_hit = scene.cast_rays(o3d.core.Tensor(np.ascontiguousarray(r)))["t_hit"].numpy().astype(np.float64)
-            idx = idx[t_hit >= dist - occlusion_tol_m]
+        idx, _ = _seen_by(pts, nrm, T @ P, cameras, scene, cos_max, occlusion_tol_m, image_margin_px)
         count[idx] += 1
     return count > 0, count
+
+
+def view_cosines(points: np.ndarray, normals: np.ndarray, cameras: CameraViews,
+                 mesh: tuple[np.ndarray, np.ndarray] | None = None, max_incidence_deg: float = 85.0,
+                 occlusion_tol_m: float = 0.003, image_margin_px: float = 2.0) -> np.ndarray:
+    """How squarely each camera sees each sample: the cosine of the incidence angle.
+
+    The rules of :func:`observed_mask` (image, working range, occlusion by ``mesh``), per camera
+    and without a count, so that one pass serves several incidence limits.
+
+    Parameters
+    ----------
+    points, normals : (N, 3) samples [m] and their unit outward normals, in the cameras' frame
+    cameras : CameraViews (C cameras)
+    max_incidence_deg : samples seen at a larger incidence count as not seen
+
+    Returns
+    -------
+    (C, N) float: cos(incidence) where camera k sees sample j, NaN where it does not
+    """
+    pts = np.asarray(points, np.float64)
+    nrm = np.asarray(normals, np.float64)
+    cos_max = np.cos(np.radians(max_incidence_deg))
+    scene = _raycaster(mesh)
+    out = np.full((len(cameras.poses), len(pts)), np.nan)
+    for k, P in enumerate(cameras.poses):
+        idx, cos_i = _seen_by(pts, nrm, np.asarray(P, np.float64), cameras, scene, cos_max, occlusion_tol_m,
+                              image_margin_px)
+        out[k, idx] = cos_i
+    return out

@@ -17,10 +17,12 @@ from tofmetry.plan._plan import (
     proxy_from_mesh,
     proxy_from_points,
     proxy_from_size,
+    reconstructed_share,
     ring,
+    seen_cosines,
     seen_masks,
     stripes,
 )
 
 __all__ = ["PlanObject", "Prediction", "Proposal", "candidates", "complete", "predict", "propose", "proxy_from_mesh",
-           "proxy_from_points", "proxy_from_size", "ring", "seen_masks", "stripes"]
+           "proxy_from_points", "proxy_from_size", "reconstructed_share", "ring", "seen_cosines", "seen_masks", "stripes"]
