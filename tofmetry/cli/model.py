@@ -188,8 +188,6 @@ def reconstruct(
                       f"residual {cons['max_kept_residual_deg']:.2f} deg / {cons['max_kept_residual_mm']:.1f} mm")
     for w in rel.get("warnings", []):
         console.print(f"[yellow]warning:[/yellow] {w}")
-    if plan_report := res.diagnostics.get("plan"):
-        console.print(f"plan: {plan_report.get('summary', '')}")
     if not res.diagnostics.get("reliable", True):
         console.print("[bold red]WARNING: registration UNRELIABLE[/bold red] (flagged in poses.json): "
                       + "; ".join(rel.get("reasons", []) or cons.get("reasons", [])))
@@ -298,6 +296,9 @@ def evaluate(
     poses: Path | None = typer.Option(None, "--poses", help="The reconstruction's poses.json: also report completeness "
                                          "over the reference surface the registered cameras could see (frustum, working "
                                          "range, incidence, occlusion)."),
+    plan: Path | None = typer.Option(None, "--plan", help="A plan.json (tofmetry plan): its predicted completeness "
+                                     "for the views as taken beside the completeness achieved (needs --poses); "
+                                     "written to plan_check.json."),
     force: bool = typer.Option(False, "--force", help="Replace an existing, non-empty output folder."),
 ) -> None:
     """Accuracy of a model against a reference: align, signed distances, statistics, completeness, figures."""
@@ -309,8 +310,9 @@ def evaluate(
         edge_trim_mm=edge_trim_mm, color_scale_mm=color_scale_mm,
         exclude_normal=None if exclude_normal is None else _parse_floats(exclude_normal, "--exclude-normal", 3))
     with progress("evaluating", None):
-        res = evaluate_files(model, reference, output, config=cfg, init_transform=init_transform, poses=poses,
-                           force=force).result
+        run = evaluate_files(model, reference, output, config=cfg, init_transform=init_transform, poses=poses,
+                             plan=plan, force=force)
+    res = run.result
     s, st = res.stats_all, res.stats_trimmed
     t = Table(title=f"{model.name} vs {reference.name} ({res.comparison})")
     for col in ("", "mean |d|", "std", "RMS", "p95 |d|", "max |d|", "<= 5 mm"):
@@ -327,6 +329,8 @@ def evaluate(
                       f"({res.observed['observed_share']:.1%} of the reference surface seen by a registered camera)")
     if res.alignment is not None:
         console.print(f"alignment: fitness {res.alignment.fitness:.3f}, inlier RMSE {res.alignment.inlier_rmse_mm:.2f} mm")
+    if run.plan is not None:
+        console.print(f"plan: {run.plan['summary']}")
     console.print(f"wrote {output}")
 
 

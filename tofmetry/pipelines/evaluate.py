@@ -16,9 +16,10 @@ import numpy as np
 
 from tofmetry.errors import InputError
 from tofmetry.evaluate import CameraViews, EvaluationConfig, EvaluationResult, evaluate_model, write_evaluation
-from tofmetry.io import read_json
+from tofmetry.io import atomic_write_json, read_json
 from tofmetry.io.mesh import read_geometry
 from tofmetry.pipelines.paths import refuse_existing
+from tofmetry.pipelines.plan import plan_check, read_plan
 
 
 def read_transform(path: str | os.PathLike) -> np.ndarray:
@@ -45,12 +46,13 @@ class EvaluationRun:
 
     result: EvaluationResult
     files: dict[str, Path] = field(default_factory=dict)
+    plan: dict | None = None
 
 
 def evaluate_files(model: str | os.PathLike, reference: str | os.PathLike, output: str | os.PathLike | None = None,
                    *, config: EvaluationConfig | None = None, init_transform: str | os.PathLike | None = None,
                    poses: str | os.PathLike | None = None, title: str | None = None,
-                   force: bool = False) -> EvaluationRun:
+                   plan: str | os.PathLike | None = None, force: bool = False) -> EvaluationRun:
     """Accuracy of a model against a reference, optionally written into a folder.
 
     Parameters
@@ -62,6 +64,9 @@ def evaluate_files(model: str | os.PathLike, reference: str | os.PathLike, outpu
     poses : the reconstruction's ``poses.json``: also report completeness over the reference
         surface the registered cameras could see
     title : figure title (default: the model's file name)
+    plan : a ``plan.json`` (``tofmetry plan``): its prediction beside the completeness achieved
+        (:func:`tofmetry.pipelines.plan.plan_check`; needs ``poses`` and a mesh reference), written
+        as ``plan_check.json``
     force : replace an existing, non-empty ``output`` (refused otherwise, before any work)
 
     Returns
@@ -70,10 +75,23 @@ def evaluate_files(model: str | os.PathLike, reference: str | os.PathLike, outpu
     """
     if output is not None:
         refuse_existing(output, force)
+    if plan is not None and poses is None:
+        raise InputError("evaluate --plan: give the reconstruction's poses.json too (--poses): the plan is judged on "
+                         "the views as they were taken")
+    plan_doc = None if plan is None else read_plan(plan)
     m = read_geometry(model, "model")
     r = read_geometry(reference, "reference")
+    if plan is not None and not r.is_mesh:
+        raise InputError(f"evaluate --plan: the reference {reference} holds no triangles; the plan needs a mesh")
     init = read_transform(init_transform) if init_transform is not None else None
     cams = None if poses is None else CameraViews.from_document(read_json(poses, "poses"), str(poses))
     res = evaluate_model(m, r, config or EvaluationConfig(), init=init, poses=cams)
+    check = None
+    if plan_doc is not None:
+        T = np.eye(4) if res.alignment is None else res.alignment.transform
+        check = plan_check(plan_doc, (r.points, r.faces), res.points, cams, T)
     files = {} if output is None else write_evaluation(output, res, title=title or Path(model).name)
-    return EvaluationRun(res, files)
+    if check is not None and output is not None:
+        files["plan_check"] = Path(output) / "plan_check.json"
+        atomic_write_json(files["plan_check"], check)
+    return EvaluationRun(res, files, check)

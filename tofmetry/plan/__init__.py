@@ -22,7 +22,9 @@ from tofmetry.plan._plan import (
     seen_cosines,
     seen_masks,
     stripes,
+    surface_samples,
 )
 
 __all__ = ["PlanObject", "Prediction", "Proposal", "candidates", "complete", "predict", "propose", "proxy_from_mesh",
-           "proxy_from_points", "proxy_from_size", "reconstructed_share", "ring", "seen_cosines", "seen_masks", "stripes"]
+           "proxy_from_points", "proxy_from_size", "reconstructed_share", "ring", "seen_cosines", "seen_masks", "stripes",
+           "surface_samples"]

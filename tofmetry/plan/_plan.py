@@ -183,6 +183,15 @@ def proxy_from_points(points_up: np.ndarray) -> PlanObject:
     return PlanObject(v, f, "first view")
 
 
+def surface_samples(obj: PlanObject, spacing_mm: float = 3.0, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Area-uniform samples (N, 3) [m] of the object's surface and their normals (N, 3), less the
+    face resting on the ground (facing down within 30 deg, left out as the evaluation does): the
+    surface whose share the completeness is."""
+    pts, nrm, _ = sample_mesh(obj.vertices, obj.triangles, spacing_mm * 1e-3, seed=seed, max_points=60_000)
+    base = nrm @ np.array([0.0, 0.0, -1.0]) > np.cos(np.radians(30.0))
+    return pts[~base], nrm[~base]
+
+
 def seen_cosines(obj: PlanObject, poses, intr: CameraIntrinsics, *, min_mm: float = 500.0, max_mm: float = 2500.0,
                  grazing_limit_deg: float = 85.0, spacing_mm: float = 3.0, seed: int = 0) -> np.ndarray:
     """How squarely each view sees each sample of the object's surface (its base left out, see the
@@ -195,9 +204,7 @@ def seen_cosines(obj: PlanObject, poses, intr: CameraIntrinsics, *, min_mm: floa
     ``grazing_limit_deg``), NaN where it does not; the samples are the same for the same object,
     ``spacing_mm`` and ``seed``.
     """
-    pts, nrm, _ = sample_mesh(obj.vertices, obj.triangles, spacing_mm * 1e-3, seed=seed, max_points=60_000)
-    base = nrm @ np.array([0.0, 0.0, -1.0]) > np.cos(np.radians(30.0))
-    pts, nrm = pts[~base], nrm[~base]
+    pts, nrm = surface_samples(obj, spacing_mm, seed)
     poses = [np.asarray(T, np.float64) for T in poses]
     if not poses:
         return np.zeros((0, len(pts)))
