@@ -1,7 +1,7 @@
 """Object models on a family of random object / path / sensor draws, judged against the truth.
 
 ``.venv/bin/python -m bench.robustness.family [--n 20] [--seeds 1,2,3] [--frames 5] [-o DIR] [--reduced]
-[--complete-to SHARE]``
+[--complete-to SHARE] [--planned TARGET]``
 
 Each draw (one seed) is:
 
@@ -94,16 +94,20 @@ class Draw:
 
 
 def draw_case(seed: int, mesh_dir: Path | None = MESH_DIR, reduced: bool = False,
-              complete_to: float | None = None) -> Draw:
+              complete_to: float | None = None, planned: float | None = None) -> Draw:
     """The object, path and sensor of ``seed`` (``reduced``: 6-8 views, procedural objects up to 0.35 m).
 
     ``complete_to``: the path as drawn, plus the views :func:`tofmetry.plan.complete` adds so that
     the plan predicts that completeness (a user who asks ``tofmetry plan`` what the scan misses,
-    with the object's mesh); each added view goes into the loop where its azimuth falls."""
+    with the object's mesh); each added view goes into the loop where its azimuth falls.
+    ``planned``: the path :func:`planned_path` gives instead of the drawn one (the same object,
+    sensor, distance and kind)."""
     md = mesh_dir if mesh_dir is not None and Path(mesh_dir).is_dir() else None
     obj = random_object(seed, md)
     path = random_path(seed, obj.centre_m, float(obj.extent_m.max()), n_views=(6, 8) if reduced else (6, 16))
     sensor = random_sensor(seed)
+    if planned is not None:
+        path = planned_path(obj, path, sensor.intrinsics, planned, seed)
     if complete_to is not None:
         from tofmetry.plan import PlanObject, complete
 
@@ -113,6 +117,37 @@ def draw_case(seed: int, mesh_dir: Path | None = MESH_DIR, reduced: bool = False
                        params={**path.params, "drawn_views": path.n_views, "planned_views": added,
                                "complete_to": complete_to})
     return Draw(int(seed), obj, path, sensor)
+
+
+def planned_path(obj, drawn, intr, target: float, seed: int):
+    """The views ``tofmetry plan --mesh`` proposes for ``obj`` to reach ``target`` at the drawn path's
+    distance (:func:`tofmetry.plan.propose`; the best candidate when none reaches it), walked as the
+    drawn path's kind: a ring on a turntable exactly, by hand with the hand-held path's jitter
+    (uneven steps, distance, elevation, roll, aim); zenithal views follow the ring, as
+    :func:`tofmetry.simulate.paths.two_rings` orders them; stripes are taken as proposed."""
+    from tofmetry.plan import PlanObject, propose
+    from tofmetry.simulate.paths import handheld, two_rings
+
+    best, ranked = propose(PlanObject(obj.vertices, obj.triangles, "mesh"), intr, target, drawn.distance_m)
+    prop = best or ranked[0]
+    pr = prop.params
+    start = float(drawn.params.get("start_deg", 0.0))
+    info = {"planned": prop.name, "plan_target": target, "plan_predicted": round(prop.prediction.completeness, 4),
+            "drawn": {"kind": drawn.kind, "n_views": drawn.n_views, "elevation_deg": round(drawn.elevation_deg, 2)}}
+    if pr.get("kind") not in ("ring", "ring+zenithal"):
+        return replace(drawn, kind=f"{drawn.kind}+plan", poses=list(prop.poses), params={**drawn.params, **info})
+    n, el, m = int(pr["n"]), float(pr["elevation_deg"]), int(pr.get("n_zenithal", 0))
+    zen = two_rings(n, m, drawn.distance_m, el, float(pr.get("zenithal_elevation_deg", 65.0)), obj.centre_m,
+                    start).poses[n:] if m else []
+    if drawn.kind == "handheld":
+        rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x91A]))
+        ring = handheld(n, drawn.distance_m, el, obj.centre_m, rng, start)
+        params = {**ring.params, **info}
+    else:
+        ring = two_rings(n, 0, drawn.distance_m, el, 65.0, obj.centre_m, start)
+        params = {"start_deg": start, **info}
+    return replace(drawn, kind=f"{drawn.kind}+plan", poses=list(ring.poses) + list(zen), elevation_deg=el,
+                   params=params)
 
 
 def jitter_turntable(d: Draw, seed: int, sigma_deg: float) -> tuple[Draw, list[float]]:
@@ -201,7 +236,7 @@ def board_captures(draw, seed: int, work: Path, n_frames: int = 10) -> list[Path
 def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, mesh_dir: Path | None = MESH_DIR,
              keep: bool = False, config=None, stations_mm=FAMILY_DISTANCES_MM, boards: bool = True,
              complete_to: float | None = None, turntable: float | None = None, turntable_jitter: float = 0.0,
-             tilt_boards: bool = True) -> dict:
+             tilt_boards: bool = True, planned: float | None = None) -> dict:
     """Simulate, calibrate, reconstruct and evaluate one draw (``complete_to``: :func:`draw_case`;
     ``tilt_boards``: the depth tilt fitted on checkerboard captures, :func:`calibrate_sensor`;
     ``turntable``: a turntable path's step is declared, ``registration.turntable_step_deg``, with
@@ -215,7 +250,7 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
     from tofmetry.reconstruct import ReconstructionConfig, poses_document
     from tofmetry.simulate import datasets
 
-    d = draw_case(seed, mesh_dir, reduced, complete_to)
+    d = draw_case(seed, mesh_dir, reduced, complete_to, planned)
     row = {"seed": int(seed), **d.describe()}
     if turntable_jitter and d.path.kind == "turntable":
         d, row["turntable_jitter_deg"] = jitter_turntable(d, seed, turntable_jitter)
@@ -422,6 +457,9 @@ def main(argv=None) -> int:
     ap.add_argument("--complete-to", type=float, default=None, metavar="SHARE",
                     help="add the views tofmetry plan proposes so that the predicted completeness reaches SHARE "
                     "(tofmetry.plan.complete, with the object's mesh) after each drawn path")
+    ap.add_argument("--planned", type=float, default=None, metavar="TARGET",
+                    help="replace each drawn path by the views tofmetry plan proposes to reach TARGET (with the "
+                    "object's mesh, at the drawn distance, walked as the drawn kind: planned_path)")
     ap.add_argument("--turntable", type=float, default=None, metavar="ACCURACY_DEG",
                     help="declare the step of the turntable paths (registration.turntable_step_deg = 360 / views) "
                     "and how accurately it turns (the simulated turntable is exact; a stepper motor's ~0.1)")
@@ -452,7 +490,7 @@ def main(argv=None) -> int:
                          config=None if config is None else config.model_copy(deep=True),
                          stations_mm=STATION_SETS[a.stations],
                          boards=not a.no_boards, complete_to=a.complete_to, turntable=a.turntable,
-                         turntable_jitter=a.turntable_jitter, tilt_boards=not a.no_tilt_boards)
+                         turntable_jitter=a.turntable_jitter, tilt_boards=not a.no_tilt_boards, planned=a.planned)
             rows.append(r)
             with open(jl, "a") as fh:
                 fh.write(json.dumps(r, default=float) + "\n")
