@@ -120,15 +120,16 @@ def draw_case(seed: int, mesh_dir: Path | None = MESH_DIR, reduced: bool = False
 
 
 def planned_path(obj, drawn, intr, target: float, seed: int):
-    """The views ``tofmetry plan --mesh`` proposes for ``obj`` to reach ``target`` at the drawn path's
-    distance (:func:`tofmetry.plan.propose`; the best candidate when none reaches it), walked as the
+    """The views ``tofmetry plan --mesh --target TARGET`` proposes for ``obj`` at the drawn path's
+    distance (:func:`tofmetry.plan.propose` aiming at :func:`tofmetry.plan.aim_for` of the target, as
+    the command does; the best candidate when none reaches it), walked as the
     drawn path's kind: a ring on a turntable exactly, by hand with the hand-held path's jitter
     (uneven steps, distance, elevation, roll, aim); zenithal views follow the ring, as
     :func:`tofmetry.simulate.paths.two_rings` orders them; stripes are taken as proposed."""
-    from tofmetry.plan import PlanObject, propose
+    from tofmetry.plan import PlanObject, aim_for, propose
     from tofmetry.simulate.paths import handheld, two_rings
 
-    best, ranked = propose(PlanObject(obj.vertices, obj.triangles, "mesh"), intr, target, drawn.distance_m)
+    best, ranked = propose(PlanObject(obj.vertices, obj.triangles, "mesh"), intr, aim_for(target), drawn.distance_m)
     prop = best or ranked[0]
     pr = prop.params
     start = float(drawn.params.get("start_deg", 0.0))

@@ -99,13 +99,15 @@ def test_cli_plan(tmp_path):
                                  str(tmp_path / "plan.json")])
     assert r.exit_code == 0, r.output
     d = json.loads((tmp_path / "plan.json").read_text())
-    assert d["proposal"]["prediction"]["completeness"] >= 0.9 and len(d["asked"]["camera_to_world"]) == 10
+    # the proposal is predicted above the target by the prediction's p95 over-estimate (3.3 points)
+    assert d["settings"]["aimed_at"] == pytest.approx(0.933)
+    assert d["proposal"]["prediction"]["completeness"] >= 0.933 and len(d["asked"]["camera_to_world"]) == 10
     r = CliRunner().invoke(app, ["plan", "--size", "0.2,0.2,0.2", "--views", "ring:8:10", "--complete", "--target",
                                  "0.95", "-o", str(tmp_path / "plan-c.json")])
     assert r.exit_code == 0, r.output
     doc = json.loads((tmp_path / "plan-c.json").read_text())
     c = doc["completed"]
-    assert c["prediction"]["completeness"] >= 0.95 and len(c["camera_to_world"]) == 8 + len(c["params"]["added_at"])
+    assert c["prediction"]["completeness"] >= 0.983 and len(c["camera_to_world"]) == 8 + len(c["params"]["added_at"])
     assert any("registration is harder" in w for w in doc["settings"]["warnings"])  # what views at other elevations cost
     r = CliRunner().invoke(app, ["plan", "--size", "0.2,0.2,0.2", "--complete", "-o", str(tmp_path / "p4.json")])
     assert isinstance(r.exception, InputError) and "--views" in str(r.exception)

@@ -381,10 +381,14 @@ def plan(
     for w in run.settings.get("warnings", []):
         console.print(f"[yellow]{w}[/yellow]")
     if run.proposal is None:
-        console.print(f"[yellow]no candidate reaches {target:.0%} with enough overlap; the best is listed first[/yellow]")
+        console.print(f"[yellow]no candidate is predicted to reach {run.settings['aimed_at']:.1%} (the target "
+                      f"{target:.0%} plus the prediction's p95 over-estimate) with enough overlap; the best is listed "
+                      "first[/yellow]")
     else:
         p = run.proposal.prediction
-        console.print(f"proposal: {run.proposal.name}: completeness {p.completeness:.1%} ({_span(p)}), mean |d| {p.mean_abs_mm:.2f} mm")
+        console.print(f"proposal: {run.proposal.name}: predicted completeness {p.completeness:.1%} ({_span(p)}; "
+                      f"aimed at {run.settings['aimed_at']:.1%} so that the scan reaches {target:.0%} on about 95 % of "
+                      f"runs), mean |d| {p.mean_abs_mm:.2f} mm")
     console.print(f"wrote {output}")
 
 

@@ -19,8 +19,8 @@ import numpy as np
 from tofmetry.errors import InputError
 from tofmetry.io import atomic_write_json, read_json
 from tofmetry.pipelines.paths import refuse_existing
-from tofmetry.plan import (PlanObject, Proposal, complete, predict, propose, proxy_from_mesh, proxy_from_points,
-                           proxy_from_size, ring, surface_samples)
+from tofmetry.plan import (PREDICTION_ERROR_PTS, PlanObject, Proposal, aim_for, complete, predict, propose,
+                           proxy_from_mesh, proxy_from_points, proxy_from_size, ring, surface_samples)
 from tofmetry.sensor import KINECT_V2, CameraIntrinsics
 
 
@@ -106,7 +106,8 @@ def plan_acquisition(*, size: tuple[float, float, float] | None = None, mesh: st
     calibration : DepthCalibration or a calibration file (intrinsics and its predicted error) or None
     distance_m : slant distance of the views from the object centre [m]; default: the first view's,
         else 0.5 m + 1.5 x the largest side, within 0.7-1.5 m
-    target : completeness to reach (0-1)
+    target : completeness to reach (0-1); the views proposed (and completed) must be predicted to
+        reach :func:`tofmetry.plan.aim_for` of it, higher by the prediction's p95 over-estimate
     views : a set of views to predict as well (:func:`parse_views`)
     complete_views : also propose the views to add to ``views`` so that they reach ``target``
         (:func:`tofmetry.plan.complete`: next-best views, each placed in the loop where its azimuth falls)
@@ -139,7 +140,8 @@ def plan_acquisition(*, size: tuple[float, float, float] | None = None, mesh: st
     if cal is not None:
         cal_mm = float(((cal.prediction or {}).get("interpolation") or {}).get("central_abs_mm", {}).get("predicted", 0.5))
     kw = {"n_frames": n_frames, "calibration_mm": cal_mm}
-    best, ranked = propose(obj, intr, target, distance_m, **kw)
+    aim = aim_for(target)  # the prediction over-estimates by up to 3.3 points (p95): aim that much higher
+    best, ranked = propose(obj, intr, aim, distance_m, **kw)
     asked = None
     if views is not None:
         poses = parse_views(views, obj, distance_m)
@@ -148,9 +150,13 @@ def plan_acquisition(*, size: tuple[float, float, float] | None = None, mesh: st
     if complete_views:
         if asked is None:
             raise InputError("plan: --complete completes the views given with --views; give --views too")
-        poses, added, pred = complete(obj, asked.poses, intr, target, distance_m, **kw)
+        poses, added, pred = complete(obj, asked.poses, intr, aim, distance_m, **kw)
         completed = Proposal(f"{views} + {len(added)} planned", poses, pred, {"spec": views, "added_at": added})
-    settings = {"target": target, "distance_m": distance_m, "n_frames": n_frames, "calibration_mm": cal_mm}
+    settings = {"target": target, "aimed_at": round(aim, 4), "distance_m": distance_m, "n_frames": n_frames,
+                "calibration_mm": cal_mm,
+                "aim_rule": f"the views must be predicted to reach the target plus {PREDICTION_ERROR_PTS[1]:g} points, the "
+                            "prediction's p95 over-estimate on the family (bench/robustness), so that the scan "
+                            "reaches the target on about 95 % of runs"}
     warnings = [w for w in (calibrated_range_warning(obj, distance_m, cal),
                             None if completed is None or not completed.params["added_at"] else ADDED_VIEWS_WARNING) if w]
     if warnings:

@@ -7,9 +7,11 @@ is a mesh, a proxy of a rough size (:func:`proxy_from_size`) or of a first view
 """
 
 from tofmetry.plan._plan import (
+    PREDICTION_ERROR_PTS,
     PlanObject,
     Prediction,
     Proposal,
+    aim_for,
     candidates,
     complete,
     predict,
@@ -25,6 +27,6 @@ from tofmetry.plan._plan import (
     surface_samples,
 )
 
-__all__ = ["PlanObject", "Prediction", "Proposal", "candidates", "complete", "predict", "propose", "proxy_from_mesh",
+__all__ = ["PREDICTION_ERROR_PTS", "PlanObject", "Prediction", "Proposal", "aim_for", "candidates", "complete", "predict", "propose", "proxy_from_mesh",
            "proxy_from_points", "proxy_from_size", "reconstructed_share", "ring", "seen_cosines", "seen_masks", "stripes",
            "surface_samples"]
