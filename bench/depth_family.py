@@ -79,7 +79,8 @@ def table(s: dict, title: str = "") -> str:
              f"| extrapolation to 0.65 m: per-pixel RMS | {d('extrapolation_rms_after_mm')} |",
              f"stations whose systematic shape error fell >= 4x or to {SHAPE_FLOOR_MM} mm: "
              f"{s['shape_target_met']['share']:.0%} of {s['shape_target_met']['n']}; "
-             f"stations worse after than before (plane removed): {s['worse_than_before']}; sensors that warned "
+             f"stations visibly worse after than before (plane removed, shape left above {SHAPE_FLOOR_MM:g} mm): "
+             f"{s['worse_than_before']}; sensors that warned "
              f"although all their stations met 1.5 mm (false alarms): {s['false_alarms']}; sensors that did not warn "
              f"but missed it (missed alarms): {s['missed_alarms']}",
              "", "| self-report: measured / predicted | median | p90 | max | sensors ≤ 1.5× | sensors > 2× | worst seed |",

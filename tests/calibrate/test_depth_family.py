@@ -80,6 +80,8 @@ def test_targets_hold_on_the_sensors_the_calibration_vouches_for(family):
     short = [(r["distance_mm"], round(b, 2), round(a, 2)) for r, b, a in zip(st, before, after)
              if a > max(b / 4.0, SHAPE_FLOOR_MM)]
     assert len(short) <= allowed, (short, allowed)
+    # no station visibly worse: a larger plane RMS with a shape error left above the floor (on a station
+    # whose shape was already below it, the surfaces' own estimation noise can add a few hundredths)
     assert s["worse_than_before"] == 0
 
 
