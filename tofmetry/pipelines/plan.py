@@ -21,6 +21,7 @@ from tofmetry.io import atomic_write_json, read_json
 from tofmetry.pipelines.paths import refuse_existing
 from tofmetry.plan import (PREDICTION_ERROR_PTS, PlanObject, Proposal, aim_for, complete, predict, propose,
                            proxy_from_mesh, proxy_from_points, proxy_from_size, ring, surface_samples)
+from tofmetry.reconstruct import support_plane_frame, transform_plane
 from tofmetry.sensor import KINECT_V2, CameraIntrinsics
 
 
@@ -209,25 +210,6 @@ def planned_views(doc: dict) -> dict | None:
     return None
 
 
-def ground_frame(plane: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """(4, 4) rigid transform into the plan's object frame: z along the plane's normal (up), the
-    plane ``plane`` (4,) (unit normal, offset [m]: n . p + d = 0) at z = 0, the origin under the
-    centroid of ``points`` (N, 3) [m]."""
-    n = np.asarray(plane[:3], np.float64)
-    s = np.linalg.norm(n)
-    n, d = n / s, float(plane[3]) / s
-    a = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    x = np.cross(a, n)
-    x /= np.linalg.norm(x)
-    Q = np.stack([x, np.cross(n, x), n])  # rows: the new axes
-    G = np.eye(4)
-    G[:3, :3] = Q
-    G[:3, 3] = -Q @ (-d * n)
-    c = (np.asarray(points, np.float64) @ Q.T + G[:3, 3]).mean(0)
-    G[:2, 3] -= c[:2]
-    return G
-
-
 def plan_check(doc: dict | None, reference: tuple[np.ndarray, np.ndarray], model_points: np.ndarray, cameras,
                world_from_model: np.ndarray, threshold_mm: float = 5.0) -> dict:
     """The plan's prediction beside what the scan achieved (issue 16: the plan within 5 points).
@@ -258,10 +240,9 @@ def plan_check(doc: dict | None, reference: tuple[np.ndarray, np.ndarray], model
         raise InputError("evaluate --plan: the poses.json holds no support plane (the model is not in a ground "
                          "frame); the plan's completeness leaves the base out by it")
     T = np.asarray(world_from_model, np.float64)
-    n = T[:3, :3] @ cameras.support_plane[:3]
-    plane_ref = np.r_[n, cameras.support_plane[3] - n @ T[:3, 3]]
     V, F = np.asarray(reference[0], np.float64), np.asarray(reference[1], np.int64)
-    G = ground_frame(plane_ref, V)
+    # the reference's ground frame: the support plane at z = 0, the origin under its centroid
+    G = support_plane_frame(transform_plane(cameras.support_plane, T), V, T @ cameras.poses[0])
     obj = PlanObject(V @ G[:3, :3].T + G[:3, 3], F, "reference")
     poses = [G @ T @ P for P in cameras.poses]
     pred = predict(obj, poses, cameras.intrinsics, min_mm=cameras.min_mm, max_mm=cameras.max_mm)

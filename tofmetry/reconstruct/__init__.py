@@ -81,6 +81,7 @@ from tofmetry.reconstruct._segment import (
     fit_support_plane,
     segment_object,
 )
+from tofmetry.reconstruct._world import support_plane_frame, transform_plane
 
 __all__ = [
     "PAPER_K_MM_PER_LN",
@@ -138,6 +139,8 @@ __all__ = [
     "relative_pose_errors",
     "rotation_angle_deg",
     "segment_object",
+    "support_plane_frame",
+    "transform_plane",
     "select_hypotheses",
     "spanning_tree",
     "undistort_depth",
