@@ -79,14 +79,19 @@ def _raycaster(mesh: tuple[np.ndarray, np.ndarray] | None):
     return scene
 
 
-def _seen_by(pts: np.ndarray, nrm: np.ndarray, C: np.ndarray, cameras: CameraViews, scene, cos_max: float,
-             occlusion_tol_m: float, image_margin_px: float) -> tuple[np.ndarray, np.ndarray]:
-    """The samples one camera (camera-to-reference ``C`` (4, 4)) sees (:func:`observed_mask`'s
-    rules): their indices (K,) and the cosines (K,) of their incidence angles."""
-    intr = cameras.intrinsics
+def _ray_box(intr: CameraIntrinsics) -> tuple[float, float, float, float]:
+    """The normalised ray coordinates' bounds (x_lo, x_hi, y_lo, y_hi) over the image."""
     rays = intr.ray_table(True)
-    xlo, xhi = float(np.nanmin(rays[..., 0])), float(np.nanmax(rays[..., 0]))
-    ylo, yhi = float(np.nanmin(rays[..., 1])), float(np.nanmax(rays[..., 1]))
+    return (float(np.nanmin(rays[..., 0])), float(np.nanmax(rays[..., 0])),
+            float(np.nanmin(rays[..., 1])), float(np.nanmax(rays[..., 1])))
+
+
+def _seen_by(pts: np.ndarray, nrm: np.ndarray, C: np.ndarray, cameras: CameraViews, box: tuple, scene,
+             cos_max: float, occlusion_tol_m: float, image_margin_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """The samples one camera (camera-to-reference ``C`` (4, 4)) sees (:func:`observed_mask`'s
+    rules; ``box``: :func:`_ray_box`): their indices (K,) and the cosines (K,) of their incidence angles."""
+    intr = cameras.intrinsics
+    xlo, xhi, ylo, yhi = box
     H, W = intr.shape
     R, c = C[:3, :3], C[:3, 3]
     pc = (pts - c) @ R  # reference -> camera frame
@@ -148,9 +153,10 @@ def observed_mask(points: np.ndarray, normals: np.ndarray, cameras: CameraViews,
     T = np.eye(4) if world_from_model is None else np.asarray(world_from_model, np.float64)
     cos_max = np.cos(np.radians(max_incidence_deg))
     scene = _raycaster(mesh)
+    box = _ray_box(cameras.intrinsics)
     count = np.zeros(len(pts), np.int64)
     for P in cameras.poses:
-        idx, _ = _seen_by(pts, nrm, T @ P, cameras, scene, cos_max, occlusion_tol_m, image_margin_px)
+        idx, _ = _seen_by(pts, nrm, T @ P, cameras, box, scene, cos_max, occlusion_tol_m, image_margin_px)
         count[idx] += 1
     return count > 0, count
 
@@ -177,9 +183,10 @@ def view_cosines(points: np.ndarray, normals: np.ndarray, cameras: CameraViews,
     nrm = np.asarray(normals, np.float64)
     cos_max = np.cos(np.radians(max_incidence_deg))
     scene = _raycaster(mesh)
+    box = _ray_box(cameras.intrinsics)
     out = np.full((len(cameras.poses), len(pts)), np.nan)
     for k, P in enumerate(cameras.poses):
-        idx, cos_i = _seen_by(pts, nrm, np.asarray(P, np.float64), cameras, scene, cos_max, occlusion_tol_m,
+        idx, cos_i = _seen_by(pts, nrm, np.asarray(P, np.float64), cameras, box, scene, cos_max, occlusion_tol_m,
                               image_margin_px)
         out[k, idx] = cos_i
     return out

@@ -247,6 +247,18 @@ def seen_masks(obj: PlanObject, poses, intr: CameraIntrinsics, *, min_mm: float 
     return np.isfinite(cos)
 
 
+def _within(cosines: np.ndarray, incidence_deg: float) -> np.ndarray:
+    """(V, N) bool: view k sees sample j at an incidence up to ``incidence_deg`` (``cosines`` as
+    :func:`seen_cosines` gives them, NaN where not seen)."""
+    with np.errstate(invalid="ignore"):
+        return np.asarray(cosines, np.float64) >= np.cos(np.radians(incidence_deg))
+
+
+def _grazing_limit(max_incidence_deg: float, grazing: tuple) -> float:
+    """The largest incidence [deg] the completeness counts: the last grazing band's limit."""
+    return max([max_incidence_deg] + [g[0] for g in grazing])
+
+
 def reconstructed_share(cosines: np.ndarray, max_incidence_deg: float = SURE_INCIDENCE_DEG,
                         grazing: tuple = GRAZING_KEEP) -> np.ndarray:
     """The chance that the chain reconstructs each sample, from how the views see it.
@@ -294,18 +306,14 @@ def predict(obj: PlanObject, poses, intr: CameraIntrinsics, *, n_frames: int = 1
     poses = [np.asarray(T, np.float64) for T in poses]
     if len(poses) < 1:
         raise InputError("plan: no views to predict")
+    limit = _grazing_limit(max_incidence_deg, grazing)
     if cosines is None:
-        cosines = seen_cosines(obj, poses, intr, min_mm=min_mm, max_mm=max_mm,
-                               grazing_limit_deg=max([max_incidence_deg] + [g[0] for g in grazing]),
+        cosines = seen_cosines(obj, poses, intr, min_mm=min_mm, max_mm=max_mm, grazing_limit_deg=limit,
                                spacing_mm=spacing_mm, seed=seed)
-    with np.errstate(invalid="ignore"):
-        S = np.asarray(cosines, np.float64) >= np.cos(np.radians(max_incidence_deg))
+    S = _within(cosines, max_incidence_deg)
     count = S.sum(0)
-    share = reconstructed_share(cosines, max_incidence_deg, grazing)
-    comp = float(share.mean())
-    with np.errstate(invalid="ignore"):
-        glimpsed = float((np.asarray(cosines, np.float64) >= np.cos(np.radians(grazing[-1][0] if grazing else
-                                                                            max_incidence_deg))).any(0).mean())
+    comp = float(reconstructed_share(cosines, max_incidence_deg, grazing).mean())
+    glimpsed = float(_within(cosines, limit).any(0).mean())
     V = len(poses)
     ov = np.zeros(V)
     for k in range(V):
@@ -384,6 +392,7 @@ def propose(obj: PlanObject, intr: CameraIntrinsics, target: float = 0.9, distan
     for name, poses, params in candidates(obj, distance_m):
         out.append(Proposal(name, poses, predict(obj, poses, intr, **kw), params))
     ok = [p for p in out if p.prediction.completeness >= target and p.prediction.min_overlap >= min_overlap]
+
     def safe(p: Proposal) -> float:  # the completeness it reaches even if every grazing surface is lost, up to the target
         return min(p.prediction.completeness_range[0], target)
 
@@ -436,9 +445,8 @@ def complete(obj: PlanObject, poses, intr: CameraIntrinsics, target: float = 0.9
     inc = kw.get("max_incidence_deg", SURE_INCIDENCE_DEG)
     grazing = kw.get("grazing", GRAZING_KEEP)
     every = poses + cand  # indexed like the rows of S
-    cos = seen_cosines(obj, every, intr, grazing_limit_deg=max([inc] + [g[0] for g in grazing]), **geo)
-    with np.errstate(invalid="ignore"):
-        S = cos >= np.cos(np.radians(inc))
+    cos = seen_cosines(obj, every, intr, grazing_limit_deg=_grazing_limit(inc, grazing), **geo)
+    S = _within(cos, inc)
     n = len(poses)
     az = np.array([np.arctan2(T[1, 3] - c[1], T[0, 3] - c[0]) for T in every])
     sense = np.sign(np.sum(np.sin(np.diff(np.unwrap(az[:n]))))) or 1.0
