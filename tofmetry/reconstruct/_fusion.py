@@ -160,8 +160,8 @@ class TSDFFusion:
         except (RuntimeError, KeyError):  # Open3D fails on some single-view volumes: use the mesh vertices
             pts, nrm = np.asarray(mesh.vertices).copy(), np.asarray(mesh.vertex_normals).copy()
         V, F, order = canonical_mesh(np.asarray(mesh.vertices), np.asarray(mesh.triangles).astype(np.int64))
-        keep = _lexorder(pts)
-        return V, F, np.asarray(mesh.vertex_normals)[order], pts[keep], nrm[keep]
+        by_xyz = _lexorder(pts)
+        return V, F, np.asarray(mesh.vertex_normals)[order], pts[by_xyz], nrm[by_xyz]
 
 
 def _lexorder(points: np.ndarray) -> np.ndarray:
