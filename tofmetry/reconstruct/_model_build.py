@@ -13,6 +13,7 @@ from scipy.spatial import cKDTree
 from tofmetry.errors import EstimationError
 from tofmetry.reconstruct._config import ReconstructionConfig
 from tofmetry.reconstruct._fusion import TSDFFusion, crop_mesh, poisson_mesh
+from tofmetry.reconstruct._world import transform_plane
 
 
 def object_depths_m(views, segs) -> np.ndarray:
@@ -93,8 +94,4 @@ def crop_model(V, F, N, P, PN, world_obj: np.ndarray, plane_w: np.ndarray | None
 def world_plane(plane_cam: np.ndarray | None, pose: np.ndarray) -> np.ndarray | None:
     """The support plane (4,) of a view's camera frame in the world frame, given that view's
     camera-to-world ``pose`` (4, 4); None without a plane."""
-    if plane_cam is None:
-        return None
-    R, t = pose[:3, :3], pose[:3, 3]
-    n = R @ plane_cam[:3]
-    return np.r_[n, plane_cam[3] - n @ t]
+    return None if plane_cam is None else transform_plane(plane_cam, pose)
