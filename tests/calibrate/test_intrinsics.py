@@ -451,3 +451,30 @@ def test_a_cross_validation_fold_that_fails_is_reported_not_raised(monkeypatch):
     assert len(cv["failed_views"]) == 2 and np.isinf(cv["rms_px"])
     held = cv["per_view_rms_px"]
     assert np.isinf(held[cv["failed_views"]]).all() and (held[np.isfinite(held)] < 0.2).sum() == 4
+
+
+def test_the_same_corners_give_the_same_intrinsics_on_every_run():
+    """OpenCV's calibration sums over threads in their timing's order: the same corners gave
+    intrinsics 6e-12 px apart from run to run (the study's images, 2 threads), and downstream
+    fits carried that to the model's printed maximum. The fits run on one OpenCV thread
+    (tofmetry._shared.opencv_threads), and the caller's thread count is left as it was."""
+    import cv2
+
+    from tofmetry.simulate.poses import board_poses
+
+    board, sq = (9, 6), 50.0
+    rng = np.random.default_rng(11)
+    obj = board_object_points(board, sq) / 1000.0
+    corners = [TRUE.project(obj @ T[:3, :3].T + T[:3, 3]) + rng.normal(0, 0.05, (len(obj), 2))
+               for T in board_poses(24, TRUE, *board, sq / 1000.0, rng)]
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(4)
+    try:
+        runs = [calibrate_intrinsics(corners, None, board, sq, (TRUE.width, TRUE.height), leave_one_out=False)
+                for _ in range(8)]
+        assert cv2.getNumThreads() == 4
+    finally:
+        cv2.setNumThreads(before)
+    values = np.array([[r.intrinsics.fx, r.intrinsics.fy, r.intrinsics.cx, r.intrinsics.cy, *r.intrinsics.distortion]
+                       for r in runs])
+    assert np.array_equal(values, np.repeat(values[:1], len(values), axis=0))

@@ -26,6 +26,7 @@ from tofmetry.calibrate._coverage import (  # noqa: F401  (CORNER_COVERED_FRAC r
 from tofmetry.calibrate._ray_error import (
     CORNER_FRAC, PARAMS, RayError, predicted_ray_error_px,
 )
+from tofmetry._shared.opencv_threads import one_opencv_thread
 from tofmetry.errors import EstimationError, InputError
 from tofmetry.sensor import CameraIntrinsics
 
@@ -141,6 +142,13 @@ def opencv_refused(exc: EstimationError) -> bool:
 
 
 def _calib(obj, img, size, flags):
+    """:func:`_calib_restarted` on one OpenCV thread: the same numbers on every run
+    (:mod:`tofmetry._shared.opencv_threads`)."""
+    with one_opencv_thread():
+        return _calib_restarted(obj, img, size, flags)
+
+
+def _calib_restarted(obj, img, size, flags):
     """One ``calibrateCameraExtended`` fit, restarted from its own solution while that helps.
     Returns rms, (9,) values, (9,) std, (V,) per-view RMS, K, dist, rvecs, tvecs.
 

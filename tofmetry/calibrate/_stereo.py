@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from tofmetry._shared.opencv_threads import one_opencv_thread
 from tofmetry.errors import InputError
 from tofmetry.sensor.extrinsics import Extrinsics
 from tofmetry.sensor.intrinsics import CameraIntrinsics
@@ -80,9 +81,10 @@ def _dist8(c: CameraIntrinsics) -> np.ndarray:
 
 
 def _stereo(obj, a, b, ir, color, flags):
-    out = cv2.stereoCalibrateExtended(
-        obj, a, b, ir.K, _dist8(ir), color.K, _dist8(color), ir.shape[::-1], np.eye(3), np.zeros(3),
-        flags=flags, criteria=_CRIT)
+    with one_opencv_thread():  # the same numbers on every run
+        out = cv2.stereoCalibrateExtended(
+            obj, a, b, ir.K, _dist8(ir), color.K, _dist8(color), ir.shape[::-1], np.eye(3), np.zeros(3),
+            flags=flags, criteria=_CRIT)
     rms, R, T, per_view = out[0], out[5], out[6], out[-1]
     return float(rms), R, T.reshape(3), np.asarray(per_view).reshape(-1, 2)
 
