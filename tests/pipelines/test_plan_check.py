@@ -76,3 +76,63 @@ def test_cli_evaluate_with_a_plan(tmp_path):
     r = CliRunner().invoke(app, args + ["-o", str(tmp_path / "ev2")])
     assert isinstance(r.exception, InputError) and "--poses" in str(r.exception)
     assert not (tmp_path / "ev2").exists()
+
+
+def _turn(deg: float, shift) -> np.ndarray:
+    a = np.radians(deg)
+    T = np.eye(4)
+    T[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+    T[:3, 3] = shift
+    return T
+
+
+def _plan_doc(poses, extent):
+    return {"object": {"source": "size", "extent_m": list(extent)},
+            "proposal": {"name": f"ring {len(poses)}", "camera_to_world": [T.tolist() for T in poses],
+                         "prediction": {"n_views": len(poses), "completeness": 0.95,
+                                        "completeness_range": [0.93, 0.96]}}}
+
+
+def test_plan_followed_sets_the_views_taken_beside_the_planned_ones():
+    """No reference: a box 0.3 x 0.2 x 0.15 m planned with a ring of 12 at 30 deg. The model lies in
+    its ground frame turned 37 deg about the vertical and 40 mm off the origin, as a reconstruction
+    places it. Taken as planned (the ring carried into that frame), the prediction on the plan's
+    size is the plan's own to 0.5 points; the box is found whichever way it is turned (its longer
+    side along x or, when the plan's depth is the longer, along y). Half the ring (6 views over
+    150 deg) leaves a 210 deg gap and is predicted well short."""
+    from tofmetry.pipelines.plan import plan_followed
+
+    box = proxy_from_size(0.3, 0.2, 0.15)
+    planned = ring(12, 1.0, 30.0, box.centre_m)
+    M = _turn(37.0, [0.04, -0.03, 0.0])  # plan frame -> the model's ground frame
+    pts, _ = surface_samples(box)
+    model = pts @ M[:3, :3].T + M[:3, 3]
+    taken = [M @ T for T in planned]
+    out = plan_followed(_plan_doc(planned, (0.3, 0.2, 0.15)), model, taken, KINECT_V2.depth)
+    assert abs(out["short_pts"]) < 0.5, out["summary"]
+    assert out["taken"]["layout"]["n_views"] == 12 and abs(out["taken"]["layout"]["azimuth_gap_deg"] - 30.0) < 0.5
+    assert abs(out["taken"]["layout"]["elevation_deg"][0] - 30.0) < 0.5
+    assert out["planned"]["completeness"] == 0.95 and "as the plan or better" in out["summary"]
+    # the same box planned with its longer side as its depth (along y): the ring turned with it
+    out2 = plan_followed(_plan_doc([_turn(90.0, [0, 0, 0]) @ T for T in planned], (0.2, 0.3, 0.15)),
+                         model, taken, KINECT_V2.depth)
+    assert abs(out2["short_pts"]) < 0.5, out2["summary"]
+    half = plan_followed(_plan_doc(planned, (0.3, 0.2, 0.15)), model, taken[:6], KINECT_V2.depth)
+    assert half["short_pts"] > 5.0 and abs(half["taken"]["layout"]["azimuth_gap_deg"] - 210.0) < 0.5
+    assert "points short of the plan" in half["summary"]
+
+
+def test_plan_followed_needs_a_size_and_views():
+    from tofmetry.pipelines.plan import plan_followed
+
+    box = proxy_from_size(0.3, 0.2, 0.15)
+    views = ring(8, 1.0, 30.0, box.centre_m)
+    pts, _ = surface_samples(box)
+    doc = _plan_doc(views, (0.3, 0.2, 0.15))
+    for broken, what in (({**doc, "object": {}}, "object size"), ({**doc, "proposal": {"name": "x"}}, "no views")):
+        try:
+            plan_followed(broken, pts, views, KINECT_V2.depth)
+        except InputError as exc:
+            assert what in str(exc)
+        else:
+            raise AssertionError(f"no error for {what}")

@@ -139,3 +139,34 @@ def test_end_to_end_full_errors(tmp_path):
     assert st["mean_abs_mm"] <= 1.0 and st["std_signed_mm"] <= 1.2, st
     assert st["percentiles_abs_mm"]["p95"] <= 3.0 and st["max_abs_mm"] <= 8.0, st
     assert m["completeness"]["5"]["completeness"] > 0.8, m["completeness"]
+
+
+def test_cli_reconstruct_with_a_plan(ideal_scan, tmp_path):
+    """``tofmetry reconstruct --plan``: a plan made for the scanned object's size (``tofmetry plan
+    --size``, its bounding box from the reference) is read back after the reconstruction; the views
+    as registered (8 at the scan's elevation) are set beside the planned ones, printed and written
+    to poses.json. A plan.json that is not one stops the command before any work."""
+    from typer.testing import CliRunner
+
+    from tofmetry.cli import app
+    from tofmetry.io.mesh import read_geometry
+
+    ref = read_geometry(ideal_scan / "reference.ply", "reference")
+    w, d, h = np.ptp(ref.points, axis=0)
+    run = CliRunner()
+    r = run.invoke(app, ["plan", "--size", f"{w:.3f},{d:.3f},{h:.3f}", "-o", str(tmp_path / "plan.json")])
+    assert r.exit_code == 0, r.output
+    r = run.invoke(app, ["reconstruct", str(ideal_scan), "--no-calibration", "-o", str(tmp_path / "rec"),
+                         "--plan", str(tmp_path / "plan.json"), "--allow-unreliable"])
+    assert r.exit_code == 0, r.output
+    out = " ".join(r.output.split())
+    assert "plan: views taken: 8 views at" in out and "the planned ones" in out, out
+    pf = json.loads((tmp_path / "rec" / "poses.json").read_text())["diagnostics"]["plan"]
+    assert pf["taken"]["layout"]["n_views"] == 8 and 0.0 < pf["taken"]["on_size"] <= 1.0
+    assert pf["planned"]["n_views"] == pf["planned"]["layout"]["n_views"] >= 8
+    assert "differs from the plan's object" not in pf["summary"]  # planned for this object's size
+    (tmp_path / "bad.json").write_text("{}")
+    r = run.invoke(app, ["reconstruct", str(ideal_scan), "--no-calibration", "-o", str(tmp_path / "rec2"),
+                         "--plan", str(tmp_path / "bad.json")])
+    assert isinstance(r.exception, InputError) and "not a plan.json" in str(r.exception)
+    assert not (tmp_path / "rec2").exists()

@@ -58,6 +58,10 @@ def reconstruct(
     turntable_accuracy: float = typer.Option(
         1.0, "--turntable-accuracy", help="How accurately the turntable turns by its step [deg] (manual marks ~1, a "
         "stepper motor ~0.1): views linked by the step alone are this accurate; above 0.5 deg the run is flagged."),
+    plan: Path | None = typer.Option(
+        None, "--plan", help="A plan.json (tofmetry plan): the views as registered are set beside the views it asked "
+        "for, both predicted on its object size (written to poses.json as diagnostics.plan). No reference needed; "
+        "the completeness achieved: tofmetry evaluate --poses poses.json --plan plan.json."),
     force: bool = typer.Option(False, "--force", help="Replace an existing output folder."),
     allow_unreliable: bool = typer.Option(
         False, "--allow-unreliable", help="Exit 0 even when the pose-graph consistency gate flags the registration "
@@ -65,6 +69,7 @@ def reconstruct(
 ) -> None:
     """Automatic 3D model of an object from several views: segment, register (pose graph), fuse (TSDF), mesh."""
     from tofmetry.pipelines.paths import refuse_existing
+    from tofmetry.pipelines.plan import read_plan
     from tofmetry.pipelines.reconstruct import reconstruct_scan
     from tofmetry.reconstruct import ReconstructionConfig
 
@@ -84,6 +89,9 @@ def reconstruct(
     if amplitude_board and (amplitude_reference is None or rig is not None):
         raise InputError("--amplitude-board needs --amplitude-reference WALL (the white amplitude per pixel) and is "
                          "not available with --rig")
+    if plan is not None and rig is not None:
+        raise InputError("--plan is not available with --rig (the rig's sensors stand where the rig holds them)")
+    plan_doc = read_plan(plan) if plan is not None else None  # a bad plan.json fails before the reconstruction
     refuse_existing(output, force)
     cfg = ReconstructionConfig()
     cfg.segment.keep_all = keep_all
@@ -108,7 +116,7 @@ def reconstruct(
     console.print(f"scan {scan_dir}; calibration: {calibration or 'none (raw depth)'}")
     res = reconstruct_scan(scan_dir, calibration, output, config=cfg, amplitude_wall=amplitude_reference,
                            amplitude_max_mm=amplitude_max_mm, amplitude_boards=amplitude_board, force=force,
-                           progress=progress)
+                           progress=progress, plan=plan_doc)
     _print_amplitude_slope(res.diagnostics.get("amplitude_slope"))
     console.print(f"{len(res.names)} views: {', '.join(res.names)}")
     t = Table(title="registration edges (fitness = matched share of the object points the other camera could see)")
@@ -177,6 +185,9 @@ def reconstruct(
             console.print("  on the model's geometry: " + ", ".join(f"{k} +-{100 * v:.3f} %" for k, v in terms)
                           + f"; the closed-form rule +-{sc['rule_scale_sigma_pct']:.3f} %")
     console.print(f"world frame: {(res.diagnostics.get('world') or {}).get('frame', '')}")
+    pf = res.diagnostics.get("plan")
+    if pf:
+        console.print(f"plan: {pf.get('summary') or 'not compared: ' + pf.get('skipped', '')}")
     tm = res.diagnostics["timings_s"]
     console.print(f"wrote {output} in {tm['total_s']:.1f} s (views {tm['views_s']:.1f}, registration "
                   f"{tm['registration_s']:.1f}, adjustment {tm['adjustment_s']:.1f}, fusion {tm['fusion_s']:.1f}, meshing {tm['meshing_s']:.1f}"

@@ -23,6 +23,7 @@ from tofmetry.io import ScanDataset, WallDataset
 from tofmetry.io.rig_json import read_rig
 from tofmetry.pipelines.amplitude_slope import AmplitudeSlope, amplitude_slope_from_boards
 from tofmetry.pipelines.calibration_files import load_calibration
+from tofmetry.pipelines.plan import plan_followed
 from tofmetry.reconstruct import (
     ReconstructionConfig, ReconstructionPipeline, ReconstructionResult, RigReconstruction, corrected_mean_depth,
     white_amplitude_map, write_reconstruction,
@@ -118,7 +119,8 @@ def reconstruct_scan(scan_dir: str | os.PathLike, calibration: str | os.PathLike
                      output: str | os.PathLike | None = None, *, config: ReconstructionConfig | None = None,
                      amplitude_wall: str | os.PathLike | None = None, amplitude_max_mm: float = 2500.0,
                      white_map: np.ndarray | None = None, amplitude_boards: list | None = None,
-                     force: bool = False, progress: Progress | None = None) -> ReconstructionResult:
+                     force: bool = False, progress: Progress | None = None,
+                     plan: dict | None = None) -> ReconstructionResult:
     """Reconstruct the object of a scan dataset and optionally write the model folder.
 
     Parameters
@@ -159,9 +161,22 @@ def reconstruct_scan(scan_dir: str | os.PathLike, calibration: str | os.PathLike
     res = ReconstructionPipeline(ds, cal, cfg, progress=progress, white_map=white_map).run()
     if slope is not None:
         res.diagnostics["amplitude_slope"] = slope.to_dict()
+    if plan is not None:
+        res.diagnostics["plan"] = _plan_followed(res, plan)
     if output is not None:
         write_reconstruction(Path(output), res, force=force)
     return res
+
+
+def _plan_followed(res: ReconstructionResult, plan: dict) -> dict:
+    """:func:`~tofmetry.pipelines.plan.plan_followed` of a reconstruction, or why it was not made."""
+    if res.support_plane is None:
+        return {"skipped": "no support plane was found, so the model is not in a ground frame to set the plan's "
+                           "views in (the plan stands its object on its support)"}
+    lo, hi = (res.diagnostics.get("working_range_mm") or [500.0, 2500.0])[:2]
+    intr = CameraIntrinsics.from_dict(res.diagnostics["intrinsics"])
+    return plan_followed(plan, res.mesh_vertices if len(res.mesh_vertices) else res.points, res.poses, intr,
+                         min_mm=lo, max_mm=hi)
 
 
 def reconstruct_rig(scan_dir: str | os.PathLike, rig: str | os.PathLike | list, output: str | os.PathLike | None = None,
