@@ -26,7 +26,8 @@ from tofmetry.plan._plan import (
     stripes,
     surface_samples,
 )
+from tofmetry.plan._symmetry import TURN_FREE_BELOW, turn_about_vertical
 
 __all__ = ["PREDICTION_ERROR_PTS", "PlanObject", "Prediction", "Proposal", "aim_for", "candidates", "complete", "predict", "propose", "proxy_from_mesh",
            "proxy_from_points", "proxy_from_size", "reconstructed_share", "ring", "seen_cosines", "seen_masks", "stripes",
-           "surface_samples"]
+           "surface_samples", "TURN_FREE_BELOW", "turn_about_vertical"]

@@ -72,6 +72,7 @@ from tofmetry.reconstruct._regview import (
     RegView,
     free_space_violation,
     make_reg_view,
+    point_to_plane_rows,
     registration_conditioning,
     visibility_violation,
 )
@@ -85,6 +86,7 @@ from tofmetry.reconstruct._world import support_plane_frame, transform_plane
 
 __all__ = [
     "PAPER_K_MM_PER_LN",
+    "point_to_plane_rows",
     "AdjustResult",
     "keep_amplitude_if_it_explains",
     "AdjustView",

@@ -228,9 +228,38 @@ def overlap_jacobian(src: RegView, tgt: RegView, T: np.ndarray, radius_m: float,
         return None, int(ok.sum())
     q = tgt.icp_points[np.unique(idx[ok])]
     n = estimate_normals(q, normal_radius_m, 60, toward=np.zeros(3))
+    return point_to_plane_rows(q, n), int(ok.sum())
+
+
+def point_to_plane_rows(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """(M, 6) point-to-plane Jacobian rows ``[((q - c) x n) / L, n]`` of surface points ``q`` [m] with
+    unit normals ``n`` (``c`` their centroid, ``L`` their RMS distance from it: the rotation columns
+    are displacements at the surface's size, comparable with the translation columns)."""
+    q, n = np.asarray(points, np.float64), np.asarray(normals, np.float64)
     c = q.mean(0)
     L = float(np.sqrt(np.mean(np.sum((q - c) ** 2, 1))))
-    return np.c_[np.cross(q - c, n) / max(L, 1e-12), n], int(ok.sum())
+    return np.c_[np.cross(q - c, n) / max(L, 1e-12), n]
+
+
+def yaw_stiffness_ratio(H: np.ndarray, up: np.ndarray) -> float:
+    """The stiffness of the rotation about ``up`` through the surface's centroid, the other five
+    parameters left free (``1 / (u' H^-1 u)``), over the smaller stiffness of the two rotations about
+    horizontal axes; ``H`` (6, 6) the normal matrix of :func:`point_to_plane_rows`. Near 0 on a surface
+    of revolution about ``up`` (the turn about it is free); 0.0 where ``H`` is singular."""
+    try:
+        Hi = np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        return 0.0
+    up = np.asarray(up, np.float64) / np.linalg.norm(up)
+    a1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+    a1 /= np.linalg.norm(a1)
+    a2 = np.cross(up, a1)
+
+    def k(axis):
+        e = np.r_[axis, 0.0, 0.0, 0.0]
+        return 1.0 / float(e @ Hi @ e)
+
+    return round(k(up) / max(min(k(a1), k(a2)), 1e-300), 4)
 
 
 def registration_conditioning(src: RegView, tgt: RegView, T: np.ndarray, radius_m: float,
@@ -264,22 +293,7 @@ def registration_conditioning(src: RegView, tgt: RegView, T: np.ndarray, radius_
     w, V = np.linalg.eigh(H)
     v = V[:, 0]
     rot = float(np.sum(v[:3] ** 2))
-    yaw = None
-    if tgt.plane is not None:
-        try:
-            Hi = np.linalg.inv(H)
-            up = tgt.plane[:3] / np.linalg.norm(tgt.plane[:3])
-            a1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
-            a1 /= np.linalg.norm(a1)
-            a2 = np.cross(up, a1)
-
-            def k(axis):
-                e = np.r_[axis, 0.0, 0.0, 0.0]
-                return 1.0 / float(e @ Hi @ e)
-
-            yaw = round(k(up) / max(min(k(a1), k(a2)), 1e-300), 4)
-        except np.linalg.LinAlgError:
-            yaw = 0.0
+    yaw = None if tgt.plane is None else yaw_stiffness_ratio(H, tgt.plane[:3])
     return {"ratio": float(w[0] / max(w[-1], 1e-300)), "weak_rotation": round(rot, 3),
             "weak_axis": [round(float(x), 3) for x in v[:3] / max(np.linalg.norm(v[:3]), 1e-12)],
             "yaw_ratio": yaw, "n_matched": n_matched}
