@@ -59,8 +59,38 @@ def keep_errors(draw, errors: str):
     return draw
 
 
+def pose_scale(poses, true_poses, vertices, triangles) -> tuple[float, list[float]]:
+    """The scale error the poses alone give a model: each view's front-facing reference triangles
+    (their centroids) carried by its pose error (true world -> estimated world, in the truth's gauge
+    through view 0), all views together, fitted with one similarity to where they belong (Umeyama);
+    its scale minus one (-0.01: the views put the surfaces 1 % inward, the model comes out 1 % small),
+    and the same along each of the object's principal axes (largest extent first): a box whose far
+    views slide along its length comes out short along that axis only."""
+    P, W = np.asarray(poses, float), np.asarray(true_poses, float)
+    tri = np.asarray(vertices, float)[np.asarray(triangles)]
+    C = tri.mean(1)
+    N = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    G = np.linalg.inv(P[0] @ np.linalg.inv(W[0]))
+    src, dst = [], []
+    for Pk, Wk in zip(P, W):
+        A = G @ Pk @ np.linalg.inv(Wk)  # true world -> the fit's world, carried back by view 0's
+        X = C[np.einsum("ij,ij->i", N, Wk[:3, 3] - C) > 0]
+        src.append(X @ A[:3, :3].T + A[:3, 3])
+        dst.append(X)
+    s, d = np.concatenate(src), np.concatenate(dst)
+    cs, cd = s.mean(0), d.mean(0)
+    U, S, Vt = np.linalg.svd((d - cd).T @ (s - cs) / len(s))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    c = np.trace(np.diag(S) @ D) / np.mean(np.sum((s - cs) ** 2, axis=1))  # maps the fit's points onto the truth
+    R = U @ D @ Vt  # the fit's points rotated back onto the truth's
+    axes = np.linalg.svd(d - cd, full_matrices=False)[2]  # the object's principal axes, largest extent first
+    back, true = (s - cs) @ R.T @ axes.T, (d - cd) @ axes.T
+    per_axis = [float(np.dot(back[:, k], true[:, k]) / np.dot(true[:, k], true[:, k]) - 1.0) for k in range(3)]
+    return float(1.0 / c - 1.0), per_axis
+
+
 def drift_case(seed: int, work: Path, errors: str = "all", noise_seed: int | None = None, config=None,
-               n_frames: int = 5, stations: str = "family", tilt: bool = True) -> dict:
+               n_frames: int = 5, stations: str = "family", tilt: bool = True, planned: float | None = None) -> dict:
     """Scan, prepare and adjust one draw from its true poses; returns one JSON-able row."""
     from tofmetry.evaluate import pose_errors
     from tofmetry.io import ScanDataset, read_json
@@ -70,7 +100,7 @@ def drift_case(seed: int, work: Path, errors: str = "all", noise_seed: int | Non
     from tofmetry.simulate import datasets
 
     t0 = time.perf_counter()
-    d = keep_errors(draw_case(seed), errors)
+    d = keep_errors(draw_case(seed, planned=planned), errors)
     cal, white, _ = calibrate_sensor(d.sensor, seed, distances_mm=STATION_SETS[stations], tilt_work=work if tilt else None)
     scan_dir = work / f"scan-{seed}"
     datasets.scan(scan_dir, n_frames=n_frames, mesh=d.mesh, poses=d.path.poses, sensor=d.sensor,
@@ -99,6 +129,7 @@ def drift_case(seed: int, work: Path, errors: str = "all", noise_seed: int | Non
         rot.append(rotation_angle_deg(P @ np.linalg.inv(S)))
     disp = np.array(disp)
     pe = pose_errors(res.poses, W, V)  # as the family judges a run: the whole set aligned on the object
+    scale = pose_scale(res.poses, W, V, d.object.triangles)
     shutil.rmtree(scan_dir, ignore_errors=True)
     for b in boards:
         shutil.rmtree(b, ignore_errors=True)
@@ -108,6 +139,7 @@ def drift_case(seed: int, work: Path, errors: str = "all", noise_seed: int | Non
             "max_mm": round(float(np.linalg.norm(disp, axis=1).max()), 3), "max_deg": round(max(rot), 4),
             "rot_deg": round(float(pe.rot_deg.max()), 4), "object_mm": round(float(pe.object_mm.max()), 3),
             "truly_wrong": bool(pe.rot_deg.max() > GATE_DEG or pe.object_mm.max() > GATE_MM),
+            "pose_scale_pct": round(100 * scale[0], 4), "axis_scale_pct": [round(100 * x, 4) for x in scale[1]],
             "range_curve_mm": None if res.range_curve_m is None else np.round(np.asarray(res.range_curve_m) * 1e3, 4).tolist(),
             "range_curve_sigma_data_mm": None if res.range_curve_sigma_data_m is None else
             np.round(np.asarray(res.range_curve_sigma_data_m) * 1e3, 4).tolist(),
@@ -125,6 +157,8 @@ def main(argv=None) -> int:
     ap.add_argument("--set", action="append", default=[], metavar="STAGE.FIELD=JSON",
                     help="override one field of the reconstruction config (repeatable; for A/B runs)")
     ap.add_argument("-o", "--output", type=Path, default=None, help="folder for drift_rows.jsonl")
+    ap.add_argument("--planned", type=float, default=None, metavar="TARGET",
+                    help="the path the plan proposes for this completeness (bench.robustness.family.planned_path)")
     ap.add_argument("--no-tilt", action="store_true", help="the walls' calibration alone (no depth tilt from boards)")
     ap.add_argument("--stations", choices=tuple(STATION_SETS), default="family",
                     help="wall stations of the calibration (bench.robustness.family.STATION_SETS)")
@@ -141,7 +175,7 @@ def main(argv=None) -> int:
     try:
         for s in (int(x) for x in a.seeds.split(",")):
             r = drift_case(s, work, a.errors, a.noise_seed, None if config is None else config.model_copy(deep=True),
-                           stations=a.stations, tilt=not a.no_tilt)
+                           stations=a.stations, tilt=not a.no_tilt, planned=a.planned)
             rows.append(r)
             if a.output is not None:
                 a.output.mkdir(parents=True, exist_ok=True)
@@ -150,7 +184,8 @@ def main(argv=None) -> int:
             views = " ".join("[" + " ".join(f"{x:+.2f}" for x in v) + "]" for v in r["displacement_mm"])
             print(f"seed {s}: {r['object']} ({r['path']}, {r['n_views']} views, extent {r['extent_mm']} mm), "
                   f"errors {a.errors}: pose error {r['rot_deg']:.3f} deg / {r['object_mm']:.2f} mm at the object"
-                  f"{' (beyond the gate)' if r['truly_wrong'] else ''}"
+                  f"{' (beyond the gate)' if r['truly_wrong'] else ''}; scale from the poses {r['pose_scale_pct']:+.3f} % (along its axes "
+                  f"{', '.join(f'{x:+.3f}' for x in r['axis_scale_pct'])} %)"
                   + (f"; the calibration's residual predicts {r['calibration_pose']['rot_deg']['p50']:.3f} / "
                      f"{r['calibration_pose']['rot_deg']['p90']:.3f} deg, {r['calibration_pose']['object_mm']['p50']:.2f} / "
                      f"{r['calibration_pose']['object_mm']['p90']:.2f} mm (p50 / p90)" if r["calibration_pose"] else "")

@@ -340,11 +340,15 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
 
 def plan_check(d: Draw, achieved: float | None) -> dict:
     """``tofmetry plan``'s prediction (:func:`tofmetry.plan.predict`) for the draw's object and views,
-    beside the completeness the scan achieved (share of the reference within 5 mm, base excluded)."""
-    from tofmetry.plan import PlanObject, predict
+    beside the completeness the scan achieved (share of the reference within 5 mm, base excluded), and
+    whether the plan calls the object's turn about the vertical free (:func:`tofmetry.plan.turn_about_vertical`)."""
+    from tofmetry.plan import PlanObject, predict, surface_samples, turn_about_vertical
 
-    pr = predict(PlanObject(d.object.vertices, d.object.triangles, "mesh"), d.path.poses, d.sensor.intrinsics)
-    out = {"plan_completeness": round(pr.completeness, 4), "plan_min_overlap": round(pr.min_overlap, 4)}
+    obj = PlanObject(d.object.vertices, d.object.triangles, "mesh")
+    pr = predict(obj, d.path.poses, d.sensor.intrinsics)
+    turn = turn_about_vertical(*surface_samples(obj))
+    out = {"plan_completeness": round(pr.completeness, 4), "plan_min_overlap": round(pr.min_overlap, 4),
+           "plan_turn_ratio": turn["ratio"], "plan_turn_free": turn["free"]}
     if achieved is not None:
         out["plan_error_pts"] = round(100 * (pr.completeness - achieved), 2)
     return out
@@ -386,6 +390,15 @@ def summarize(rows: list[dict]) -> dict:
                 if cp.get(key):
                     pairs.append(r[key] <= cp[key]["p90"])
             out[f"pose_p90_covers_{name}_{kind}"] = [sum(pairs), len(pairs)]
+    # the printed scale uncertainty: how many reliable runs' scale error lies within 2 of its predicted sigmas
+    zs = [abs(r["scale_error_pct"]) / r["scale"]["predicted_scale_sigma_pct"] for r in rel
+          if np.isfinite(r.get("scale_error_pct", np.nan))
+          and ((r.get("scale") or {}).get("predicted_scale_sigma_pct") or 0) > 0]
+    out["scale_within_2_sigma"] = [int(sum(z <= 2 for z in zs)), len(zs)]
+    # the plan's warning on surfaces of revolution: right and reliable runs among those it warns on / the others
+    for tag, free in (("turn_free", True), ("turn_held", False)):
+        grp = [r for r in ok if r.get("plan_turn_free") is free]
+        out[f"right_reliable_{tag}"] = [sum(bool(r.get("reliable")) and not r.get("truly_wrong") for r in grp), len(grp)]
     # the depth tilt fitted on boards against what the walls left (residual_tilt_mm), in its sigmas
     z = [(np.array(c["tilt"]["tilt_mm"]) - c["true_tilt_mm"]) / np.array(c["tilt"]["sigma_mm"])
          for c in (r.get("calibration") or {} for r in rows) if c.get("true_tilt_mm") and (c.get("tilt") or {}).get("sigma_mm")]
@@ -412,7 +425,11 @@ def table(s: dict) -> str:
              f"{'/'.join(map(str, s.get('pose_p90_covers_rot_with_noise', [0, 0])))} with noise "
              f"({'/'.join(map(str, s.get('pose_p90_covers_rot_calibration', [0, 0])))} calibration alone), object "
              f"{'/'.join(map(str, s.get('pose_p90_covers_object_with_noise', [0, 0])))} "
-             f"({'/'.join(map(str, s.get('pose_p90_covers_object_calibration', [0, 0])))})",
+             f"({'/'.join(map(str, s.get('pose_p90_covers_object_calibration', [0, 0])))}); scale error within 2 of "
+             f"its predicted sigmas {'/'.join(map(str, s.get('scale_within_2_sigma', [0, 0])))}",
+             "right and reliable where the plan warns that the turn about the vertical is free: "
+             f"{'/'.join(map(str, s.get('right_reliable_turn_free', [0, 0])))}, elsewhere "
+             f"{'/'.join(map(str, s.get('right_reliable_turn_held', [0, 0])))}",
              "| figure (reliable runs) | median | p90 | worst (seed) | target | n |", "|---|---|---|---|---|---|"]
     if s.get("tilt_error_sigmas"):
         t = s["tilt_error_sigmas"]
