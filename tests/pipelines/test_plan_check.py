@@ -6,7 +6,7 @@ import numpy as np
 
 from tofmetry.errors import InputError
 from tofmetry.evaluate import CameraViews
-from tofmetry.pipelines.plan import plan_check
+from tofmetry.pipelines.plan_check import plan_check
 from tofmetry.plan import proxy_from_size, reconstructed_share, ring, seen_cosines, surface_samples
 from tofmetry.sensor import KINECT_V2
 
@@ -100,7 +100,7 @@ def test_plan_followed_sets_the_views_taken_beside_the_planned_ones():
     size is the plan's own to 0.5 points; the box is found whichever way it is turned (its longer
     side along x or, when the plan's depth is the longer, along y). Half the ring (6 views over
     150 deg) leaves a 210 deg gap and is predicted well short."""
-    from tofmetry.pipelines.plan import plan_followed
+    from tofmetry.pipelines.plan_check import plan_followed
 
     box = proxy_from_size(0.3, 0.2, 0.15)
     planned = ring(12, 1.0, 30.0, box.centre_m)
@@ -123,7 +123,7 @@ def test_plan_followed_sets_the_views_taken_beside_the_planned_ones():
 
 
 def test_plan_followed_needs_a_size_and_views():
-    from tofmetry.pipelines.plan import plan_followed
+    from tofmetry.pipelines.plan_check import plan_followed
 
     box = proxy_from_size(0.3, 0.2, 0.15)
     views = ring(8, 1.0, 30.0, box.centre_m)

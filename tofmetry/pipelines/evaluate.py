@@ -19,7 +19,8 @@ from tofmetry.evaluate import CameraViews, EvaluationConfig, EvaluationResult, e
 from tofmetry.io import atomic_write_json, read_json
 from tofmetry.io.mesh import read_geometry
 from tofmetry.pipelines.paths import refuse_existing
-from tofmetry.pipelines.plan import plan_check, read_plan
+from tofmetry.pipelines.plan import read_plan
+from tofmetry.pipelines.plan_check import plan_check
 
 
 def read_transform(path: str | os.PathLike) -> np.ndarray:
@@ -65,7 +66,7 @@ def evaluate_files(model: str | os.PathLike, reference: str | os.PathLike, outpu
         surface the registered cameras could see
     title : figure title (default: the model's file name)
     plan : a ``plan.json`` (``tofmetry plan``): its prediction beside the completeness achieved
-        (:func:`tofmetry.pipelines.plan.plan_check`; needs ``poses`` and a mesh reference), written
+        (:func:`tofmetry.pipelines.plan_check.plan_check`; needs ``poses`` and a mesh reference), written
         as ``plan_check.json``
     force : replace an existing, non-empty ``output`` (refused otherwise, before any work)
 

@@ -23,7 +23,7 @@ from tofmetry.io import ScanDataset, WallDataset
 from tofmetry.io.rig_json import read_rig
 from tofmetry.pipelines.amplitude_slope import AmplitudeSlope, amplitude_slope_from_boards
 from tofmetry.pipelines.calibration_files import load_calibration
-from tofmetry.pipelines.plan import plan_followed
+from tofmetry.pipelines.plan_check import plan_followed
 from tofmetry.reconstruct import (
     ReconstructionConfig, ReconstructionPipeline, ReconstructionResult, RigReconstruction, corrected_mean_depth,
     white_amplitude_map, write_reconstruction,
@@ -138,6 +138,9 @@ def reconstruct_scan(scan_dir: str | os.PathLike, calibration: str | os.PathLike
         scale budget and the prior of the scan's own ``dk``. Needs an amplitude reference.
     force : replace an existing output folder
     progress : optional ``progress(description, total)`` context-manager factory
+    plan : the content of a ``plan.json`` (:func:`~tofmetry.pipelines.plan.read_plan`): the views as
+        registered are set beside the views it asked for (:func:`~tofmetry.pipelines.plan_check.plan_followed`,
+        ``diagnostics["plan"]``, written to ``poses.json``); needs the model in its ground frame
 
     Returns
     -------
@@ -169,7 +172,7 @@ def reconstruct_scan(scan_dir: str | os.PathLike, calibration: str | os.PathLike
 
 
 def _plan_followed(res: ReconstructionResult, plan: dict) -> dict:
-    """:func:`~tofmetry.pipelines.plan.plan_followed` of a reconstruction, or why it was not made."""
+    """:func:`~tofmetry.pipelines.plan_check.plan_followed` of a reconstruction, or why it was not made."""
     if res.support_plane is None:
         return {"skipped": "no support plane was found, so the model is not in a ground frame to set the plan's "
                            "views in (the plan stands its object on its support)"}
