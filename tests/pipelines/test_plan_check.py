@@ -120,6 +120,10 @@ def test_plan_followed_sets_the_views_taken_beside_the_planned_ones():
     half = plan_followed(_plan_doc(planned, (0.3, 0.2, 0.15)), model, taken[:6], KINECT_V2.depth)
     assert half["short_pts"] > 5.0 and abs(half["taken"]["layout"]["azimuth_gap_deg"] - 210.0) < 0.5
     assert "points short of the plan" in half["summary"]
+    assert not out["turn_free_warned"] and "turn about the vertical" not in out["summary"]
+    warned = {**_plan_doc(planned, (0.3, 0.2, 0.15)), "settings": {"turn_about_vertical": {"ratio": 0.01, "free": True}}}
+    w = plan_followed(warned, model, taken, KINECT_V2.depth)  # the plan's warning is repeated after the scan
+    assert w["turn_free_warned"] and "leaves the views' turn about the vertical free" in w["summary"]
 
 
 def test_plan_followed_needs_a_size_and_views():

@@ -122,6 +122,11 @@ def plan_followed(doc: dict, model_points: np.ndarray, poses, intrinsics: Camera
     if max(size[:2]) > 1.5 * max(ext[:2]) or max(size[:2]) < max(ext[:2]) / 1.5:
         text += (f" (the model's footprint, {size[0]:.2f} x {size[1]:.2f} m, differs from the plan's object: was it "
                  "planned for this object?)")
+    turn = (doc.get("settings") or {}).get("turn_about_vertical") or {}
+    if turn.get("free"):
+        text += (". The plan warned that the object's geometry leaves the views' turn about the vertical free (stiffness "
+                 f"ratio {turn.get('ratio', float('nan')):.2f}): the poses hold only where a pattern or a declared "
+                 "turntable step fixed it (see the registration's verdict)")
     text += ". The completeness achieved needs a reference: tofmetry evaluate --poses poses.json --plan plan.json"
     return {"planned": {**(planned or {}), "layout": lay_p, "on_size": round(p_plan.completeness, 4)},
             "taken": {"layout": lay_t, "on_size": round(p_taken.completeness, 4),
@@ -129,6 +134,7 @@ def plan_followed(doc: dict, model_points: np.ndarray, poses, intrinsics: Camera
             "short_pts": round(short, 2),
             "object": {"plan_extent_m": [round(float(x), 4) for x in ext], "model_footprint_m": size,
                        "model_height_m": size[2]},
+            "turn_free_warned": bool(turn.get("free")),
             "summary": text}
 
 
