@@ -99,7 +99,7 @@ def plan_followed(doc: dict, model_points: np.ndarray, poses, intrinsics: Camera
         raise InputError(f"reconstruct --plan: the model has {len(m)} points above its support plane; nothing to "
                          "compare the plan's object with")
     c = 0.5 * (m[:, :2].min(0) + m[:, :2].max(0))
-    w, vec = np.linalg.eigh(np.cov((m[:, :2] - c).T))
+    vec = np.linalg.eigh(np.cov((m[:, :2] - c).T))[1]
     major = vec[:, 1]  # the model's longer horizontal axis
     a = np.arctan2(major[1], major[0]) - (0.0 if ext[0] >= ext[1] else np.pi / 2)
     G = np.eye(4)  # ground frame -> the box's frame: centred on the z axis, its longer side along the major axis
@@ -111,7 +111,7 @@ def plan_followed(doc: dict, model_points: np.ndarray, poses, intrinsics: Camera
     p_taken = predict(box, taken, intrinsics, **kw)
     p_plan = predict(box, planned_poses, intrinsics, **kw)
     foot = (m[:, :2] - c) @ vec
-    size = [round(float(np.ptp(foot[:, 1])), 3), round(float(np.ptp(foot[:, 0])), 3), round(float(m[:, 2].max()), 3)]
+    size = [round(float(np.ptp(foot[:, 1])), 3), round(float(np.ptp(foot[:, 0])), 3)]  # along the major axis first
     lay_t, lay_p = view_layout(taken, box.centre_m), view_layout(planned_poses, box.centre_m)
     short = 100 * (p_plan.completeness - p_taken.completeness)
     lo, hi = p_taken.completeness_range
@@ -119,7 +119,7 @@ def plan_followed(doc: dict, model_points: np.ndarray, poses, intrinsics: Camera
             f"object size ({ext[0]:.2f} x {ext[1]:.2f} x {ext[2]:.2f} m) the views taken are predicted to cover "
             f"{p_taken.completeness:.1%} ({lo:.0%}-{hi:.0%}), the planned ones {p_plan.completeness:.1%}: "
             + (f"{short:.1f} points short of the plan" if short > 0.5 else "as the plan or better"))
-    if max(size[:2]) > 1.5 * max(ext[:2]) or max(size[:2]) < max(ext[:2]) / 1.5:
+    if max(size) > 1.5 * max(ext[:2]) or max(size) < max(ext[:2]) / 1.5:
         text += (f" (the model's footprint, {size[0]:.2f} x {size[1]:.2f} m, differs from the plan's object: was it "
                  "planned for this object?)")
     turn = (doc.get("settings") or {}).get("turn_about_vertical") or {}
@@ -128,12 +128,12 @@ def plan_followed(doc: dict, model_points: np.ndarray, poses, intrinsics: Camera
                  f"ratio {turn.get('ratio', float('nan')):.2f}): the poses hold only where a pattern or a declared "
                  "turntable step fixed it (see the registration's verdict)")
     text += ". The completeness achieved needs a reference: tofmetry evaluate --poses poses.json --plan plan.json"
-    return {"planned": {**(planned or {}), "layout": lay_p, "on_size": round(p_plan.completeness, 4)},
+    return {"planned": {**planned, "layout": lay_p, "on_size": round(p_plan.completeness, 4)},
             "taken": {"layout": lay_t, "on_size": round(p_taken.completeness, 4),
                       "on_size_range": [round(lo, 4), round(hi, 4)]},
             "short_pts": round(short, 2),
             "object": {"plan_extent_m": [round(float(x), 4) for x in ext], "model_footprint_m": size,
-                       "model_height_m": size[2]},
+                       "model_height_m": round(float(m[:, 2].max()), 3)},
             "turn_free_warned": bool(turn.get("free")),
             "summary": text}
 

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tofmetry.reconstruct import point_to_plane_rows
+from tofmetry.reconstruct import constrained_stiffness, point_to_plane_rows
 
 #: below this ratio of stiffnesses the surface leaves a turn about the vertical free (module docstring)
 TURN_FREE_BELOW = 0.2
@@ -56,13 +56,9 @@ def turn_about_vertical(points: np.ndarray, normals: np.ndarray, free_below: flo
     if p.ndim != 2 or p.shape[1] != 3 or len(p) < 10:
         return nan
     J = point_to_plane_rows(p, normals)
-    try:
-        Hi = np.linalg.inv(J.T @ J / len(J))
+    try:  # the turn about z, then the three shifts, each with the other five motions left free
+        k = constrained_stiffness(J.T @ J / len(J), np.eye(6)[[2, 3, 4, 5]])
     except np.linalg.LinAlgError:
         return nan
-
-    def stiffness(k: int) -> float:  # of motion k, the other five left free
-        return 1.0 / float(Hi[k, k])
-
-    ratio = stiffness(2) / float(np.mean([stiffness(k) for k in (3, 4, 5)]))
+    ratio = float(k[0]) / float(np.mean(k[1:]))
     return {"ratio": round(ratio, 4), "free_below": limit, "free": bool(ratio < limit)}

@@ -70,6 +70,7 @@ from tofmetry.reconstruct._range_curve import apply_range_curve, range_curve_m
 from tofmetry.reconstruct._register import PairResult, plane_consistent, register_pair
 from tofmetry.reconstruct._regview import (
     RegView,
+    constrained_stiffness,
     free_space_violation,
     make_reg_view,
     point_to_plane_rows,
@@ -87,6 +88,7 @@ from tofmetry.reconstruct._world import support_plane_frame, transform_plane
 __all__ = [
     "PAPER_K_MM_PER_LN",
     "point_to_plane_rows",
+    "constrained_stiffness",
     "AdjustResult",
     "keep_amplitude_if_it_explains",
     "AdjustView",

@@ -241,25 +241,30 @@ def point_to_plane_rows(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
     return np.c_[np.cross(q - c, n) / max(L, 1e-12), n]
 
 
+def constrained_stiffness(H: np.ndarray, motions: np.ndarray) -> np.ndarray:
+    """The stiffness of each of ``motions`` (K, 6) (rotation, translation, as the columns of
+    :func:`point_to_plane_rows`) with every other motion left free: ``1 / (e' H^-1 e)`` for the
+    (6, 6) normal matrix ``H``. Raises ``numpy.linalg.LinAlgError`` where ``H`` is singular."""
+    Hi = np.linalg.inv(H)
+    E = np.asarray(motions, np.float64)
+    return 1.0 / np.einsum("ki,ij,kj->k", E, Hi, E)
+
+
 def yaw_stiffness_ratio(H: np.ndarray, up: np.ndarray) -> float:
     """The stiffness of the rotation about ``up`` through the surface's centroid, the other five
-    parameters left free (``1 / (u' H^-1 u)``), over the smaller stiffness of the two rotations about
-    horizontal axes; ``H`` (6, 6) the normal matrix of :func:`point_to_plane_rows`. Near 0 on a surface
-    of revolution about ``up`` (the turn about it is free); 0.0 where ``H`` is singular."""
-    try:
-        Hi = np.linalg.inv(H)
-    except np.linalg.LinAlgError:
-        return 0.0
+    parameters left free (:func:`constrained_stiffness`), over the smaller stiffness of the two
+    rotations about horizontal axes; ``H`` (6, 6) the normal matrix of :func:`point_to_plane_rows`.
+    Near 0 on a surface of revolution about ``up`` (the turn about it is free); 0.0 where ``H`` is
+    singular."""
     up = np.asarray(up, np.float64) / np.linalg.norm(up)
     a1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
     a1 /= np.linalg.norm(a1)
     a2 = np.cross(up, a1)
-
-    def k(axis):
-        e = np.r_[axis, 0.0, 0.0, 0.0]
-        return 1.0 / float(e @ Hi @ e)
-
-    return round(k(up) / max(min(k(a1), k(a2)), 1e-300), 4)
+    try:
+        k = constrained_stiffness(H, np.c_[np.stack([up, a1, a2]), np.zeros((3, 3))])
+    except np.linalg.LinAlgError:
+        return 0.0
+    return round(float(k[0]) / max(float(min(k[1], k[2])), 1e-300), 4)
 
 
 def registration_conditioning(src: RegView, tgt: RegView, T: np.ndarray, radius_m: float,
