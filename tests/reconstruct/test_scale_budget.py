@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tofmetry.reconstruct._scale_budget import scale_budget, scale_response
+from tofmetry.reconstruct._scale_budget import PoseUncertainty, pose_scale_response, scale_budget, scale_response
 
 from .test_adjust import _look_at
 
@@ -75,3 +75,47 @@ def test_the_terms_add_in_quadrature_and_a_constant_log_ratio_acts_as_an_offset(
     parts = [b[k]["sigma"] for k in ("offset", "gain", "amplitude")]
     assert b["sigma"] == pytest.approx(np.sqrt(np.sum(np.square(parts))), rel=1e-12)
     assert np.isfinite(b["sigma"]) and b["n_points"] > 1000
+
+
+def _placed(pts, nrm, poses):
+    view = np.repeat(np.arange(len(pts)), [len(p) for p in pts])
+    P, N = np.concatenate(pts), np.concatenate(nrm)
+    R, t = poses[view, :3, :3], poses[view, :3, 3]
+    return np.einsum("nij,nj->ni", R, P) + t, np.einsum("nij,nj->ni", R, N), view
+
+
+def test_the_pose_response_is_the_scale_of_the_moves_a_pose_increment_makes():
+    """Each view's increment (w, t) moves its points by w x p + t; the response, linear in the
+    increments, gives the scale :func:`scale_response` fits to those moves, and the views that see
+    the +x end moved along +x (those of the -x end along -x) lengthen the model."""
+    pts, nrm, poses = _views()
+    Pw, Nw, view = _placed(pts, nrm, poses)
+    a = pose_scale_response(Pw, Nw, view, len(pts))
+    rng = np.random.default_rng(3)
+    inc = np.zeros((len(pts), 6))
+    inc[1:] = rng.normal(scale=[1e-3] * 3 + [1e-3] * 3, size=(len(pts) - 1, 6))
+    moves = np.cross(inc[view, :3], Pw) + inc[view, 3:]
+    assert a @ inc[1:].ravel() == pytest.approx(scale_response(Pw, Nw, moves)[0], rel=1e-9, abs=1e-12)
+    centre_x = np.array([T[0, 3] for T in poses])
+    inc = np.zeros((len(pts), 6))
+    inc[:, 3] = 1e-3 * np.sign(centre_x) * (np.abs(centre_x) > 0.1)
+    inc[0] = 0.0
+    assert a @ inc[1:].ravel() > 0
+
+
+def test_the_poses_term_counts_their_noise_and_the_field_they_follow():
+    """The noise term is ``sqrt(a' C a)``; a field that moves no pose adds nothing but its direct
+    moves; the budget's total adds the poses' term in quadrature."""
+    pts, nrm, poses = _views()
+    Pw, Nw, view = _placed(pts, nrm, poses)
+    V = len(pts)
+    a = pose_scale_response(Pw, Nw, view, V)
+    C = np.diag(np.tile([1e-6] * 3 + [4e-8] * 3, V - 1))
+    free = PoseUncertainty(C, np.zeros((6 * (V - 1), 1)), np.array([1e-3]), lambda p: np.ones((len(p), 1)))
+    b = scale_budget(pts, nrm, poses, 0.9, None, 1e-3, 0.0, None, max_points=10 ** 6, poses_free=free)
+    assert b["poses"]["noise"] == pytest.approx(np.sqrt(a @ C @ a), rel=1e-9)
+    assert b["poses"]["field"] == pytest.approx(0.0, abs=1e-15)
+    assert b["poses"]["field_total"] == pytest.approx(b["offset"]["sigma"], rel=1e-9)  # a constant field: the offset
+    assert b["poses"]["sigma"] == pytest.approx(b["poses"]["noise"], rel=1e-12)
+    assert b["sigma"] == pytest.approx(np.hypot(b["sigma_poses_held"], b["poses"]["sigma"]), rel=1e-12)
+    assert b["sigma_poses_held"] == pytest.approx(b["offset"]["sigma"], rel=1e-12)

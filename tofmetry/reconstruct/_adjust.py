@@ -443,12 +443,22 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
     return res
 
 
-def calibration_pose(res: AdjustResult, depth_field: DepthFieldPrior) -> dict:
+def field_pose_response(res: AdjustResult, depth_field: DepthFieldPrior) -> np.ndarray:
+    """How the calibration's residual field moves the poses of the adjustment ``res``: (6 (V - 1), T)
+    left increments (rotation vector [rad], translation [m], view 0 fixed) per unit coefficient of each
+    term of ``depth_field`` (``dx = -H^-1 F c``, :mod:`~tofmetry.reconstruct._adjust_field`), from one
+    more pass over its final correspondences (~0.5 s on 8 views)."""
+    views, P, g, z_ref_m, corr, k, estimate_gain, curve, amp, tilt, H_solve, _, sym = res.final_state
+    F = _normal_equations(views, P, g, z_ref_m, corr, k, estimate_gain, curve, amp, tilt, depth_field.basis,
+                          symmetric=sym)[-1]
+    return -np.linalg.solve(H_solve, F)[:6 * (len(views) - 1)]
+
+
+def calibration_pose(res: AdjustResult, depth_field: DepthFieldPrior, response: np.ndarray | None = None) -> dict:
     """The poses' spread of the adjustment ``res`` under random depth fields of ``depth_field``'s
     size (:func:`~tofmetry.reconstruct._adjust_field.pose_spread`), propagated through the normal
-    equations it ended with (:attr:`AdjustResult.final_state`): one more pass over its final
-    correspondences (~0.5 s on 8 views). Asked for on the adjustment a pipeline keeps, not on each
-    run it tries.
+    equations it ended with (:attr:`AdjustResult.final_state`; ``response``: :func:`field_pose_response`,
+    computed when not given). Asked for on the adjustment a pipeline keeps, not on each run it tries.
 
     Returns
     -------
@@ -457,13 +467,10 @@ def calibration_pose(res: AdjustResult, depth_field: DepthFieldPrior) -> dict:
     the prior's size (``offset_sigma_mm``, ``shape_rms_mm``, ``degree``, ``gain_sigma_pct``: the depth
     gain's standard deviation [%], 0 without the range term)
     """
-    views, P, g, z_ref_m, corr, k, estimate_gain, curve, amp, tilt, H_solve, noise_cov, sym = res.final_state
-    V = len(views)
-    F = _normal_equations(views, P, g, z_ref_m, corr, k, estimate_gain, curve, amp, tilt, depth_field.basis,
-                          symmetric=sym)[-1]
-    resp = -np.linalg.solve(H_solve, F)[:6 * (V - 1)]
+    views, P, *_, noise_cov, _ = res.final_state
+    resp = field_pose_response(res, depth_field) if response is None else response
     obj = np.concatenate([v.source @ T[:3, :3].T + T[:3, 3] for v, T in zip(views, P)])
-    return pose_spread(resp, depth_field.coefficient_sigmas(), V, obj, noise_cov=noise_cov) | {
+    return pose_spread(resp, depth_field.coefficient_sigmas(), len(views), obj, noise_cov=noise_cov) | {
         "offset_sigma_mm": round(depth_field.offset_sigma_m * 1e3, 4),
         "shape_rms_mm": round(depth_field.shape_rms_m * 1e3, 4), "degree": depth_field.degree,
         "gain_sigma_pct": round(depth_field.gain_sigma * 100, 4)}

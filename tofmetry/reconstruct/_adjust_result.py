@@ -59,6 +59,11 @@ class AdjustResult:
     albedo : the IR albedo term of the joint fit (:mod:`~tofmetry.reconstruct._adjust_albedo`):
         ``used``, ``note``, and when used ``n`` (residuals), ``scale`` (their robust standard
         deviation, log albedo units), ``n_pairs``
+    field_response : how the calibration's residual field moves the poses, ``(response, prior)``:
+        (6 (V - 1), T) left increments per unit coefficient of each term of the
+        :class:`~tofmetry.reconstruct._adjust_field.DepthFieldPrior` ``prior``
+        (:func:`~tofmetry.reconstruct._adjust.field_pose_response`), or None when not predicted;
+        not reported
     final_state : what :func:`~tofmetry.reconstruct._adjust.calibration_pose` needs of the last
         Gauss-Newton step (views, poses, depth terms, correspondences, the solved normal matrix);
         not reported
@@ -102,12 +107,19 @@ class AdjustResult:
     calibration_pose: dict | None = None
     albedo: dict | None = None
     final_state: tuple | None = field(default=None, repr=False, compare=False)
+    field_response: tuple | None = field(default=None, repr=False, compare=False)
     image_tilt_m: np.ndarray | None = None
     image_tilt_sigma_m: np.ndarray | None = None
     image_tilt_sigma_data_m: np.ndarray | None = None
     image_tilt_estimated: bool = False
     image_tilt_note: str = "not asked for"
     image_tilt_centre: np.ndarray | None = None
+
+    @property
+    def pose_covariance(self) -> np.ndarray | None:
+        """(6 (V - 1), 6 (V - 1)) covariance of the poses' left increments from the data's noise
+        (rotation vector [rad^2], translation [m^2], view 0 fixed), inflated as ``pose_sigma_deg``; None without one."""
+        return None if self.final_state is None else self.final_state[11]
 
     def amplitude_report(self) -> dict:
         """The amplitude-bias correction ``dk`` [mm per ln unit] with its standard errors."""

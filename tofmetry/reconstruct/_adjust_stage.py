@@ -13,7 +13,7 @@ import numpy as np
 from tofmetry._shared.geometry import transform_points
 from tofmetry.errors import EstimationError
 from tofmetry.pointcloud import project_to_local_planes
-from tofmetry.reconstruct._adjust import AdjustView, calibration_pose, global_adjust
+from tofmetry.reconstruct._adjust import AdjustView, calibration_pose, field_pose_response, global_adjust
 from tofmetry.reconstruct._adjust_albedo import albedo_gradients
 from tofmetry.reconstruct._adjust_apply import correct_views
 from tofmetry.reconstruct._adjust_restart import came_back, pair_walks, restart_probe
@@ -24,7 +24,7 @@ from tofmetry.reconstruct._config import ReconstructionConfig
 from tofmetry.reconstruct._model_build import median_object_depth_m, object_depth_span_mm
 from tofmetry.reconstruct._icp_stages import refine_pair
 from tofmetry.reconstruct._regview import RegView
-from tofmetry.reconstruct._scale_budget import scale_budget
+from tofmetry.reconstruct._scale_budget import PoseUncertainty, scale_budget
 
 
 def curve_prior_mm(cfg: ReconstructionConfig, cal) -> float:
@@ -159,7 +159,8 @@ def joint_adjustment(views, segs, regs: list[RegView], poses: np.ndarray, cfg: R
             if degree_why and res.range_curve_m is not None:
                 res.range_curve_note = f"{res.range_curve_note} ({degree_why})"
             if field is not None:  # once, on the adjustment kept
-                res.calibration_pose = calibration_pose(res, field)
+                res.field_response = (field_pose_response(res, field), field)
+                res.calibration_pose = calibration_pose(res, field, res.field_response[0])
         except EstimationError as exc:  # keep the pose-graph poses; the reason goes to the diagnostics
             return None, str(exc)
     correct_views(views, segs, res, z_ref, regs[0].intr, white_map, cfg.segment.plane_threshold_mm * 1e-3)
@@ -192,17 +193,25 @@ def _pair_walks(res: AdjustResult, regs: list[RegView], edges, cfg: Reconstructi
 
 
 def scale_budget_of(views, segs, poses: np.ndarray, intr, z_ref: float, white_map: np.ndarray | None,
-                    k_sigma_mm: float):
+                    k_sigma_mm: float, adjustment: AdjustResult | None = None):
     """``(offset_sigma_m, gain_sigma) -> dict``: :func:`scale_budget` on the object points of
-    ``views`` placed by ``poses`` (camera to world), the gain acting about ``z_ref`` [m], with the
-    amplitude term (coefficient uncertainty ``k_sigma_mm``) when an amplitude reference was given."""
+    ``views`` placed by ``poses`` (camera to world, the frame of the joint fit's increments), the gain
+    acting about ``z_ref`` [m], with the amplitude term (coefficient uncertainty ``k_sigma_mm``) when an
+    amplitude reference was given, and the poses' term when the joint fit ``adjustment`` carries its
+    pose covariance or its response to the calibration's residual field."""
     pts = [v.points[s.object_mask] for v, s in zip(views, segs)]
     nrm = [v.normals[s.object_mask] for v, s in zip(views, segs)]
     L = None
     if white_map is not None and all(v.ir is not None for v in views):
         L = [amplitude_log_ratio(v.depth_mm, v.ir, white_map, intr).ravel()[v.index[s.object_mask]]
              for v, s in zip(views, segs)]
+    free = None
+    if adjustment is not None and (adjustment.pose_covariance is not None or adjustment.field_response is not None):
+        resp, prior = adjustment.field_response or (None, None)
+        free = PoseUncertainty(adjustment.pose_covariance, resp,
+                               None if prior is None else prior.coefficient_sigmas(),
+                               None if prior is None else prior.basis)
 
     def budget(offset_sigma_m: float, gain_sigma: float) -> dict:
-        return scale_budget(pts, nrm, poses, z_ref, L, offset_sigma_m, gain_sigma, k_sigma_mm * 1e-3)
+        return scale_budget(pts, nrm, poses, z_ref, L, offset_sigma_m, gain_sigma, k_sigma_mm * 1e-3, poses_free=free)
     return budget

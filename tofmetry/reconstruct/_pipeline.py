@@ -320,7 +320,7 @@ class ReconstructionPipeline:
             v.points[s.object_mask] @ T[:3, :3].T + T[:3, 3] for v, s, T in zip(views, segs, poses)])
         plane_w = world_plane(segs[0].plane, poses[0])
         V, F, N, P, PN, poisson = self.crop_model(V, F, N, P, PN, world_obj, plane_w)
-        W = np.eye(4)
+        W, poses_fit = np.eye(4), poses  # poses_fit: in the frame of the joint fit's increments
         if self.cfg.world_frame == "support" and plane_w is not None:
             W = support_plane_frame(plane_w, world_obj, poses[0])
             poses = np.einsum("ij,vjk->vik", W, poses)
@@ -369,8 +369,8 @@ class ReconstructionPipeline:
                                                                  "forward)", "from_first_camera": W.tolist()})
         diag = {"consistency": graph.consistency, "reliable": bool(verdict["reliable"]), "reliability": verdict,
                 "scale": scale_report(adj_d, pred, z_obj * 1e3,
-                                      scale_budget_of(views, segs, poses, intr, z_obj, self.white_map,
-                                                      rc.amplitude_k_sigma_mm),
+                                      scale_budget_of(views, segs, poses_fit, intr, z_obj, self.white_map,
+                                                      rc.amplitude_k_sigma_mm, adj),
                                       rc.amplitude_k_sigma_mm if self.white_map is not None else None,
                                       rc.scale_floor_pct),
                 "world": world, "slab": slab,

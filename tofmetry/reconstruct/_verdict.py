@@ -427,7 +427,8 @@ def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z
         if out["budget_scale_sigma_pct"] is not None and out["budget_scale_sigma_pct"] > 100 * s:
             out["predicted_scale_sigma_pct"] = out["budget_scale_sigma_pct"]
             out["source"] = src + ", propagated on the model's geometry" + (
-                "" if "amplitude" not in b else " with the amplitude bias's uncertainty")
+                "" if "amplitude" not in b else " with the amplitude bias's uncertainty") + (
+                "" if "sigma_poses_held" not in b else ", and the poses' own uncertainty")
     if floor_pct > 0:
         out["chain_floor_pct"] = float(floor_pct)
         out["predicted_scale_sigma_pct"] = float(np.hypot(out["predicted_scale_sigma_pct"], floor_pct))
