@@ -39,6 +39,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from bench.robustness.family import GATE_DEG, GATE_MM, STATION_SETS, board_captures, calibrate_sensor, draw_case, \
     override
@@ -120,13 +121,18 @@ def drift_case(seed: int, work: Path, errors: str = "all", noise_seed: int | Non
     V = d.object.vertices
     c = V.mean(0)
     axes = np.linalg.svd(V - c, full_matrices=False)[2]
-    disp, rot = [], []
+    disp, rot, tilt, yaw = [], [], [], []
+    up = np.asarray(segs[0].plane[:3], float) if segs[0].plane is not None else None  # the vertical in view 0's frame
     for k in range(len(W)):
         ck = (np.linalg.inv(W[k]) @ np.r_[c, 1.0])[:3]  # object centre in camera k
         P, S = res.poses[k], start[k]
         e = W[0][:3, :3] @ ((P[:3, :3] @ ck + P[:3, 3]) - (S[:3, :3] @ ck + S[:3, 3]))
         disp.append(axes @ e * 1e3)
         rot.append(rotation_angle_deg(P @ np.linalg.inv(S)))
+        if up is not None:  # the rotation error split into the turn about the vertical and the tilt
+            rv = np.degrees(Rotation.from_matrix((P @ np.linalg.inv(S))[:3, :3]).as_rotvec())
+            yaw.append(float(rv @ up))
+            tilt.append(float(np.linalg.norm(rv - (rv @ up) * up)))
     disp = np.array(disp)
     pe = pose_errors(res.poses, W, V)  # as the family judges a run: the whole set aligned on the object
     scale = pose_scale(res.poses, W, V, d.object.triangles)
@@ -137,6 +143,7 @@ def drift_case(seed: int, work: Path, errors: str = "all", noise_seed: int | Non
             "errors": errors, "noise_seed": noise_seed, "stations": stations, "tilt": tilt, "extent_mm": (np.ptp((V - c) @ axes.T, 0) * 1e3).round(1).tolist(),
             "displacement_mm": disp.round(3).tolist(), "rotation_deg": np.round(rot, 4).tolist(),
             "max_mm": round(float(np.linalg.norm(disp, axis=1).max()), 3), "max_deg": round(max(rot), 4),
+            "yaw_deg": np.round(yaw, 4).tolist(), "tilt_deg": np.round(tilt, 4).tolist(),
             "rot_deg": round(float(pe.rot_deg.max()), 4), "object_mm": round(float(pe.object_mm.max()), 3),
             "truly_wrong": bool(pe.rot_deg.max() > GATE_DEG or pe.object_mm.max() > GATE_MM),
             "pose_scale_pct": round(100 * scale[0], 4), "axis_scale_pct": [round(100 * x, 4) for x in scale[1]],
@@ -144,7 +151,7 @@ def drift_case(seed: int, work: Path, errors: str = "all", noise_seed: int | Non
             "range_curve_sigma_data_mm": None if res.range_curve_sigma_data_m is None else
             np.round(np.asarray(res.range_curve_sigma_data_m) * 1e3, 4).tolist(),
             "range_curve_note": getattr(res, "range_curve_note", None),
-            "calibration_pose": res.calibration_pose,
+            "calibration_pose": res.calibration_pose, "support_plane": res.support_plane,
             "image_tilt": res.tilt_report(),
             "seconds": round(time.perf_counter() - t0, 1)}
 

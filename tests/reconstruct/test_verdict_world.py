@@ -274,6 +274,26 @@ def test_a_joint_fit_far_from_the_pairwise_poses_makes_the_run_unreliable():
     assert assess(_names(3), e, {"reasons": [], "loops": []}, adjustment=adj, calibration_prediction={})["reliable"]
 
 
+def test_a_move_the_support_planes_asked_for_is_judged_about_the_vertical_only():
+    """A move of 0.8 deg, 0.2 of it about the vertical, that put the views' support planes within
+    0.05 deg of one plane: the tilt part is the planes' measurement, the rest within the gate (a
+    warning says so). Planes that end apart, or a view off the plane, leave the whole move judged."""
+    e = [_edge("00", "01"), _edge("01", "02"), _edge("00", "02")]
+    planes = {"used": True, "sigma_deg": 0.1, "end": {"n_views": 3, "spread_deg": 0.05, "off_plane": []}}
+    adj = {"moved_deg": {"00": 0.0, "01": 0.3, "02": 0.8}, "moved_turn_deg": {"00": 0.0, "01": 0.1, "02": 0.2},
+           "support_plane": planes, "gain_note": "not asked for"}
+    v = assess(_names(3), e, {"reasons": [], "loops": []}, adjustment=adj, calibration_prediction={})
+    assert v["reliable"] and any("tilted the views onto one support plane" in w for w in v["warnings"]), v
+    adj["moved_turn_deg"]["02"] = 0.6
+    v = assess(_names(3), e, {"reasons": [], "loops": []}, adjustment=adj, calibration_prediction={})
+    assert not v["reliable"] and "0.60 deg of it about the vertical" in v["reasons"][0]
+    adj["moved_turn_deg"]["02"] = 0.2
+    for end in ({"n_views": 3, "spread_deg": 0.25, "off_plane": []}, {"n_views": 2, "spread_deg": 0.05, "off_plane": [2]}):
+        adj["support_plane"] = dict(planes, end=end)
+        v = assess(_names(3), e, {"reasons": [], "loops": []}, adjustment=adj, calibration_prediction={})
+        assert not v["reliable"] and "moved view 02 by 0.80 deg from" in v["reasons"][0]
+
+
 def test_a_loop_with_one_free_yaw_pins_it():
     # a box seen from 8 views: one pair overlaps on the flat top only (yaw free); the other 7 edges
     # fix their yaw, so a wrong yaw on the free one would show in the loop's closure

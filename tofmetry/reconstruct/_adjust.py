@@ -50,6 +50,7 @@ from tofmetry.reconstruct._adjust_sigma import (
     pose_covariance,
     pose_sigmas,
 )
+from tofmetry.reconstruct._adjust_support import moved_about_vertical, support_plane_terms
 from tofmetry.reconstruct._adjust_terms import (
     AdjustView,
     _correlation_with_gain,
@@ -77,7 +78,8 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                   pose_prior_deg: float | None = None, pose_prior_m: float | None = None,
                   depth_field: DepthFieldPrior | None = None, tilt_prior_m: float | None = None,
                   albedo: bool = False, up: np.ndarray | None = None,
-                  prior_poses: np.ndarray | None = None, symmetric_normals: bool = True) -> AdjustResult:
+                  prior_poses: np.ndarray | None = None, symmetric_normals: bool = True,
+                  support_planes: list | None = None, support_sigma: tuple[float, float] | None = None) -> AdjustResult:
     """Jointly refine all poses (view 0 fixed) and, optionally, the depth gain.
 
     Each outer iteration matches every view's ``source`` points (gain-corrected, to world) to
@@ -156,6 +158,10 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         and with every error term it ended beyond the pose gate on 8 of 12 family scans instead of 5.
         Started from the registrations, though, the target's form came out worse on 7 of 17 held-out
         scans and better on 2 (``bench/robustness/README.md``): it stays the option
+    support_planes : per view (4,) its support plane in its camera frame (``n . p + d = 0`` [m]) or
+        None; with ``support_sigma`` ``(deg, m)``, how far one view's plane can sit from the others'
+        (tilt [deg], height [m]), the planes placed by the poses are held to one plane
+        (:mod:`tofmetry.reconstruct._adjust_support`). None: not used
 
     Returns
     -------
@@ -178,6 +184,10 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
     g = 0.0
     asked_gain = estimate_gain
     prior_on = pose_prior_deg is not None and pose_prior_m is not None
+    planes_on = support_planes is not None and support_sigma is not None and len(support_planes) == V
+    plane_info: dict = {"used": False, "note": "not asked for" if support_planes is None else "no planes"}
+    if planes_on:
+        plane_info = {"start": support_plane_terms(poses, support_planes, 1.0, 1.0, 0.0)[2]}
     held_at = poses if prior_poses is None else prior_poses  # where the pose prior holds the views
     centre = (np.concatenate([v.source @ T[:3, :3].T + T[:3, 3] for v, T in zip(views, held_at)]).mean(0)
               if prior_on else None)
@@ -347,6 +357,11 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                                           s2 * sigma_inflation ** 2)
                 H[:len(bp), :len(bp)] += Hp
                 b[:len(bp)] += bp
+            if planes_on:
+                Hs, bs, _ = support_plane_terms(P, support_planes, np.radians(support_sigma[0]),
+                                                         support_sigma[1], s2 * sigma_inflation ** 2)
+                H[:len(bs), :len(bs)] += Hs
+                b[:len(bs)] += bs
             n_all = len(H)
             H += np.eye(n_all) * 1e-12 * np.trace(H) / n_all  # numerical damping only
             H_solve = H
@@ -384,7 +399,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                               gain_prior_sigma, max_normal_deg, tol_deg, tol_m, gain_max_sigma, sigma_inflation,
                               gain_max_abs, systematic_m, curve_degree, curve_prior_m, curve_half_span_m,
                               amplitude_prior_m, pose_prior_deg, pose_prior_m, depth_field, None, albedo, up,
-                              prior_poses, symmetric_normals)
+                              prior_poses, symmetric_normals, support_planes, support_sigma)
         fixed.image_tilt_sigma_data_m = tilt_sd
         fixed.image_tilt_note = ("implausible: the views ask for " + ", ".join(f"{x * 1e3:+.1f}" for x in t_xy)
                                  + f" mm per unit, beyond {TILT_MAX_PRIORS:g} x its prior (+-{tilt_prior_m * 1e3:.1f}): "
@@ -397,7 +412,8 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                               curve_half_span_m=curve_half_span_m, amplitude_prior_m=amplitude_prior_m,
                               pose_prior_deg=pose_prior_deg, pose_prior_m=pose_prior_m, depth_field=depth_field,
                               tilt_prior_m=tilt_prior_m, albedo=albedo, up=up, prior_poses=prior_poses,
-                              symmetric_normals=symmetric_normals)
+                              symmetric_normals=symmetric_normals, support_planes=support_planes,
+                              support_sigma=support_sigma)
         fixed.gain_sigma_data, fixed.gain_sigma_systematic = sigma_data, sigma_sys
         fixed.gain_refused, fixed.gain_max_abs = float(g), float(gain_max_abs)
         if np.isfinite(amp_slope):  # the gain's trade with dk, from this run where the gain was free
@@ -414,6 +430,12 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
     res.final_state = (views, P.copy(), g, z_ref_m, corr, k, estimate_gain, cv(), ampv(), tv(), H_solve, pose_cov,
                        symmetric_normals)
     res.albedo = alb_info
+    if planes_on:
+        plane_info = {"used": True, "sigma_deg": float(support_sigma[0]), "sigma_mm": float(support_sigma[1]) * 1e3,
+                      "start": plane_info["start"],
+                      "end": support_plane_terms(P, support_planes, 1.0, 1.0, 0.0)[2]}
+        res.moved_turn_deg = moved_about_vertical(poses, P, support_planes)
+    res.support_plane = plane_info
     if depth_field is not None:
         res.calibration_pose = calibration_pose(res, depth_field)
     res.image_tilt_m, res.image_tilt_estimated = (t_xy.copy(), True) if tilt_on else (np.zeros(2), False)

@@ -64,6 +64,11 @@ class AdjustResult:
         :class:`~tofmetry.reconstruct._adjust_field.DepthFieldPrior` ``prior``
         (:func:`~tofmetry.reconstruct._adjust.field_pose_response`), or None when not predicted;
         not reported
+    moved_turn_deg : (V,) the part of ``moved_deg`` about the vertical [deg] when the support planes
+        held the views (:func:`~tofmetry.reconstruct._adjust_support.moved_about_vertical`), else None
+    support_plane : the term holding the views' support planes to one plane
+        (:mod:`~tofmetry.reconstruct._adjust_support`): ``used``, ``note`` or its ``sigma_deg``,
+        ``sigma_mm`` and the planes' largest spread from their mean at the ``start`` and the ``end``
     final_state : what :func:`~tofmetry.reconstruct._adjust.calibration_pose` needs of the last
         Gauss-Newton step (views, poses, depth terms, correspondences, the solved normal matrix);
         not reported
@@ -106,6 +111,8 @@ class AdjustResult:
     restart: dict | None = None
     calibration_pose: dict | None = None
     albedo: dict | None = None
+    support_plane: dict | None = None
+    moved_turn_deg: np.ndarray | None = None
     final_state: tuple | None = field(default=None, repr=False, compare=False)
     field_response: tuple | None = field(default=None, repr=False, compare=False)
     image_tilt_m: np.ndarray | None = None
@@ -170,12 +177,14 @@ class AdjustResult:
                 "rms_mm": [round(float(x), 4) for x in self.rms_mm],
                 "moved_deg": {n: round(float(x), 4) for n, x in zip(names, self.moved_deg)},
                 "moved_mm": {n: round(float(x), 3) for n, x in zip(names, self.moved_mm)},
+                "moved_turn_deg": None if self.moved_turn_deg is None else
+                {n: round(float(x), 4) for n, x in zip(names, self.moved_turn_deg)},
                 "pose_sigma_deg": None if self.pose_sigma_deg is None else
                 {n: round(float(x), 5) for n, x in zip(names, self.pose_sigma_deg)},
                 "pose_sigma_mm": None if self.pose_sigma_mm is None else
                 {n: round(float(x), 4) for n, x in zip(names, self.pose_sigma_mm)},
                 "restart": self.restart, "calibration_pose": self.calibration_pose, "image_tilt": self.tilt_report(),
-                "albedo": self.albedo,
+                "albedo": self.albedo, "support_plane": self.support_plane,
                 "pairs": [{"source": names[i], "target": names[j], "n": int(self.pair_counts[i, j]),
                            "rms_mm": round(float(self.pair_rms_mm[i, j]), 3)}
                           for i in range(len(names)) for j in range(len(names)) if self.pair_counts[i, j] > 0]}

@@ -145,7 +145,10 @@ def joint_adjustment(views, segs, regs: list[RegView], poses: np.ndarray, cfg: R
                              amplitude_prior_m=None if amplitude_prior_mm is None else amplitude_prior_mm * 1e-3,
                              pose_prior_deg=prior_deg, pose_prior_m=None if prior_mm is None else prior_mm * 1e-3,
                              tilt_prior_m=tilt_prior, albedo=albedo, up=up, prior_poses=poses,
-                             symmetric_normals=rc.adjust_symmetric_normals)
+                             symmetric_normals=rc.adjust_symmetric_normals,
+                             support_planes=[sg.plane for sg in segs] if rc.support_plane_deg is not None else None,
+                             support_sigma=None if rc.support_plane_deg is None else (rc.support_plane_deg,
+                                                                                      rc.support_plane_mm * 1e-3))
 
     with progress("global adjustment", None):
         try:

@@ -284,10 +284,19 @@ def _judge_move(adjustment: dict, names: list[str], pose_gate_deg: float, pose_g
     if not moved:
         return
     rs = adjustment.get("restart")
-    worst = max(moved, key=moved.get)
+    judged, held = _move_judged(adjustment)
+    worst = max(judged, key=judged.get)
     gate = pose_gate_deg if move_gate_deg is None else move_gate_deg
-    beyond = moved[worst] > gate
-    move = f"the global adjustment moved view {worst} by {moved[worst]:.2f} deg from where {placed_by} put it"
+    beyond = judged[worst] > gate
+    tilt_part = "" if not held else (
+        f" ({judged[worst]:.2f} deg of it about the vertical; the rest, its tilt, is what the views' support planes "
+        f"asked for, within {held['spread_deg']:.2f} deg of one plane at the end)")
+    move = f"the global adjustment moved view {worst} by {moved[worst]:.2f} deg{tilt_part} from where {placed_by} put it"
+    if held and not beyond and max(moved.values()) > gate:
+        w = max(moved, key=moved.get)
+        warnings.append(f"the global adjustment moved view {w} by {moved[w]:.2f} deg from where {placed_by} put it, "
+                        f"{judged[w]:.2f} deg of it about the vertical: the rest tilted the views onto one support "
+                        f"plane (within {held['spread_deg']:.2f} deg at the end): the pose graph's tilts had been off")
     if rs and came_back(rs, pose_gate_deg, pose_gate_mm, share) and not came_back(rs, pose_gate_deg, pose_gate_mm, 0.5):
         warnings.append(f"restarted {rs['start_deg']:.2f} deg away on the far side, the joint fit ended {rs['deg']:.2f} "
                         f"deg / {rs['mm']:.1f} mm at the object from its solution, within the pose gate but beyond half "
@@ -323,6 +332,22 @@ def _judge_move(adjustment: dict, names: list[str], pose_gate_deg: float, pose_g
         reasons.append(f"{move} (limit {gate:g} deg): the pairs and the joint fit of all views "
                        "disagree by more than the poses must hold, so one of them is off (a smooth or symmetric "
                        "object sliding, or a depth-calibration residual)")
+
+
+def _move_judged(adjustment: dict) -> tuple[dict, dict | None]:
+    """The views' moves the verdict judges: their whole rotation, or, where the support planes held
+    the views (:mod:`~tofmetry.reconstruct._adjust_support`) and end on one plane (every view's within
+    twice the term's allowance, none off the plane), only the part about the vertical, the tilt part
+    being measured by the planes themselves. Returns ``(moves by view name [deg], the planes' end
+    state or None)``."""
+    moved = adjustment.get("moved_deg") or {}
+    turn = adjustment.get("moved_turn_deg")
+    sp = adjustment.get("support_plane") or {}
+    end = sp.get("end") or {}
+    if (turn and sp.get("used") and not end.get("off_plane") and end.get("n_views", 0) == len(moved)
+            and end.get("spread_deg", np.inf) <= 2 * sp.get("sigma_deg", 0.0)):
+        return turn, end
+    return moved, None
 
 
 def _loop_pinning_yaw(edge: dict, loops: list[dict], free: set, pose_gate_deg: float,
