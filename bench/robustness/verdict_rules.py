@@ -11,12 +11,12 @@ truly wrong (beyond 0.5 deg or 3 mm), the misses and the worst of them, the shar
 The rules replayed: the verdict as it ran; only its structural reasons (the registration's ambiguity, yaw-free edges,
 views left out, a contradicting or lone edge, a thin slab), dropping the metric ones (the joint fit's move, a kept
 edge that disagrees, loops that do not close); and the structural reasons with a restart that ends more than a
-threshold from the solution. Measured 2026-11-30 (draws 25-40 / 41-48): the verdict as it ran flags 154 / 100 runs,
-53 / 59 % truly wrong, 5 / 4 missed; structural only 66 / 65 % but 30 / 23 missed, among them a plaque 180 deg off;
-structural or a restart beyond 0.4 deg 67 / 68 %, 11 / 11 missed (the same plaque). No rule of these reaches the
-issue's 90 % without missing several times more runs. (A gradient-boosted classifier on 23 of the rows' numbers,
-trained on draws 25-40, gave 0.81 on draws 41-48 with 16 of 63 wrong runs missed; scikit-learn in a throw-away
-environment, not a dependency.)
+threshold from the solution. Measured 2026-11-30 on the rows as drawn (draws 25-40 / 41-49, 284 / 180 runs): the
+verdict as it ran flags 129 / 83 runs, 50 / 63 % of them truly wrong, 4 / 3 missed; structural reasons only 60 / 69 %,
+but 26 / 21 missed, among them a plaque 180 deg off; structural or a restart beyond 0.4 deg 62 / 72 %, 10 / 12 missed
+(the same plaque). No rule of these reaches the issue's 90 % without missing several times more runs. (A
+gradient-boosted classifier on 23 of the rows' numbers, draws 25-40 with their along-the-plan rows, gave 0.81 on draws
+41-48 with 16 of 63 wrong runs missed; scikit-learn in a throw-away environment, not a dependency.)
 """
 
 from __future__ import annotations
