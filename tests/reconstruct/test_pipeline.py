@@ -118,6 +118,7 @@ def test_end_to_end_full_errors(tmp_path):
     out = " ".join(r.output.split())  # rich wraps long lines
     assert "predicted pose accuracy from the depth calibration's residual (with a depth gain of +-" in out, out
     assert "between its stations) and the views' noise: worst view" in out, out
+    assert "support planes: 8 views held to one plane" in out and ", poses +-" in out, out
     budget = read_json(tmp_path / "rec" / "poses.json")["diagnostics"]["scale"]["budget"]
     assert {"noise", "field"} <= budget["poses"].keys() and budget["sigma"] >= budget["sigma_poses_held"], budget
     poses = np.array([v["camera_to_world"] for v in read_json(tmp_path / "rec" / "poses.json")["views"]])

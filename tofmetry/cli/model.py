@@ -172,6 +172,14 @@ def reconstruct(
         if (adj.get("albedo") or {}).get("used"):
             console.print(f"IR albedo: held the rotation about the vertical the geometry leaves free "
                           f"({adj['albedo']['n']} residuals, scale {adj['albedo']['scale']:.3f})")
+        sp = adj.get("support_plane") or {}
+        if sp.get("used"):
+            st, en = sp["start"], sp["end"]
+            off = f"; view(s) {', '.join(map(str, en['off_plane']))} off the others' plane, left out" \
+                if en.get("off_plane") else ""
+            console.print(f"support planes: {en['n_views']} views held to one plane (+-{sp['sigma_deg']:g} deg, "
+                          f"+-{sp['sigma_mm']:g} mm each); spread {st.get('spread_deg', 0):.2f} -> "
+                          f"{en.get('spread_deg', 0):.2f} deg{off}")
         amp = adj.get("amplitude_bias") or {}
         if amp.get("k_mm_per_ln") is not None:
             console.print(f"amplitude bias: k = {amp['k_mm_per_ln']:.2f} mm per ln unit ({amp['note']})")
@@ -180,7 +188,7 @@ def reconstruct(
         console.print(f"scale: predicted uncertainty +-{sc['predicted_scale_sigma_pct']:.2f} % (1 sigma), surface offset "
                       f"+-{sc['predicted_offset_sigma_mm']:.2f} mm ({sc['source']})")
         b = sc.get("budget") or {}
-        terms = [(k, b[k]["sigma"]) for k in ("offset", "gain", "amplitude") if isinstance(b.get(k), dict)]
+        terms = [(k, b[k]["sigma"]) for k in ("offset", "gain", "amplitude", "poses") if isinstance(b.get(k), dict)]
         if terms and all(math.isfinite(v) for _, v in terms):
             console.print("  on the model's geometry: " + ", ".join(f"{k} +-{100 * v:.3f} %" for k, v in terms)
                           + f"; the closed-form rule +-{sc['rule_scale_sigma_pct']:.3f} %")
