@@ -70,6 +70,11 @@ def fit_plane_svd(points: np.ndarray, orient: np.ndarray | None = None) -> np.nd
     return np.r_[n, -n @ c]
 
 
+def skew(v: np.ndarray) -> np.ndarray:
+    """(3, 3) cross-product matrix of ``v`` (3,): ``skew(v) @ x == np.cross(v, x)``."""
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
 def transform_points(points: np.ndarray, T: np.ndarray) -> np.ndarray:
     """(N, 3) points carried by the (4, 4) rigid transform ``T`` (``p' = R p + t``, same unit as ``t``)."""
     return np.asarray(points) @ T[:3, :3].T + T[:3, 3]

@@ -50,7 +50,7 @@ from tofmetry.reconstruct._adjust_sigma import (
     pose_covariance,
     pose_sigmas,
 )
-from tofmetry.reconstruct._adjust_support import moved_about_vertical, support_plane_terms
+from tofmetry.reconstruct._adjust_support import moved_about_vertical, plane_spread, support_plane_terms
 from tofmetry.reconstruct._adjust_terms import (
     AdjustView,
     _correlation_with_gain,
@@ -187,7 +187,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
     planes_on = support_planes is not None and support_sigma is not None and len(support_planes) == V
     plane_info: dict = {"used": False, "note": "not asked for" if support_planes is None else "no planes"}
     if planes_on:
-        plane_info = {"start": support_plane_terms(poses, support_planes, 1.0, 1.0, 0.0)[2]}
+        plane_info = {"start": plane_spread(poses, support_planes)}
     held_at = poses if prior_poses is None else prior_poses  # where the pose prior holds the views
     centre = (np.concatenate([v.source @ T[:3, :3].T + T[:3, 3] for v, T in zip(views, held_at)]).mean(0)
               if prior_on else None)
@@ -358,8 +358,8 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                 H[:len(bp), :len(bp)] += Hp
                 b[:len(bp)] += bp
             if planes_on:
-                Hs, bs, _ = support_plane_terms(P, support_planes, np.radians(support_sigma[0]),
-                                                         support_sigma[1], s2 * sigma_inflation ** 2)
+                Hs, bs, _ = support_plane_terms(P, support_planes, np.radians(support_sigma[0]), support_sigma[1],
+                                                s2 * sigma_inflation ** 2)
                 H[:len(bs), :len(bs)] += Hs
                 b[:len(bs)] += bs
             n_all = len(H)
@@ -433,7 +433,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
     if planes_on:
         plane_info = {"used": True, "sigma_deg": float(support_sigma[0]), "sigma_mm": float(support_sigma[1]) * 1e3,
                       "start": plane_info["start"],
-                      "end": support_plane_terms(P, support_planes, 1.0, 1.0, 0.0)[2]}
+                      "end": plane_spread(P, support_planes)}
         res.moved_turn_deg = moved_about_vertical(poses, P, support_planes)
     res.support_plane = plane_info
     if depth_field is not None:

@@ -21,9 +21,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-
-def _skew(c: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -c[2], c[1]], [c[2], 0.0, -c[0]], [-c[1], c[0], 0.0]])
+from tofmetry._shared.geometry import skew
 
 
 def pose_prior_terms(P: np.ndarray, P0: np.ndarray, centre_m: np.ndarray, sigma_rad: float, sigma_m: float,
@@ -49,7 +47,7 @@ def pose_prior_terms(P: np.ndarray, P0: np.ndarray, centre_m: np.ndarray, sigma_
     H = np.zeros((6 * (V - 1), 6 * (V - 1)))
     b = np.zeros(6 * (V - 1))
     c = np.asarray(centre_m, np.float64)
-    Jc = np.hstack([-_skew(c), np.eye(3)])  # d(E c) / d(left increment (w, t)) at E ~ I
+    Jc = np.hstack([-skew(c), np.eye(3)])  # d(E c) / d(left increment (w, t)) at E ~ I
     Jr = np.hstack([np.eye(3), np.zeros((3, 3))])
     wr, wc = weight / sigma_rad ** 2, weight / sigma_m ** 2
     Hv = wr * Jr.T @ Jr + wc * Jc.T @ Jc

@@ -33,6 +33,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from tofmetry._shared.geometry import skew
+
 #: a view whose support plane lies farther than this from the others' [deg] is left out of the term
 OFF_PLANE_DEG = 20.0
 
@@ -104,22 +106,18 @@ def support_plane_terms(poses: np.ndarray, planes_cam: list[np.ndarray | None], 
     V = len(poses)
     H = np.zeros((6 * (V - 1), 6 * (V - 1)))
     b = np.zeros(6 * (V - 1))
-    idx, n, d = world_planes(poses, planes_cam)
-    if len(idx) >= 2:
-        m, agree = common_normal(n)
-        off = [int(v) for v in idx[~agree]]
-        idx, n, d = idx[agree], n[agree], d[agree]
+    idx, n, d, m, info = _one_plane(poses, planes_cam)
     K = len(idx)
     if K < 2:
-        return H, b, {"n_views": int(K)}
+        return H, b, info
     T = np.linalg.svd(m[None], full_matrices=True)[2][1:]  # (2, 3) across the common normal
     w_rot, w_off = weight / (K * sigma_rad ** 2), weight / (K * sigma_m ** 2)
     for a in range(K):
         for c in range(a + 1, K):
             va, vc = int(idx[a]), int(idx[c])
             J = np.zeros((3, 12))  # rows: 2 tilts, height; columns: (w, dt) of va, then of vc
-            J[:2, 0:3] = -T @ _skew(n[a])  # d(w x n) / dw = -[n]x
-            J[:2, 6:9] = T @ _skew(n[c])
+            J[:2, 0:3] = -T @ skew(n[a])  # d(w x n) / dw = -[n]x
+            J[:2, 6:9] = T @ skew(n[c])
             J[2, 3:6] = -n[a]
             J[2, 9:12] = n[c]
             r = np.r_[T @ (n[a] - n[c]), d[a] - d[c]]
@@ -131,13 +129,29 @@ def support_plane_terms(poses: np.ndarray, planes_cam: list[np.ndarray | None], 
             cc = cols[keep]
             H[np.ix_(cc, cc)] += JW.T @ J[:, keep]
             b[cc] += JW.T @ r
+    return H, b, info
+
+
+def plane_spread(poses: np.ndarray, planes_cam: list[np.ndarray | None]) -> dict:
+    """How far the views' support planes, placed by ``poses``, lie from one plane: the ``info`` of
+    :func:`support_plane_terms` without its terms."""
+    return _one_plane(poses, planes_cam)[-1]
+
+
+def _one_plane(poses: np.ndarray, planes_cam: list[np.ndarray | None]):
+    """The views' world planes that agree with the common one (:func:`common_normal`):
+    ``(views, normals, heights, common normal or None, info)``, ``info`` as :func:`support_plane_terms` gives it."""
+    idx, n, d = world_planes(poses, planes_cam)
+    if len(idx) < 2:
+        return idx, n, d, None, {"n_views": int(len(idx))}
+    m, agree = common_normal(n)
+    off = [int(v) for v in idx[~agree]]
+    idx, n, d = idx[agree], n[agree], d[agree]
+    if len(idx) < 2:
+        return idx, n, d, m, {"n_views": int(len(idx))}
     ang = np.degrees(np.arccos(np.clip(n @ m, -1.0, 1.0)))
-    return H, b, {"n_views": int(K), "spread_deg": round(float(ang.max()), 4),
-                  "spread_mm": round(float(np.abs(d - d.mean()).max()) * 1e3, 3), "off_plane": off}
-
-
-def _skew(x: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -x[2], x[1]], [x[2], 0.0, -x[0]], [-x[1], x[0], 0.0]])
+    return idx, n, d, m, {"n_views": int(len(idx)), "spread_deg": round(float(ang.max()), 4),
+                          "spread_mm": round(float(np.abs(d - d.mean()).max()) * 1e3, 3), "off_plane": off}
 
 
 def moved_about_vertical(start: np.ndarray, end: np.ndarray, planes_cam: list[np.ndarray | None]) -> np.ndarray | None:

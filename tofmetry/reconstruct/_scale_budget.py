@@ -126,11 +126,14 @@ def pose_scale_response(points_w: np.ndarray, normals_w: np.ndarray, view: np.nd
     offset are not separable on this shape
     """
     rows, _ = _scale_rows(points_w, normals_w)
-    if rows is None:
-        return None
+    return None if rows is None else _pose_rows(points_w, normals_w, rows[0], view, n_views)
+
+
+def _pose_rows(points_w, normals_w, scale_row: np.ndarray, view, n_views: int) -> np.ndarray:
+    """:func:`pose_scale_response` from the scale fit's row (:func:`_scale_rows`)."""
     p, n = np.asarray(points_w, np.float64), np.asarray(normals_w, np.float64)
     a = np.zeros((n_views, 6))
-    np.add.at(a, np.asarray(view), np.c_[np.cross(p, n), n] * rows[0][:, None])
+    np.add.at(a, np.asarray(view), np.c_[np.cross(p, n), n] * scale_row[:, None])
     return a[1:].ravel()
 
 
@@ -175,19 +178,20 @@ def scale_budget(points_cam: list[np.ndarray], normals_cam: list[np.ndarray], po
     Pw = np.einsum("nij,nj->ni", R, P) + t
     Nw = np.einsum("nij,nj->ni", R, N)
     z = P[:, 2]
-    ray = P / z[:, None]  # move per metre of depth along the ray (camera frame)
+    # a depth error delta moves a point along its ray by P delta / z: along the normal by (N . P / z) delta
+    along = np.einsum("ij,ij->i", N, P) / z
+    rows, corr = _scale_rows(Pw, Nw)  # the scale fit, once for every term (linear in the moves)
 
     def response(delta: np.ndarray) -> tuple[float, float]:
-        s, _, c = scale_response(Pw, Nw, np.einsum("nij,nj->ni", R, ray * delta[:, None]))
-        return s, c
+        return (float("nan") if rows is None else float(rows[0] @ (along * delta))), corr
 
     out: dict = {"n_points": int(len(P))}
     terms = [("offset", np.ones(len(P)), offset_sigma_m), ("gain", z - z_ref_m, gain_sigma)]
     if log_ratio is not None and k_sigma_m is not None:
         terms.append(("amplitude", np.concatenate(log_ratio)[take], k_sigma_m))
-    var, corr = 0.0, float("nan")
+    var = 0.0
     for name, delta, sigma in terms:
-        r, corr = response(np.asarray(delta, np.float64))
+        r, _ = response(np.asarray(delta, np.float64))
         sd = abs(r) * float(sigma)
         out[name] = {"response": r, "sigma": sd, "input_sigma": float(sigma)}
         var += sd ** 2
@@ -195,7 +199,8 @@ def scale_budget(points_cam: list[np.ndarray], normals_cam: list[np.ndarray], po
     out["correlation"] = corr
     if poses_free is not None:  # the poses' own uncertainty, independent of the terms above but for
         # the field's direct moves, whose correlation with the moves of the poses it causes is left out
-        out["poses"] = _pose_term(Pw, Nw, view, len(poses), P, R, ray, poses_free, response)
+        out["poses"] = _pose_term(None if rows is None else _pose_rows(Pw, Nw, rows[0], view, len(poses)), P,
+                                  poses_free, response)
         if np.isfinite(out["poses"]["sigma"]):
             out["sigma_poses_held"] = out["sigma"]
             out["sigma"] = float(np.hypot(out["sigma"], out["poses"]["sigma"]))
@@ -204,11 +209,12 @@ def scale_budget(points_cam: list[np.ndarray], normals_cam: list[np.ndarray], po
     return out
 
 
-def _pose_term(Pw, Nw, view, V, P, R, ray, free: PoseUncertainty, response) -> dict:
+def _pose_term(a: np.ndarray | None, P: np.ndarray, free: PoseUncertainty, response) -> dict:
     """The scale the poses carry: their noise (``noise``) and how the calibration's residual field
     moves them (``field``), each a relative standard deviation; ``field_total`` adds the field's
-    direct moves of the points along their rays, term by term (the poses free, not held)."""
-    a = pose_scale_response(Pw, Nw, view, V)
+    direct moves of the points along their rays, term by term (the poses free, not held). ``a``:
+    :func:`pose_scale_response` (None: not separable); ``P``: the camera-frame points; ``response``:
+    a depth-error pattern's scale, poses held."""
     if a is None:
         return {"sigma": float("nan"), "note": "scale and offset not separable on this shape"}
     out: dict = {}
