@@ -204,6 +204,25 @@ class RegistrationConfig(BaseModel):
                                                 "matched 68 %, the implied pose 99 %; a smooth pebble's 24.6 deg wrong "
                                                 "pair 94.7 %, the implied pose 98.0 %). Four times the fitness noise a "
                                                 "yaw hop stands on (0.005); it was 0.05 until 2026-11-30. None: off")
+    pattern_search: bool = Field(True, description="where the scan shows a pattern in the IR amplitude (an accepted "
+                                 "edge lines it up, pattern_seen_corr), search each edge none of whose hypotheses comes "
+                                 "within pattern_search_drop of the best edge's agreement again: the yaw about the "
+                                 "support normal swept over the whole turn, scored by the pattern; the pose found "
+                                 "becomes the edge's first hypothesis (tofmetry.reconstruct._pattern_search: a painted "
+                                 "box turned by its symmetry lined the pattern up at -0.07-0.15, its right edges at "
+                                 "0.75-0.86); not with a declared turntable; needs IR frames")
+    pattern_seen_corr: float = Field(0.6, ge=-1, le=1, description="an accepted edge whose matched points' albedos "
+                                     "correlate this much shows the scan carries a pattern (noise: below 0.1 at 200 "
+                                     "matches)")
+    pattern_search_drop: float = Field(0.3, ge=0, le=2, description="an edge is searched again where its best "
+                                       "hypothesis lines the pattern up worse than the scan's best edge by this (a "
+                                       "painted dome's half-turned pairs: 0.36-0.52 against 0.94)")
+    pattern_min_corr: float = Field(0.5, ge=-1, le=1, description="the pattern's pose must line it up at least this much")
+    pattern_min_fitness: float = Field(0.15, ge=0, le=1, description="... and match this share of the object points "
+                                       "(below min_fitness: two views far apart on a box share one face, 0.15-0.25 of "
+                                       "the points, where the pose turned by the symmetry matches all)")
+    pattern_search_step_deg: float = Field(5.0, gt=0, le=90, description="yaw step of that search [deg] (the "
+                                           "pattern's peak is about 5 deg wide on 30-40 mm blobs at 0.7-1 m)")
     global_adjust: bool = Field(True, description="after the pose graph, refine all poses jointly: every view's points "
                                 "against every other view's surface (multi-view point-to-plane, Huber), view 0 fixed")
     adjust_radii_mm: tuple[float, ...] = Field((6.0, 3.0), description="correspondence radii of the global adjustment [mm]")

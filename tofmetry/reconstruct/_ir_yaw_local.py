@@ -53,7 +53,7 @@ def plane_yaw_icp(a: np.ndarray, b: np.ndarray, bn: np.ndarray, tree: cKDTree, y
         c, s = np.cos(yaw), np.sin(yaw)
         p = a @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]).T
         p[:, :2] += shift
-        d, idx = tree.query(p, distance_upper_bound=radius_m, workers=-1)
+        d, idx = tree.query(p, distance_upper_bound=radius_m)  # one thread: a few thousand points, called often
         ok = np.isfinite(d)
         n_ok = int(ok.sum())
         if n_ok < 30:

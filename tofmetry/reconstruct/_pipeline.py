@@ -27,6 +27,7 @@ from tofmetry.reconstruct._model_build import (
     object_depth_span_mm,
     world_plane,
 )
+from tofmetry.reconstruct._pattern_search import search_by_pattern
 from tofmetry.reconstruct._posegraph import PoseGraphBuilder
 from tofmetry.reconstruct._preprocess import ViewData, prepare_view
 from tofmetry.reconstruct._register import register_pair, rejection_reason
@@ -110,6 +111,7 @@ class ReconstructionPipeline:
         self.left_out: dict[str, str] = {}
         self.other_edges: list[dict] = []
         self.turntable: dict | None = None  # the declared turntable's axis fit and bridges (turntable_bridges)
+        self.pattern: dict | None = None  # the edges searched again by the IR pattern (search_by_pattern)
 
     # -- stages -----------------------------------------------------------------------------
     def _intrinsics(self, cap):
@@ -190,6 +192,10 @@ class ReconstructionPipeline:
                         if 0 <= a < b < n and (a, b) not in done:
                             pg.add(register_pair(regs[a], regs[b], a, b, rc))
                             done.add((a, b))
+                adv()
+        if rc.pattern_search and rc.turntable_step_deg is None:  # a declared turntable's turns place the views
+            with self.progress("edges the IR pattern contradicts", 1) as adv:
+                pg.pairs, self.pattern = search_by_pattern(pg.pairs, regs, rc, names)
                 adv()
         if rc.turntable_step_deg is not None:
             bridges, self.turntable = turntable_bridges(regs, pg.pairs, succ, rc)
@@ -375,7 +381,7 @@ class ReconstructionPipeline:
                                       rc.scale_floor_pct),
                 "world": world, "slab": slab,
                 "views": {v.name: v.stats for v in views}, "fusion": fusion_info, "timings_s": self.timings,
-                "adjustment": adj_d, "left_out": self.left_out, "color": colour_diag, "turntable": self.turntable,
+                "adjustment": adj_d, "left_out": self.left_out, "color": colour_diag, "turntable": self.turntable, "pattern": self.pattern,
                 "calibrated": self.cal is not None, "amplitude_corrected": self.white_map is not None, "intrinsics": intr.to_dict(),
                 "calibration_local": (self.prediction_at_object or {}).get("local"),
                 "working_range_mm": self.working_range_mm(), "config": self.cfg.model_dump()}

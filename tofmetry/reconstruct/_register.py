@@ -228,7 +228,7 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
         ok = passes_gates(fit, rmse, cfg) and v <= cfg.max_see_through and allowed(T)
         if out and not (ok and plane_consistent(src, tgt, T)):
             continue
-        out.append(_pair_result(src, tgt, i, j, T, fit, rmse, v, method, ok, r_final))
+        out.append(pair_result(src, tgt, i, j, T, fit, rmse, v, method, ok, r_final))
     best = out[0]
     if best.accepted:
         best, out = _hopped(src, tgt, best, out, cfg, vis, allowed, r_final)
@@ -250,7 +250,7 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
         if (c1 is not None and c1 >= cfg.ir_icp_min_corr and c1 - c0 >= cfg.ir_icp_min_gain
                 and fit >= best.fitness - 0.005 and passes_gates(fit, rmse, cfg) and v <= cfg.max_see_through
                 and plane_consistent(src, tgt, T) and allowed(T)):
-            best = _pair_result(src, tgt, i, j, T, fit, rmse, v, best.method + "+ir-icp", True, r_final, ir_corr=c1)
+            best = pair_result(src, tgt, i, j, T, fit, rmse, v, best.method + "+ir-icp", True, r_final, ir_corr=c1)
             out = [best] + out[1:]
     if cfg.ir_yaw and leaves_yaw_free(best.conditioning, cfg.yaw_free_ratio) and src.obj_ir is not None and tgt.icp_ir is not None:
         # the geometry leaves the yaw free: let the painted pattern (IR amplitude) choose it
@@ -288,7 +288,7 @@ def _hopped(src: RegView, tgt: RegView, best: PairResult, out: list[PairResult],
     v = vis(T)
     if not (passes_gates(fit, rmse, cfg) and v <= cfg.max_see_through and plane_consistent(src, tgt, T) and allowed(T)):
         return best, out
-    hopped = _pair_result(src, tgt, best.source, best.target, T, fit, rmse, v, best.method + "+hop", True, r_final)
+    hopped = pair_result(src, tgt, best.source, best.target, T, fit, rmse, v, best.method + "+hop", True, r_final)
     return hopped, [hopped] + [a for a in out[1:] if not _same_pose(a.transform, T)]
 
 
@@ -303,7 +303,7 @@ def _ir_local_yaw(src: RegView, tgt: RegView, best: PairResult, out: list[PairRe
     v = vis(T)
     if v > cfg.max_see_through or not plane_consistent(src, tgt, T) or not allowed(T):
         return best, out
-    chosen = _pair_result(src, tgt, best.source, best.target, T, fit, rmse, v, best.method + "+ir-yaw-sweep", True,
+    chosen = pair_result(src, tgt, best.source, best.target, T, fit, rmse, v, best.method + "+ir-yaw-sweep", True,
                           r_final, ir_corr=c)
     return chosen, [chosen] + [a for a in out if not _same_pose(a.transform, T)]
 
@@ -325,10 +325,10 @@ def _ir_turned(src: RegView, tgt: RegView, i: int, j: int, T0: np.ndarray, cfg: 
             T, fit, rmse, c = Tp, fit_p, rmse_p, cp
     v = vis(T)
     ok = passes_gates(fit, rmse, cfg) and v <= cfg.max_see_through
-    return _pair_result(src, tgt, i, j, T, fit, rmse, v, method, ok, r_final, ir_yaw=sweep, ir_corr=c)
+    return pair_result(src, tgt, i, j, T, fit, rmse, v, method, ok, r_final, ir_yaw=sweep, ir_corr=c)
 
 
-def _pair_result(src: RegView, tgt: RegView, i: int, j: int, T: np.ndarray, fit: float, rmse_m: float, v: float,
+def pair_result(src: RegView, tgt: RegView, i: int, j: int, T: np.ndarray, fit: float, rmse_m: float, v: float,
                  method: str, ok: bool, radius_m: float, **extra) -> PairResult:
     """A scored hypothesis (fitness, RMSE [m], see-through share ``v``) with its information matrix and
     conditioning at the final ICP radius ``radius_m``."""

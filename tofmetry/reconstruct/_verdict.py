@@ -54,6 +54,7 @@ from tofmetry.reconstruct._calibration_support import (
     station_spacing_mm,
 )
 from tofmetry.reconstruct._loops import bridges
+from tofmetry.reconstruct._pattern_search import METHOD as PATTERN_METHOD
 from tofmetry.reconstruct._regview import leaves_yaw_free
 
 
@@ -128,6 +129,13 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
             e["reason"] = ("no registration of these views passed the gates; the declared turntable step links them, "
                            f"as accurately as the turntable turns (+/- {turntable_accuracy_deg:g} deg)")
             stepped.append(f"{e['source']}->{e['target']}")
+            continue
+        if e.get("method", "").startswith(PATTERN_METHOD):
+            e["verdict"] = "verified by IR" if k not in br else "unverified"
+            e["reason"] = (f"the IR albedo pattern placed it (correlation {e.get('ir_corr', float('nan')):.2f} over the "
+                           "whole turn about the vertical): the geometry's own hypotheses left the pattern unmatched (a "
+                           "pose turned by the object's symmetry)" + ("" if k not in br else "; no loop goes through "
+                                                                      "this edge"))
             continue
         yr = (e.get("conditioning") or {}).get("yaw_ratio")
         free_e = leaves_yaw_free(e.get("conditioning"), yaw_free_ratio)
