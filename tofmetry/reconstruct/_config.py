@@ -218,6 +218,10 @@ class RegistrationConfig(BaseModel):
                                        "hypothesis lines the pattern up worse than the scan's best edge by this (a "
                                        "painted dome's half-turned pairs: 0.36-0.52 against 0.94)")
     pattern_min_corr: float = Field(0.5, ge=-1, le=1, description="the pattern's pose must line it up at least this much")
+    pattern_gain: float = Field(0.2, ge=0, le=2, description="... and line it up better than the edge's own best "
+                                "hypothesis by this (the selection's IR veto margin): otherwise the geometry's poses "
+                                "stand (the sweep holds the tilt to the support planes and finds the yaw to about a "
+                                "degree; a right geometric pose is finer)")
     pattern_min_fitness: float = Field(0.15, ge=0, le=1, description="... and match this share of the object points "
                                        "(below min_fitness: two views far apart on a box share one face, 0.15-0.25 of "
                                        "the points, where the pose turned by the symmetry matches all)")

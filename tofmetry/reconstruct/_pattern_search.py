@@ -20,7 +20,9 @@ turned one (measured on a painted dome: from a seed 4 deg off, the photometric I
 off; the geometric search reached the right pose from none of its seeds).
 
 The pose found becomes the edge's first hypothesis, its geometric ones alternatives, where it lines
-the pattern up (``pattern_min_corr``) and passes the free-space test and the RMSE gate. Its
+the pattern up (``pattern_min_corr``), better than the edge's own best hypothesis by ``pattern_gain``
+(else the geometry's poses stand: the sweep holds the tilt to the support planes and finds the yaw to
+about a degree, a right geometric pose is finer), and passes the free-space test and the RMSE gate. Its
 fitness gate is ``pattern_min_fitness``, below the geometric one: two views far apart on a box
 share one face, and the right pose matches a small share of the points (measured: 0.15-0.25 for
 views 55-93 deg apart), where the pose turned by the symmetry matches all of them; the pattern on
@@ -172,7 +174,8 @@ def search_by_pattern(pairs: list[PairResult], regs: list[RegView], cfg: Registr
         tag = f"{names[p.source]}->{names[p.target]}"
         report["searched"].append(tag)
         h = pattern_hypothesis(regs[p.source], regs[p.target], p.source, p.target, cfg)
-        if h is None:
+        if h is None or h.ir_corr - best_ir(p) < cfg.pattern_gain:
+            # nothing lines the pattern up clearly better than the geometry's own poses: they stand
             out.append(p)
             continue
         report["found"][tag] = [round(float(h.ir_corr), 3), round(float(h.fitness), 3)]
