@@ -75,6 +75,15 @@ def plane_yaw_icp(a: np.ndarray, b: np.ndarray, bn: np.ndarray, tree: cKDTree, y
     return yaw, shift, n_ok
 
 
+def in_plane_frames(src, tgt, sp: np.ndarray, tp: np.ndarray, tn: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Two views' support-plane frames (:func:`~tofmetry.reconstruct._icp_stages.plane_frame`: z up,
+    origin under the object's centroid) and, in them, the source points ``sp``, the target points
+    ``tp`` and their normals ``tn`` ((N, 3) each, camera frames [m]). Returns ``(Fs, Ft, a, b, bn)``."""
+    Fs, Ft = plane_frame(src.plane, src.obj_points), plane_frame(tgt.plane, tgt.obj_points)
+    iFs, iFt = np.linalg.inv(Fs), np.linalg.inv(Ft)
+    return Fs, Ft, sp @ iFs[:3, :3].T + iFs[:3, 3], tp @ iFt[:3, :3].T + iFt[:3, 3], tn @ iFt[:3, :3].T
+
+
 def yaw_sweep_near(src, tgt, T: np.ndarray, half_width_deg: float, step_deg: float,
                    radii_m: tuple[float, ...]) -> list[tuple[float, np.ndarray]]:
     """The yaw of ``T`` about the support normal swept over ``+-half_width_deg`` in ``step_deg``
@@ -86,13 +95,10 @@ def yaw_sweep_near(src, tgt, T: np.ndarray, half_width_deg: float, step_deg: flo
     planes or mid clouds; a side of the sweep ends where too few points match."""
     if src.plane is None or tgt.plane is None or src.mid_points is None or tgt.mid_points is None:
         return []
-    Fs, Ft = plane_frame(src.plane, src.obj_points), plane_frame(tgt.plane, tgt.obj_points)
-    iFs, iFt = np.linalg.inv(Fs), np.linalg.inv(Ft)
-    a = src.mid_points @ iFs[:3, :3].T + iFs[:3, 3]
-    b = tgt.mid_points @ iFt[:3, :3].T + iFt[:3, 3]
-    bn = tgt.mid_normals @ iFt[:3, :3].T
+    Fs, Ft, a, b, bn = in_plane_frames(src, tgt, src.mid_points, tgt.mid_points, tgt.mid_normals)
+    iFs = np.linalg.inv(Fs)
     tree = cKDTree(b)
-    M = iFt @ T @ Fs
+    M = np.linalg.inv(Ft) @ T @ Fs
     yaw0 = float(np.arctan2(M[1, 0], M[0, 0]))
     c = np.mean(b[:, :2], axis=0)  # the target object's centre: turned about it, it stays in place
     k = int(np.floor(half_width_deg / step_deg + 1e-9))

@@ -42,8 +42,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from tofmetry.reconstruct._config import RegistrationConfig
-from tofmetry.reconstruct._icp_stages import plane_frame, yaw_in_frame
-from tofmetry.reconstruct._ir_yaw_local import plane_yaw_icp, yaw_sweep_near
+from tofmetry.reconstruct._icp_stages import yaw_in_frame
+from tofmetry.reconstruct._ir_yaw_local import in_plane_frames, plane_yaw_icp, yaw_sweep_near
 from tofmetry.reconstruct._photometric import ir_agreement
 from tofmetry.reconstruct._register import PairResult, pair_result, _same_pose
 from tofmetry.reconstruct._regview import RegView, object_fitness, visibility_violation
@@ -83,11 +83,8 @@ def pattern_sweep(src: RegView, tgt: RegView, step_deg: float, radii_m: tuple[fl
     """
     if src.plane is None or tgt.plane is None or src.coarse_points is None or tgt.coarse_points is None:
         return []
-    Fs, Ft = plane_frame(src.plane, src.obj_points), plane_frame(tgt.plane, tgt.obj_points)
-    iFs, iFt = np.linalg.inv(Fs), np.linalg.inv(Ft)
-    a = src.coarse_points @ iFs[:3, :3].T + iFs[:3, 3]
-    b = tgt.coarse_points @ iFt[:3, :3].T + iFt[:3, 3]
-    bn = tgt.coarse_normals @ iFt[:3, :3].T
+    Fs, Ft, a, b, bn = in_plane_frames(src, tgt, src.coarse_points, tgt.coarse_points, tgt.coarse_normals)
+    iFs = np.linalg.inv(Fs)
     tree = cKDTree(b)
     k = max(1, len(src.obj_points) // max_points)  # the agreement of the sweep on a subsample
     few = SimpleNamespace(obj_points=src.obj_points[::k], obj_ir=src.obj_ir[::k]) if src.obj_ir is not None else src
