@@ -122,6 +122,35 @@ def yaw_sweep_near(src, tgt, T: np.ndarray, half_width_deg: float, step_deg: flo
     return [(m * step_deg, found[m]) for m in sorted(found)]
 
 
+def peak_between_steps(src, tgt, swept: list, k: int, step_deg: float, radii_m: tuple[float, ...],
+                       min_deg: float) -> np.ndarray | None:
+    """The pose at the vertex of the parabola through the scores of the yaws ``k - 1``, ``k``, ``k + 1``
+    of a sweep, where the peak lies between its steps.
+
+    Parameters
+    ----------
+    src, tgt : the views of :func:`yaw_sweep_near`
+    swept : [(offset [deg], (4, 4) pose, score)] in increasing offset; ``k``: the best score's index
+    step_deg : the sweep's step [deg]; radii_m : its shift fit's radii [m]
+    min_deg : a vertex closer than this to the yaw ``k`` is not looked at [deg]
+
+    Returns
+    -------
+    (4, 4) source camera -> target camera [m] at the vertex (the shift fitted there), or None where
+    ``k`` ends the sweep, its neighbours are not one step either side, the scores bend upward, or
+    the vertex lies within ``min_deg``; the caller scores it
+    """
+    if not (0 < k < len(swept) - 1 and abs(swept[k + 1][0] - swept[k - 1][0] - 2 * step_deg) < 1e-6 * step_deg):
+        return None
+    cm, c, cp = swept[k - 1][2], swept[k][2], swept[k + 1][2]
+    curv = cm - 2.0 * c + cp
+    delta = float(np.clip(0.5 * (cm - cp) / curv, -0.5, 0.5)) * step_deg if curv < 0 else 0.0
+    if abs(delta) <= min_deg:
+        return None
+    sub = [U for o, U in yaw_sweep_near(src, tgt, swept[k][1], abs(delta), abs(delta), radii_m) if o * delta > 0]
+    return sub[0] if sub else None
+
+
 def pattern_yaw(src: RegView, tgt: RegView, T0: np.ndarray, fit0: float, c0: float, cfg: RegistrationConfig,
                 r_final: float) -> tuple[np.ndarray, float, float, float] | None:
     """The yaw near the pose ``T0`` (source -> target, (4, 4) [m]; its fitness ``fit0`` and IR
@@ -159,16 +188,10 @@ def pattern_yaw(src: RegView, tgt: RegView, T0: np.ndarray, fit0: float, c0: flo
     if c < cfg.ir_icp_min_corr or c - c0 < cfg.ir_local_min_gain:
         return None
     step = cfg.ir_local_yaw_step_deg
-    if 0 < k < len(swept) - 1 and abs(swept[k + 1][0] - swept[k - 1][0] - 2 * step) < 1e-6 * step:
-        # the peak between the steps: the vertex of the parabola through the three correlations
-        cm, cp = swept[k - 1][4], swept[k + 1][4]
-        curv = cm - 2.0 * c + cp
-        delta = float(np.clip(0.5 * (cm - cp) / curv, -0.5, 0.5)) * step if curv < 0 else 0.0
-        if abs(delta) > 1e-3:
-            sub = [U for o, U in yaw_sweep_near(src, tgt, T, abs(delta), abs(delta), radii) if o * delta > 0]
-            sc = _scored(src, tgt, sub[0], cfg, r_final) if sub else None
-            if sc is not None and sc[3] >= c:
-                fit, rmse, T, c = sc
+    Tv = peak_between_steps(src, tgt, [(f[0], f[3], f[4]) for f in swept], k, step, radii, 1e-3)
+    sc = _scored(src, tgt, Tv, cfg, r_final) if Tv is not None else None
+    if sc is not None and sc[3] >= c:
+        fit, rmse, T, c = sc
     Tf = refine_fine(src, tgt, T, cfg)
     if rotation_angle_deg(np.linalg.inv(T) @ Tf) <= step:
         sc = _scored(src, tgt, Tf, cfg, r_final)

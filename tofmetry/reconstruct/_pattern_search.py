@@ -43,7 +43,7 @@ from scipy.spatial import cKDTree
 
 from tofmetry.reconstruct._config import RegistrationConfig
 from tofmetry.reconstruct._icp_stages import yaw_in_frame
-from tofmetry.reconstruct._ir_yaw_local import in_plane_frames, plane_yaw_icp, yaw_sweep_near
+from tofmetry.reconstruct._ir_yaw_local import in_plane_frames, peak_between_steps, plane_yaw_icp, yaw_sweep_near
 from tofmetry.reconstruct._photometric import ir_agreement
 from tofmetry.reconstruct._register import PairResult, pair_result, _same_pose
 from tofmetry.reconstruct._regview import RegView, object_fitness, visibility_violation
@@ -126,16 +126,10 @@ def pattern_hypothesis(src: RegView, tgt: RegView, i: int, j: int, cfg: Registra
     _, T, c = near[k]
     if c < cfg.pattern_min_corr:
         return None
-    if 0 < k < len(near) - 1 and abs(near[k + 1][0] - near[k - 1][0] - 2.0) < 1e-6:
-        # the peak between the steps: the vertex of the parabola through the three agreements
-        cm, cp = near[k - 1][2], near[k + 1][2]
-        curv = cm - 2.0 * c + cp
-        delta = float(np.clip(0.5 * (cm - cp) / curv, -0.5, 0.5)) if curv < 0 else 0.0
-        sub = [U for o, U in yaw_sweep_near(src, tgt, T, abs(delta), abs(delta), radii) if o * delta > 0] \
-            if abs(delta) > 0.05 else []
-        cs = ir_agreement(src, tgt, sub[0], r_final) if sub else None
-        if cs is not None and cs >= c:
-            c, T = cs, sub[0]
+    Tv = peak_between_steps(src, tgt, near, k, 1.0, radii, 0.05)  # the peak between the 1 deg steps
+    cs = ir_agreement(src, tgt, Tv, r_final) if Tv is not None else None
+    if cs is not None and cs >= c:
+        c, T = cs, Tv
     fit, rmse = object_fitness(src, tgt, T, r_final)
     v = visibility_violation(src, tgt, T, cfg.see_through_tol_mm * 1e-3)
     if fit < cfg.pattern_min_fitness or rmse * 1e3 > cfg.max_rmse_mm or v > cfg.max_see_through:

@@ -381,7 +381,8 @@ class ReconstructionPipeline:
                                       rc.scale_floor_pct),
                 "world": world, "slab": slab,
                 "views": {v.name: v.stats for v in views}, "fusion": fusion_info, "timings_s": self.timings,
-                "adjustment": adj_d, "left_out": self.left_out, "color": colour_diag, "turntable": self.turntable, "pattern": self.pattern,
+                "adjustment": adj_d, "left_out": self.left_out, "color": colour_diag, "turntable": self.turntable,
+                "pattern": self.pattern,
                 "calibrated": self.cal is not None, "amplitude_corrected": self.white_map is not None, "intrinsics": intr.to_dict(),
                 "calibration_local": (self.prediction_at_object or {}).get("local"),
                 "working_range_mm": self.working_range_mm(), "config": self.cfg.model_dump()}

@@ -132,10 +132,10 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
             continue
         if e.get("method", "").startswith(PATTERN_METHOD):
             e["verdict"] = "verified by IR" if k not in br else "unverified"
-            e["reason"] = (f"the IR albedo pattern placed it (correlation {e.get('ir_corr', float('nan')):.2f} over the "
-                           "whole turn about the vertical): the geometry's own hypotheses left the pattern unmatched (a "
-                           "pose turned by the object's symmetry)" + ("" if k not in br else "; no loop goes through "
-                                                                      "this edge"))
+            e["reason"] = (f"the IR albedo pattern placed it (correlation {e.get('ir_corr', float('nan')):.2f} over "
+                           "the whole turn about the vertical): the geometry's own hypotheses left the pattern "
+                           "unmatched (a pose turned by the object's symmetry)"
+                           + ("" if k not in br else "; no loop goes through this edge"))
             continue
         yr = (e.get("conditioning") or {}).get("yaw_ratio")
         free_e = leaves_yaw_free(e.get("conditioning"), yaw_free_ratio)
