@@ -50,6 +50,7 @@ from tofmetry.reconstruct._adjust_sigma import (
     pose_covariance,
     pose_sigmas,
 )
+from tofmetry.reconstruct._adjust_circle import circle_terms, turn_axis_point
 from tofmetry.reconstruct._adjust_support import moved_about_vertical, plane_spread, support_plane_terms
 from tofmetry.reconstruct._adjust_terms import (
     AdjustView,
@@ -79,7 +80,8 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                   depth_field: DepthFieldPrior | None = None, tilt_prior_m: float | None = None,
                   albedo: bool = False, up: np.ndarray | None = None,
                   prior_poses: np.ndarray | None = None, symmetric_normals: bool = True,
-                  support_planes: list | None = None, support_sigma: tuple[float, float] | None = None) -> AdjustResult:
+                  support_planes: list | None = None, support_sigma: tuple[float, float] | None = None,
+                  circle_up: np.ndarray | None = None, circle_sigma_m: float | None = None) -> AdjustResult:
     """Jointly refine all poses (view 0 fixed) and, optionally, the depth gain.
 
     Each outer iteration matches every view's ``source`` points (gain-corrected, to world) to
@@ -162,6 +164,9 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         None; with ``support_sigma`` ``(deg, m)``, how far one view's plane can sit from the others'
         (tilt [deg], height [m]), the planes placed by the poses are held to one plane
         (:mod:`tofmetry.reconstruct._adjust_support`). None: not used
+    circle_up, circle_sigma_m : the vertical (3,) in the frame of ``poses`` and a standard deviation [m]:
+        the views were taken on a turntable, and every view's motion from view 0 is held to a turn
+        about one vertical axis (:mod:`tofmetry.reconstruct._adjust_circle`). None: not used
 
     Returns
     -------
@@ -188,6 +193,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
     plane_info: dict = {"used": False, "note": "not asked for" if support_planes is None else "no planes"}
     if planes_on:
         plane_info = {"start": plane_spread(poses, support_planes)}
+    circle_on = circle_up is not None and circle_sigma_m is not None and V >= 3
     held_at = poses if prior_poses is None else prior_poses  # where the pose prior holds the views
     centre = (np.concatenate([v.source @ T[:3, :3].T + T[:3, 3] for v, T in zip(views, held_at)]).mean(0)
               if prior_on else None)
@@ -362,6 +368,10 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                                                 s2 * sigma_inflation ** 2)
                 H[:len(bs), :len(bs)] += Hs
                 b[:len(bs)] += bs
+            if circle_on:
+                Hc, bc = circle_terms(P, circle_up, circle_sigma_m, s2 * sigma_inflation ** 2)
+                H[:len(bc), :len(bc)] += Hc
+                b[:len(bc)] += bc
             n_all = len(H)
             H += np.eye(n_all) * 1e-12 * np.trace(H) / n_all  # numerical damping only
             H_solve = H
@@ -399,7 +409,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                               gain_prior_sigma, max_normal_deg, tol_deg, tol_m, gain_max_sigma, sigma_inflation,
                               gain_max_abs, systematic_m, curve_degree, curve_prior_m, curve_half_span_m,
                               amplitude_prior_m, pose_prior_deg, pose_prior_m, depth_field, None, albedo, up,
-                              prior_poses, symmetric_normals, support_planes, support_sigma)
+                              prior_poses, symmetric_normals, support_planes, support_sigma, circle_up, circle_sigma_m)
         fixed.image_tilt_sigma_data_m = tilt_sd
         fixed.image_tilt_note = ("implausible: the views ask for " + ", ".join(f"{x * 1e3:+.1f}" for x in t_xy)
                                  + f" mm per unit, beyond {TILT_MAX_PRIORS:g} x its prior (+-{tilt_prior_m * 1e3:.1f}): "
@@ -413,7 +423,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                               pose_prior_deg=pose_prior_deg, pose_prior_m=pose_prior_m, depth_field=depth_field,
                               tilt_prior_m=tilt_prior_m, albedo=albedo, up=up, prior_poses=prior_poses,
                               symmetric_normals=symmetric_normals, support_planes=support_planes,
-                              support_sigma=support_sigma)
+                              support_sigma=support_sigma, circle_up=circle_up, circle_sigma_m=circle_sigma_m)
         fixed.gain_sigma_data, fixed.gain_sigma_systematic = sigma_data, sigma_sys
         fixed.gain_refused, fixed.gain_max_abs = float(g), float(gain_max_abs)
         if np.isfinite(amp_slope):  # the gain's trade with dk, from this run where the gain was free
@@ -436,6 +446,10 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                       "end": plane_spread(P, support_planes)}
         res.moved_turn_deg = moved_about_vertical(poses, P, support_planes)
     res.support_plane = plane_info
+    res.turn_axis = ({"used": True, "sigma_mm": float(circle_sigma_m) * 1e3,
+                      "start_mm": [round(float(x) * 1e3, 3) for x in turn_axis_point(poses, circle_up)[1]],
+                      "end_mm": [round(float(x) * 1e3, 3) for x in turn_axis_point(P, circle_up)[1]]}
+                     if circle_on else None)
     if depth_field is not None:
         res.calibration_pose = calibration_pose(res, depth_field)
     res.image_tilt_m, res.image_tilt_estimated = (t_xy.copy(), True) if tilt_on else (np.zeros(2), False)

@@ -67,6 +67,8 @@ class AdjustResult:
     moved_turn_deg : (V,) the part of ``moved_deg`` about the vertical [deg] when the support planes
         held the views (:func:`~tofmetry.reconstruct._adjust_support.moved_about_vertical`), else None
     support_plane : the term holding the views' support planes to one plane
+    turn_axis : the term holding a turntable's views to one turn axis (``sigma_mm``; each view's
+        ``|M_v a - a|`` at the start and the end [mm], :mod:`._adjust_circle`), None when not used
         (:mod:`~tofmetry.reconstruct._adjust_support`): ``used``, ``note`` or its ``sigma_deg``,
         ``sigma_mm`` and the planes' largest spread from their mean at the ``start`` and the ``end``
     final_state : what :func:`~tofmetry.reconstruct._adjust.calibration_pose` needs of the last
@@ -112,6 +114,7 @@ class AdjustResult:
     calibration_pose: dict | None = None
     albedo: dict | None = None
     support_plane: dict | None = None
+    turn_axis: dict | None = None
     moved_turn_deg: np.ndarray | None = None
     final_state: tuple | None = field(default=None, repr=False, compare=False)
     field_response: tuple | None = field(default=None, repr=False, compare=False)
@@ -184,7 +187,7 @@ class AdjustResult:
                 "pose_sigma_mm": None if self.pose_sigma_mm is None else
                 {n: round(float(x), 4) for n, x in zip(names, self.pose_sigma_mm)},
                 "restart": self.restart, "calibration_pose": self.calibration_pose, "image_tilt": self.tilt_report(),
-                "albedo": self.albedo, "support_plane": self.support_plane,
+                "albedo": self.albedo, "support_plane": self.support_plane, "turn_axis": self.turn_axis,
                 "pairs": [{"source": names[i], "target": names[j], "n": int(self.pair_counts[i, j]),
                            "rms_mm": round(float(self.pair_rms_mm[i, j]), 3)}
                           for i in range(len(names)) for j in range(len(names)) if self.pair_counts[i, j] > 0]}

@@ -15,6 +15,7 @@ from tofmetry.errors import EstimationError
 from tofmetry.pointcloud import project_to_local_planes
 from tofmetry.reconstruct._adjust import AdjustView, calibration_pose, field_pose_response, global_adjust
 from tofmetry.reconstruct._adjust_albedo import albedo_gradients
+from tofmetry.reconstruct._adjust_circle import turntable_path
 from tofmetry.reconstruct._adjust_apply import correct_views
 from tofmetry.reconstruct._adjust_restart import came_back, pair_walks, restart_probe
 from tofmetry.reconstruct._adjust_result import AdjustResult, keep_amplitude_if_it_explains
@@ -121,6 +122,9 @@ def joint_adjustment(views, segs, regs: list[RegView], poses: np.ndarray, cfg: R
     albedo = (rc.adjust_albedo_min_corr is not None and bool(edge_ir) and yaw_free and segs[0].plane is not None
               and float(np.median([c if c is not None else -1.0 for c in edge_ir])) >= rc.adjust_albedo_min_corr)
     up = poses[0][:3, :3] @ segs[0].plane[:3] if albedo else None
+    vertical = None if segs[0].plane is None else poses[0][:3, :3] @ np.asarray(segs[0].plane[:3], np.float64)
+    circle = (None if turntable or rc.turn_axis_mm is None else
+              turntable_path(poses, vertical, rc.turn_axis_detect_mm * 1e-3))
     if rc.adjust_target_smooth_k:  # the targets without their noise (tofmetry.pointcloud._smooth)
         for a in av:
             a.target = project_to_local_planes(a.target, rc.adjust_target_smooth_k)
@@ -148,7 +152,9 @@ def joint_adjustment(views, segs, regs: list[RegView], poses: np.ndarray, cfg: R
                              symmetric_normals=rc.adjust_symmetric_normals,
                              support_planes=[sg.plane for sg in segs] if rc.support_plane_deg is not None else None,
                              support_sigma=None if rc.support_plane_deg is None else (rc.support_plane_deg,
-                                                                                      rc.support_plane_mm * 1e-3))
+                                                                                      rc.support_plane_mm * 1e-3),
+                             circle_up=None if circle is None else vertical,
+                             circle_sigma_m=None if circle is None else rc.turn_axis_mm * 1e-3)
 
     with progress("global adjustment", None):
         try:
@@ -166,6 +172,8 @@ def joint_adjustment(views, segs, regs: list[RegView], poses: np.ndarray, cfg: R
                 res.calibration_pose = calibration_pose(res, field, res.field_response[0])
         except EstimationError as exc:  # keep the pose-graph poses; the reason goes to the diagnostics
             return None, str(exc)
+    if circle is not None and res.turn_axis is not None:
+        res.turn_axis["detected"] = circle
     correct_views(views, segs, res, z_ref, regs[0].intr, white_map, cfg.segment.plane_threshold_mm * 1e-3)
     return res, None
 

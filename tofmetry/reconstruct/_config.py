@@ -342,6 +342,22 @@ class RegistrationConfig(BaseModel):
                                             "stays); on family draw 48 one run changed verdict, a pebble 0.55 -> 0.49 deg. "
                                             "None: the object's points alone place the views")
     support_plane_mm: float = Field(0.5, gt=0, description="height allowance of support_plane_deg's term [mm]")
+    turn_axis_mm: float | None = Field(0.3, gt=0, description="where the pose graph's poses were taken on a turntable "
+                                       "(every view's motion from the first a turn about one vertical axis, within "
+                                       "turn_axis_detect_mm), the global adjustment holds them to that axis with this "
+                                       "standard deviation [mm] (a turntable's wobble, the object's slip; "
+                                       "tofmetry.reconstruct._adjust_circle): a smooth object that matches itself turned "
+                                       "about another axis (a bar bent in an arc) no longer slides there. Not with a "
+                                       "declared turntable (turntable_step_deg holds the views). Measured on the 32 "
+                                       "turntable runs of family draws 50-52: truly wrong 9 -> 7 (1 mm: 8), misses 3 -> "
+                                       "1, |scale error| p90 1.02 -> 0.47 %. None: off")
+    turn_axis_detect_mm: float = Field(10.0, gt=0, description="... the median over the views of how far their motion "
+                                       "from the first moves the fitted axis [mm] (family paths at their true poses: "
+                                       "turntables 0, hand-held 23-110; the pose graph's poses of turntables 0.1-3.7)")
+    turn_axis_max_sigmas: float = Field(2.0, gt=0, description="a view whose motion still moves the turn axis by more "
+                                        "than this many turn_axis_mm at the end of the joint fit makes the run "
+                                        "unreliable: its points pull it off the turntable (the object slipped, or the "
+                                        "depth errors bend the views)")
     predict_gain_pose: bool = Field(True, description="the poses' predicted spread under the calibration's "
                                     "residual (the adjustment's calibration_pose) includes the depth gain the "
                                     "calibration can leave between its stations (its predicted central error over "

@@ -14,6 +14,7 @@ import numpy as np
 
 from tofmetry._shared.geometry import transform_points
 from tofmetry.errors import EstimationError, InputError, SensorMismatchError
+from tofmetry.reconstruct._adjust_circle import off_axis_reason
 from tofmetry.reconstruct._adjust_result import AdjustResult
 from tofmetry.reconstruct._adjust_stage import joint_adjustment, scale_budget_of
 from tofmetry.reconstruct._calibration_support import extrapolated_points, extrapolation_warning, local_prediction
@@ -361,6 +362,10 @@ class ReconstructionPipeline:
                          turntable_placed=bool(self.turntable), restart_share=rc.restart_share)
         if slab is not None and slab["slab"]:
             verdict["reasons"].append(slab_reason(slab, names))
+            verdict["reliable"] = False
+        off_axis = off_axis_reason(adj_d, names, rc.turn_axis_max_sigmas)
+        if off_axis:
+            verdict["reasons"].append(off_axis)
             verdict["reliable"] = False
         if self.turntable and self.turntable.get("axis_from", "").startswith("rejected"):
             verdict["reasons"].append(UNCONFIRMED_REASON)

@@ -23,9 +23,10 @@ own state, and :func:`assess` turns it into verdicts:
   accuracy asked for), or when, restarted from the far side of its solution
   (:mod:`~tofmetry.reconstruct._adjust_restart`; moves beyond half the gate), it did not come back to
   within ``restart_share`` of the pose gate (the points leave a direction free and the fit slides along it),
-  or when more than ``max_left_out`` of the views are left out (the pipeline adds two more: a declared
-  turntable's axis the views rejected, and a slab whose two faces' views are tied only through its rim,
-  :mod:`~tofmetry.reconstruct._thin_slab`). A few views
+  or when more than ``max_left_out`` of the views are left out (the pipeline adds three more: a declared
+  turntable's axis the views rejected, a slab whose two faces' views are tied only through its rim,
+  :mod:`~tofmetry.reconstruct._thin_slab`, and a turntable's views that the joint fit could not hold to one
+  turn axis, :func:`~tofmetry.reconstruct._adjust_circle.off_axis_reason`). A few views
   left out, an unobservable depth gain, unverified views, a pair registered again from the pose
   its loop implies (:mod:`~tofmetry.reconstruct._loop_implied`), a depth calibration that doubts its
   own prediction and one that predicts its own error between stations, where the object lies
