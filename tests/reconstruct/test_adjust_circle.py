@@ -9,9 +9,8 @@ from scipy.spatial.transform import Rotation
 from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.reconstruct import global_adjust
 from tofmetry.reconstruct._adjust_circle import circle_terms, off_axis_reason, turn_axis_point, turntable_path
-from tofmetry.reconstruct._adjust_terms import AdjustView
 
-from .test_adjust_support import _ring
+from .test_adjust_support import _ring, _seen_from
 
 UP = np.array([0.0, 0.0, 1.0])
 
@@ -33,14 +32,7 @@ def _torus_views(poses, rng, centre, n=40000, major=0.12, minor=0.035, noise_m=4
     nrm = np.column_stack([np.cos(ph) * np.cos(th), np.cos(ph) * np.sin(th), np.sin(ph)])
     p = np.asarray(centre) + np.column_stack([(major + minor * np.cos(ph)) * np.cos(th),
                                               (major + minor * np.cos(ph)) * np.sin(th), minor * (1 + np.sin(ph))])
-    out = []
-    for T in poses:
-        vis = (p[:, 2] > 0.005) & (np.einsum("ij,ij->i", nrm, T[:3, 3] - p) > 0.2)
-        Ti = np.linalg.inv(T)
-        pc, nc = p[vis] @ Ti[:3, :3].T + Ti[:3, 3], nrm[vis] @ Ti[:3, :3].T
-        pc *= 1 + rng.normal(scale=noise_m, size=(len(pc), 1)) / pc[:, 2:3]  # depth noise along the rays
-        out.append(AdjustView(pc[::4], nc[::4], pc, nc))
-    return out
+    return [_seen_from(T, p, nrm, rng, noise_m) for T in poses]
 
 
 def test_the_axis_point_is_the_one_every_turn_keeps_in_place():

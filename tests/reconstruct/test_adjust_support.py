@@ -88,13 +88,18 @@ def _dome_views(poses, rng, n=20000, radius=0.1, centre=(0.0, 0.0, 0.06), noise_
     for T in poses:
         u = rng.normal(size=(n, 3))
         u /= np.linalg.norm(u, axis=1, keepdims=True)
-        p = c0 + radius * u
-        vis = (p[:, 2] > 0.005) & (np.einsum("ij,ij->i", u, T[:3, 3] - p) > 0.2)
-        Ti = np.linalg.inv(T)
-        pc, nc = p[vis] @ Ti[:3, :3].T + Ti[:3, 3], u[vis] @ Ti[:3, :3].T
-        pc *= 1 + rng.normal(scale=noise_m, size=(len(pc), 1)) / pc[:, 2:3]  # depth noise along the rays
-        out.append(AdjustView(pc[::4], nc[::4], pc, nc))
+        out.append(_seen_from(T, c0 + radius * u, u, rng, noise_m))
     return out
+
+
+def _seen_from(T, p, nrm, rng, noise_m):
+    """The surface samples ``p`` (outward normals ``nrm``, world [m]) above z = 5 mm that the camera at
+    ``T`` faces, in its camera frame with depth noise along the rays: an AdjustView (every 4th as source)."""
+    vis = (p[:, 2] > 0.005) & (np.einsum("ij,ij->i", nrm, T[:3, 3] - p) > 0.2)
+    Ti = np.linalg.inv(T)
+    pc, nc = p[vis] @ Ti[:3, :3].T + Ti[:3, 3], nrm[vis] @ Ti[:3, :3].T
+    pc *= 1 + rng.normal(scale=noise_m, size=(len(pc), 1)) / pc[:, 2:3]
+    return AdjustView(pc[::4], nc[::4], pc, nc)
 
 
 def test_on_a_dome_the_planes_hold_the_tilts_its_points_leave_free():
