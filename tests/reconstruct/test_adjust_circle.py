@@ -9,6 +9,7 @@ from scipy.spatial.transform import Rotation
 from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.reconstruct import global_adjust
 from tofmetry.reconstruct._adjust_circle import circle_terms, off_axis_reason, turn_axis_point, turntable_path
+from tofmetry.reconstruct._turntable import turn_about
 
 from .test_adjust_support import _ring, _seen_from
 
@@ -17,11 +18,7 @@ UP = np.array([0.0, 0.0, 1.0])
 
 def _about(T: np.ndarray, deg: float, centre) -> np.ndarray:
     """``T`` turned by ``deg`` about the vertical through ``centre`` (world frame)."""
-    E = np.eye(4)
-    E[:3, :3] = Rotation.from_rotvec(np.radians(deg) * UP).as_matrix()
-    c = np.asarray(centre, np.float64)
-    E[:3, 3] = c - E[:3, :3] @ c
-    return E @ T
+    return turn_about(np.asarray(centre, np.float64), UP, deg) @ T
 
 
 def _torus_views(poses, rng, centre, n=40000, major=0.12, minor=0.035, noise_m=4e-4):

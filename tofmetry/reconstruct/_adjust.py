@@ -40,6 +40,7 @@ import numpy as np
 from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.errors import EstimationError, InputError
 from tofmetry.reconstruct._adjust_albedo import albedo_gradients, albedo_terms
+from tofmetry.reconstruct._adjust_circle import circle_terms, turn_axis_point
 from tofmetry.reconstruct._adjust_field import DepthFieldPrior, pose_spread
 from tofmetry.reconstruct._adjust_prior import pose_prior_terms
 from tofmetry.reconstruct._adjust_result import AdjustResult
@@ -50,7 +51,6 @@ from tofmetry.reconstruct._adjust_sigma import (
     pose_covariance,
     pose_sigmas,
 )
-from tofmetry.reconstruct._adjust_circle import circle_terms, turn_axis_point
 from tofmetry.reconstruct._adjust_support import moved_about_vertical, plane_spread, support_plane_terms
 from tofmetry.reconstruct._adjust_terms import (
     AdjustView,

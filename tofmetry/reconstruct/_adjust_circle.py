@@ -36,6 +36,7 @@ from __future__ import annotations
 import numpy as np
 
 from tofmetry._shared.geometry import skew
+from tofmetry.reconstruct._turntable import signed_turn_deg
 
 
 def _across(up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -77,12 +78,9 @@ def turntable_path(P: np.ndarray, up: np.ndarray | None, max_median_m: float, mi
     "turn_deg"}`` where they were, None otherwise (or without a vertical)."""
     if up is None or len(P) < min_views:
         return None
-    a, res = turn_axis_point(P, up)
-    u = np.asarray(up, np.float64) / np.linalg.norm(up)
-    _, B = _across(u)
+    _, res = turn_axis_point(P, up)
     P0i = np.linalg.inv(P[0])
-    turns = [float(np.degrees(np.arctan2(B[:, 1] @ (Pk @ P0i)[:3, :3] @ B[:, 0], B[:, 0] @ (Pk @ P0i)[:3, :3] @ B[:, 0])))
-             for Pk in P[1:]]
+    turns = [signed_turn_deg(Pk @ P0i, np.asarray(up, np.float64)) for Pk in P[1:]]
     span = float(np.ptp(np.unwrap(np.radians([0.0] + turns)))) * 180.0 / np.pi
     if not (np.median(res) <= max_median_m and span >= min_turn_deg):
         return None

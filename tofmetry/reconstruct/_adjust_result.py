@@ -67,10 +67,10 @@ class AdjustResult:
     moved_turn_deg : (V,) the part of ``moved_deg`` about the vertical [deg] when the support planes
         held the views (:func:`~tofmetry.reconstruct._adjust_support.moved_about_vertical`), else None
     support_plane : the term holding the views' support planes to one plane
-    turn_axis : the term holding a turntable's views to one turn axis (``sigma_mm``; each view's
-        ``|M_v a - a|`` at the start and the end [mm], :mod:`._adjust_circle`), None when not used
         (:mod:`~tofmetry.reconstruct._adjust_support`): ``used``, ``note`` or its ``sigma_deg``,
         ``sigma_mm`` and the planes' largest spread from their mean at the ``start`` and the ``end``
+    turn_axis : the term holding a turntable's views to one turn axis (``sigma_mm``; each view's
+        ``|M_v a - a|`` at the start and the end [mm], :mod:`._adjust_circle`), None when not used
     final_state : what :func:`~tofmetry.reconstruct._adjust.calibration_pose` needs of the last
         Gauss-Newton step (views, poses, depth terms, correspondences, the solved normal matrix);
         not reported

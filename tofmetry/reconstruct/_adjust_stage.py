@@ -15,8 +15,8 @@ from tofmetry.errors import EstimationError
 from tofmetry.pointcloud import project_to_local_planes
 from tofmetry.reconstruct._adjust import AdjustView, calibration_pose, field_pose_response, global_adjust
 from tofmetry.reconstruct._adjust_albedo import albedo_gradients
-from tofmetry.reconstruct._adjust_circle import turntable_path
 from tofmetry.reconstruct._adjust_apply import correct_views
+from tofmetry.reconstruct._adjust_circle import turntable_path
 from tofmetry.reconstruct._adjust_restart import came_back, pair_walks, restart_probe
 from tofmetry.reconstruct._adjust_result import AdjustResult, keep_amplitude_if_it_explains
 from tofmetry.reconstruct._amplitude import amplitude_log_ratio
@@ -121,8 +121,8 @@ def joint_adjustment(views, segs, regs: list[RegView], poses: np.ndarray, cfg: R
     av = _views(regs)
     albedo = (rc.adjust_albedo_min_corr is not None and bool(edge_ir) and yaw_free and segs[0].plane is not None
               and float(np.median([c if c is not None else -1.0 for c in edge_ir])) >= rc.adjust_albedo_min_corr)
-    up = poses[0][:3, :3] @ segs[0].plane[:3] if albedo else None
     vertical = None if segs[0].plane is None else poses[0][:3, :3] @ np.asarray(segs[0].plane[:3], np.float64)
+    up = vertical if albedo else None
     circle = (None if turntable or rc.turn_axis_mm is None else
               turntable_path(poses, vertical, rc.turn_axis_detect_mm * 1e-3))
     if rc.adjust_target_smooth_k:  # the targets without their noise (tofmetry.pointcloud._smooth)
