@@ -126,15 +126,15 @@ class _Names:
 
 def _pipeline_selection(monkeypatch, fit_right: float):
     """The pipeline's selection step on :func:`_scan`, the pair ICP mocked by :func:`_register_on`."""
-    import tofmetry.reconstruct._pipeline as pipeline
+    import tofmetry.reconstruct._select_stage as stage
     from tofmetry.reconstruct import ReconstructionPipeline
 
     P, pairs = _scan()
     register, _ = _register_on(P, fit_right)
-    monkeypatch.setattr(pipeline, "register_pair", lambda src, tgt, i, j, rc, init, global_search: register(i, j, init))
+    monkeypatch.setattr(stage, "register_pair", lambda src, tgt, i, j, rc, init, global_search: register(i, j, init))
     pipe = ReconstructionPipeline(_Names(len(P)))
     pg = _graph(pairs, len(P))
-    pipe._select(pg, [None] * len(P))
+    stage.select_with_implied(pg, [None] * len(P), pipe.cfg.registration)
     return pipe, pg
 
 

@@ -81,6 +81,51 @@ def test_selection_flags_an_even_number_of_indistinguishable_flips():
     assert not pg.optimize(0.003).consistency["reliable"]
 
 
+def _walk_frame(pg: PoseGraphBuilder, n: int) -> PoseGraphBuilder:
+    """The object centre (world origin) and the vertical (world z) in each camera frame of
+    :func:`_circle_poses`, as the pipeline gives them to the selection."""
+    P = _circle_poses(n)
+    pg.centres = np.array([np.linalg.inv(T)[:3, 3] for T in P])
+    pg.ups = np.array([T[:3, :3].T @ [0.0, 0.0, 1.0] for T in P])
+    return pg
+
+
+def test_the_camera_path_decides_between_indistinguishable_flips():
+    # edges 1->2 and 3->4 as in _even_flips: turning views 2-3 over puts their cameras on the far
+    # side, so the path steps back by 120 deg into and out of them; the walk decides, the run is
+    # not ambiguous -- also where the turned-over choice scores higher (0.1, within the margin)
+    P = _circle_poses(6)
+    for fit_right in (0.9, 0.85):
+        pg = PoseGraphBuilder(6, [f"{k:02d}" for k in range(6)])
+        for i in range(5):
+            alts = [_flipped_alt(P, i, i + 1, 0.9)] if i in (1, 3) else []
+            pg.add(_edge(P, i, i + 1, fit_right if i in (1, 3) else 0.9, alts=alts))
+        pg.add(_edge(P, 0, 5))
+        rep = _walk_frame(pg, 6).select_hypotheses(2.0, 10.0, 0.05, path_max_ratio=3.0, path_margin=0.3)
+        assert not rep["reasons"] and not rep["changed"], rep
+        if fit_right < 0.9:
+            assert rep["decided_by_path"]["steps_before"] == ["01->02", "03->04"], rep
+            assert pg.optimize(0.003).consistency["reliable"]
+
+
+def test_a_path_no_closing_choice_walks_is_flagged():
+    # both edges registered turned over and no alternative: the loop closes (two flips cancel) but
+    # the cameras of views 2-3 step back: unreliable, and said why
+    P = _circle_poses(6)
+    pg = PoseGraphBuilder(6, [f"{k:02d}" for k in range(6)])
+    for i in range(5):
+        pg.add(_edge(P, i, i + 1, 0.9, flip=i in (1, 3)))
+    pg.add(_edge(P, 0, 5))
+    rep = _walk_frame(pg, 6).select_hypotheses(2.0, 10.0, 0.05, path_max_ratio=3.0)
+    assert rep["path_steps"] == ["01->02", "03->04"], rep
+    assert any("do not walk around the object" in r for r in rep["reasons"]), rep
+    # without the walk the loop check alone passes it
+    pg2 = PoseGraphBuilder(6, pg.names)
+    for p in pg.pairs:
+        pg2.add(p)
+    assert not pg2.select_hypotheses(2.0, 10.0, 0.05)["reasons"]
+
+
 def test_wrong_closing_edge_of_a_partial_scan_is_dropped_and_flagged():
     # half circle, 4 views: the direct 0 -> 3 match (views 180 deg apart) is a false, turned-over
     # match; the chain of successive views is kept, and with no loop left the run is unreliable

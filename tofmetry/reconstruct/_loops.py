@@ -13,6 +13,7 @@ from dataclasses import replace
 import numpy as np
 
 from tofmetry._shared.geometry import rotation_angle_deg
+from tofmetry.reconstruct._camera_path import path_anomalies, path_frame, path_steps
 from tofmetry.reconstruct._register import PairResult
 
 
@@ -163,7 +164,9 @@ def _poses_differ(A: np.ndarray, B: np.ndarray, max_deg: float, max_mm: float) -
 
 def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg: float = 2.0, max_mm: float = 10.0,
                       margin: float = 0.05, max_combos: int = 1024, ir_min_corr: float = 0.3,
-                      ir_margin: float = 0.2, ir_veto_corr: float = 0.5) -> tuple[list[PairResult], dict]:
+                      ir_margin: float = 0.2, ir_veto_corr: float = 0.5, centres: np.ndarray | None = None,
+                      ups: np.ndarray | None = None, path_max_ratio: float | None = None,
+                      path_margin: float = 0.3) -> tuple[list[PairResult], dict]:
     """Multi-view choice between the registration hypotheses of every edge.
 
     A nearly symmetric object matches itself turned over: an edge may have several hypotheses that
@@ -184,6 +187,15 @@ def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg
     trivially and outscore the pattern's choice in fitness (measured: a painted vase, 9 views, the
     sweep decided all 9 yaws at correlation 0.90-0.96; the selection swapped 8 for alternatives at
     -0.14-0.13 and the run was 142 deg off).
+
+    The cameras walk around the object in scan order (:mod:`tofmetry.reconstruct._camera_path`):
+    where ``path_max_ratio`` and ``centres`` ((n, 3) object centre of each view in its camera frame
+    [m]) are given, a selection whose cameras step back or leap (:func:`path_anomalies`) yields to
+    the closing selection with fewer such steps and the most fitness, if that is within
+    ``path_margin`` of the best (``report["decided_by_path"]``); a tied selection with more of them
+    than the one chosen is no alternative. The vertical: ``ups`` ((n, 3) the support plane's normal
+    in each camera frame) where the root view has one, else the normal of the plane through the
+    camera centres.
 
     Refusal/flags (in ``report["reasons"]``, which makes the run unreliable):
 
@@ -253,10 +265,25 @@ def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg
         report["resolved"] = False
         return pairs, report
     consistent.sort(key=lambda c: -c[0])
-    score, combo, poses, n_loops = consistent[0]
+    best = consistent[0]
+    walk = None
+    if path_max_ratio is not None and centres is not None:
+        order = sorted(main)
+        walk = {id(c): _path_anomalies(c[2], main, order, root, centres, ups, path_max_ratio) for c in consistent}
+        if walk[id(best)]:
+            fewer = [c for c in consistent if len(walk[id(c)]) < len(walk[id(best)]) and c[0] >= best[0] - path_margin]
+            if fewer:
+                pick = min(fewer, key=lambda c: (len(walk[id(c)]), -c[0]))
+                report["decided_by_path"] = {"fitness_given_up": round(best[0] - pick[0], 4),
+                                             "steps_before": [f"{names[order[k]]}->{names[order[k + 1]]}"
+                                                              for k in walk[id(best)]]}
+                best = pick
+    score, combo, poses, n_loops = best
     report["resolved"] = True
     report["n_loops"] = n_loops
-    tied = [c for c in consistent[1:] if c[0] >= score - margin and _poses_differ(poses, c[2], max_deg, max_mm)]
+    tied = [c for c in consistent if c is not best and c[0] >= score - margin
+            and _poses_differ(poses, c[2], max_deg, max_mm)
+            and (walk is None or len(walk[id(c)]) <= len(walk[id(best)]))]
     if tied:  # the geometry cannot decide: the IR albedo may (a painted pattern lines up at one pose only)
         pick = _ir_decides([consistent[0]] + tied, opts, max_deg, max_mm, ir_min_corr, ir_margin)
         if pick is not None:
@@ -297,6 +324,15 @@ def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg
             f"edge(s) {', '.join(report['unverified'])} between non-successive views are the only link between parts "
             "of the scan and no closed loop verifies them (a nearly symmetric object matches itself turned over "
             "between distant views); take more views or views with more overlap")
+    if walk is not None and walk[id(best)]:
+        order = sorted(main)
+        report["path_steps"] = [f"{names[order[k]]}->{names[order[k + 1]]}" for k in walk[id(best)]]
+        report["reasons"].append(
+            f"the cameras do not walk around the object in scan order: from view {report['path_steps'][0]} "
+            f"({len(walk[id(best)])} step(s)) they step back or leap against the path's other steps, and no "
+            "choice of the pairwise hypotheses that closes every loop walks them (a nearly symmetric object "
+            "matches itself turned over); take more views, or views of a distinctive feature (views not taken one way "
+            "around the object: registration.path_max_step_ratio = null switches this check off)")
     if report["dropped"] and n_loops == 0:
         report["reasons"].append(f"edge(s) {', '.join(report['dropped'])} contradict the chain of successive views and "
                                  "were dropped; no closed loop is left to verify the registration")
@@ -311,6 +347,15 @@ def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg
                 "nothing decides which is wrong (a nearly symmetric object matches itself turned over); take more "
                 "views or views with more overlap")
     return out, report
+
+
+def _path_anomalies(poses_main: np.ndarray, main: list[int], order: list[int], root: int, centres: np.ndarray,
+                    ups: np.ndarray | None, max_ratio: float) -> list[int]:
+    """:func:`path_anomalies` of a selection's cameras (``poses_main``: the views of ``main``, in
+    its order; the root's pose the identity), in scan order ``order``; indices into its steps."""
+    P = np.asarray(poses_main, np.float64)[np.argsort(main)]  # rows in the order of sorted(main)
+    frame = path_frame(P, order, centres, None if ups is None else ups[root])
+    return [] if frame is None else path_anomalies(path_steps(P, *frame), max_ratio, gaps=np.diff(order))
 
 
 def _ir_rejects(primary: PairResult, alt: PairResult, min_corr: float, margin: float) -> bool:

@@ -20,7 +20,6 @@ from tofmetry.reconstruct._adjust_stage import joint_adjustment, scale_budget_of
 from tofmetry.reconstruct._calibration_support import extrapolated_points, extrapolation_warning, local_prediction
 from tofmetry.reconstruct._colour import colour_model
 from tofmetry.reconstruct._config import ReconstructionConfig
-from tofmetry.reconstruct._loop_implied import METHOD as LOOP_IMPLIED, loop_implied_hypotheses
 from tofmetry.reconstruct._model_build import (
     crop_model,
     fuse_views,
@@ -34,6 +33,7 @@ from tofmetry.reconstruct._preprocess import ViewData, prepare_view
 from tofmetry.reconstruct._register import register_pair, rejection_reason
 from tofmetry.reconstruct._regview import RegView, leaves_yaw_free, make_reg_view
 from tofmetry.reconstruct._segment import Segmentation, segment_object
+from tofmetry.reconstruct._select_stage import select_with_implied
 from tofmetry.reconstruct._thin_slab import slab_reason, thin_slab_check
 from tofmetry.reconstruct._turntable import turntable_poses
 from tofmetry.reconstruct._turntable_bridge import UNCONFIRMED_REASON, no_turn_error, turntable_bridges
@@ -181,6 +181,7 @@ class ReconstructionPipeline:
         names = list(self.ds.names)
         pg = PoseGraphBuilder(n, names)
         pg.centres = np.array([r.obj_points.mean(0) if len(r.obj_points) else np.zeros(3) for r in regs])
+        pg.ups = np.array([np.full(3, np.nan) if r.plane is None else np.asarray(r.plane[:3], np.float64) for r in regs])
         succ = [(i, i + 1) for i in range(n - 1)] + ([(0, n - 1)] if n > 2 else [])
         done = set()
         with self.progress("registering successive views", len(succ)) as adv:
@@ -213,7 +214,7 @@ class ReconstructionPipeline:
                         init = np.linalg.inv(chain[j]) @ chain[i]
                         pg.add(register_pair(regs[i], regs[j], i, j, rc, init=init, global_search=False))
                     adv()
-        self._select(pg, regs)
+        select_with_implied(pg, regs, rc)
         keep = pg.components()[0]
         if len(keep) < 2 and rc.turntable_step_deg is not None:
             raise no_turn_error(rc.turntable_step_deg, rc.turntable_tol_deg, len(self.ds.names))
@@ -236,40 +237,6 @@ class ReconstructionPipeline:
             if not p.accepted:
                 d["reason"] = rejection_reason(p, rc)
         return res
-
-    def _select(self, pg: PoseGraphBuilder, regs: list[RegView]) -> None:
-        """The multi-view choice of hypotheses; where it had to drop an edge, once more with the
-        hypotheses the loops of the dropped edges imply (:mod:`._loop_implied`), kept where it then
-        drops fewer edges (``selection["loop_implied"]`` names the pairs so registered)."""
-        rc = self.cfg.registration
-        before = list(pg.pairs)
-
-        def select() -> dict:
-            return pg.select_hypotheses(rc.gate_max_deg, rc.gate_max_mm, rc.ambiguity_margin,
-                                        spread_deg=rc.spread_max_deg, spread_mm=rc.spread_max_mm)
-
-        first = select()
-        if not first.get("dropped") or rc.loop_implied_min_gain is None:
-            return
-        chosen = list(pg.pairs)
-        pairs, found = loop_implied_hypotheses(
-            len(regs), before, chosen,
-            lambda i, j, init: register_pair(regs[i], regs[j], i, j, rc, init=init, global_search=False),
-            rc.loop_implied_min_gain)
-        if not found:
-            return
-        pg.pairs = pairs
-        again = select()
-        names = list(self.ds.names)
-        now = {(q.source, q.target): q.method for q in pg.pairs if q.accepted}
-        used = [f for f in found if now.get(tuple(f["edge"])) == LOOP_IMPLIED]
-        if again.get("resolved") and len(again.get("dropped", [])) < len(first["dropped"]) and used:
-            again["loop_implied"] = [{"edge": f"{names[f['edge'][0]]}->{names[f['edge'][1]]}",
-                                      "fitness": f["fitness"], "replaced_fitness": f["kept_fitness"],
-                                      "implied_by": f"{names[f['implied_by'][0]]}->{names[f['implied_by'][1]]}"}
-                                     for f in used]
-            return
-        pg.pairs, pg.selection = chosen, first
 
     def adjust(self, views: list[ViewData], segs: list[Segmentation], regs: list[RegView],
                poses: np.ndarray, loops: list[dict] | None = None, edges=(), edge_ir=(),

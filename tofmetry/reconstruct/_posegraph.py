@@ -63,6 +63,7 @@ class PoseGraphBuilder:
         self.pairs: list[PairResult] = []
         self.selection: dict | None = None
         self.centres: np.ndarray | None = None  # (n, 3) object centre per view, camera frame [m]
+        self.ups: np.ndarray | None = None  # (n, 3) support plane's normal per view, camera frame (NaN: none)
 
     def add(self, pair: PairResult) -> None:
         self.pairs.append(pair)
@@ -86,6 +87,7 @@ class PoseGraphBuilder:
                 sub.add(_renumber(p, idx))
         sub.selection = self.selection
         sub.centres = None if self.centres is None else self.centres[keep]
+        sub.ups = None if self.ups is None else self.ups[keep]
         return sub
 
     def chain_poses(self) -> np.ndarray:
@@ -127,7 +129,8 @@ class PoseGraphBuilder:
 
     def select_hypotheses(self, max_deg: float = 2.0, max_mm: float = 10.0, margin: float = 0.05,
                           max_combos: int = 1024, spread_deg: float | None = None,
-                          spread_mm: float | None = None) -> dict:
+                          spread_mm: float | None = None, path_max_ratio: float | None = None,
+                          path_margin: float = 0.3) -> dict:
         """Choose one hypothesis per edge so that every loop closes (see :func:`select_hypotheses`);
         replaces :attr:`pairs` by the selection. Returns the selection report.
 
@@ -138,10 +141,12 @@ class PoseGraphBuilder:
         by the pose-graph optimisation and the global adjustment, instead of the closing edge being
         dropped (a few millimetres of depth-calibration residual make a loop of 8 views close only
         to a few degrees, measured)."""
-        pairs, report = select_hypotheses(self.n, self.pairs, self.names, max_deg, max_mm, margin, max_combos)
+        path = {"centres": self.centres, "ups": self.ups, "path_max_ratio": path_max_ratio, "path_margin": path_margin}
+        pairs, report = select_hypotheses(self.n, self.pairs, self.names, max_deg, max_mm, margin, max_combos, **path)
         report["spread"] = False
         if report.get("dropped") and spread_deg is not None and spread_mm is not None:
-            pairs2, rep2 = select_hypotheses(self.n, self.pairs, self.names, spread_deg, spread_mm, margin, max_combos)
+            pairs2, rep2 = select_hypotheses(self.n, self.pairs, self.names, spread_deg, spread_mm, margin, max_combos,
+                                              **path)
             if rep2.get("resolved") and len(rep2.get("dropped", [])) < len(report["dropped"]):
                 pairs, report = pairs2, rep2
                 report["spread"] = True

@@ -217,6 +217,11 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
         warnings.append("the geometry alone left the registration ambiguous (the object looks alike from different "
                         f"sides: {sel['decided_by_ir']['n_tied']} choices closed every loop); the IR albedo pattern "
                         "decided between them")
+    if sel.get("decided_by_path"):
+        d = sel["decided_by_path"]
+        warnings.append("the pairwise hypotheses that scored best stepped the cameras back or leapt (at "
+                        f"{', '.join(d['steps_before'])}); the choice that walks them around the object in scan order "
+                        f"was taken ({d['fitness_given_up']:.3f} less summed fitness)")
     if adjustment is not None and "failed" in adjustment:
         reasons.append(f"the global adjustment failed ({adjustment['failed']}); the pose-graph poses are not refined")
     implausible = adjustment is not None and (adjustment.get("gain_note") or "").startswith("implausible")

@@ -1,0 +1,78 @@
+"""The multi-view choice of registration hypotheses, with the hypotheses the scan itself implies.
+
+:meth:`~tofmetry.reconstruct._posegraph.PoseGraphBuilder.select_hypotheses` chooses one hypothesis
+per edge so that every loop closes and the cameras walk around the object in scan order. Where it
+had to drop an edge, the pairs of that edge's loop are registered again from the pose the loop
+implies (:mod:`tofmetry.reconstruct._loop_implied`); where the cameras of its choice still step
+back or leap, the pairs at those steps are registered again from the pose the path's other steps
+imply (:mod:`tofmetry.reconstruct._path_implied`). Each retry is kept only where the choice then
+improves (fewer edges dropped; fewer steps that do not walk), and the selection report names the
+pairs so registered (``loop_implied``, ``path_implied``).
+"""
+
+from __future__ import annotations
+
+from tofmetry.reconstruct._config import RegistrationConfig
+from tofmetry.reconstruct._loop_implied import METHOD as LOOP_IMPLIED, loop_implied_hypotheses
+from tofmetry.reconstruct._path_implied import METHOD as PATH_IMPLIED, path_implied_hypotheses
+from tofmetry.reconstruct._posegraph import PoseGraphBuilder
+from tofmetry.reconstruct._register import register_pair
+from tofmetry.reconstruct._regview import RegView
+
+
+def select_with_implied(pg: PoseGraphBuilder, regs: list[RegView], rc: RegistrationConfig) -> None:
+    """Choose the hypotheses of ``pg`` (in place: ``pg.pairs``, ``pg.selection``), retrying with the
+    loop- and the path-implied hypotheses (module docstring)."""
+    names = pg.names
+
+    def select() -> dict:
+        return pg.select_hypotheses(rc.gate_max_deg, rc.gate_max_mm, rc.ambiguity_margin,
+                                    spread_deg=rc.spread_max_deg, spread_mm=rc.spread_max_mm,
+                                    path_max_ratio=rc.path_max_step_ratio, path_margin=rc.path_fitness_margin)
+
+    def register(i: int, j: int, init):
+        return register_pair(regs[i], regs[j], i, j, rc, init=init, global_search=False)
+
+    def register_turn(i: int, j: int, step_deg: float, tol_deg: float):
+        c = rc.model_copy(update={"turntable_step_deg": step_deg, "turntable_tol_deg": tol_deg})
+        return register_pair(regs[i], regs[j], i, j, c)
+
+    def used(found: list[dict], method: str) -> list[dict]:
+        now = {(q.source, q.target): q.method for q in pg.pairs if q.accepted}
+        return [f for f in found if now.get(tuple(f["edge"])) == method]
+
+    before = list(pg.pairs)
+    first = select()
+    if first.get("dropped") and rc.loop_implied_min_gain is not None:
+        chosen = list(pg.pairs)
+        pairs, found = loop_implied_hypotheses(len(regs), before, chosen, register, rc.loop_implied_min_gain)
+        if found:
+            pg.pairs = pairs
+            again = select()
+            took = used(found, LOOP_IMPLIED)
+            if again.get("resolved") and len(again.get("dropped", [])) < len(first["dropped"]) and took:
+                again["loop_implied"] = [{"edge": f"{names[f['edge'][0]]}->{names[f['edge'][1]]}",
+                                          "fitness": f["fitness"], "replaced_fitness": f["kept_fitness"],
+                                          "implied_by": f"{names[f['implied_by'][0]]}->{names[f['implied_by'][1]]}"}
+                                         for f in took]
+                before, first = pairs, again
+            else:
+                pg.pairs, pg.selection = chosen, first
+    if not first.get("path_steps") or rc.path_max_step_ratio is None or pg.centres is None:
+        return
+    chosen = list(pg.pairs)
+    pairs, found = path_implied_hypotheses(len(regs), before, chosen, pg.centres, pg.ups, register_turn,
+                                           rc.path_max_step_ratio, rc.path_fitness_margin)
+    if not found:
+        return
+    pg.pairs = pairs
+    again = select()
+    took = used(found, PATH_IMPLIED)
+    if again.get("resolved") and len(again.get("path_steps", [])) < len(first["path_steps"]) and took:
+        again["path_implied"] = [{"edge": f"{names[f['edge'][0]]}->{names[f['edge'][1]]}", "fitness": f["fitness"],
+                                  "replaced_fitness": f["kept_fitness"], "step_deg": f["step_deg"]} for f in took]
+        for key in ("loop_implied",):
+            if first.get(key):
+                again[key] = first[key]
+        return
+    pg.pairs, pg.selection = chosen, first
