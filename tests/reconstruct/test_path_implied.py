@@ -82,12 +82,18 @@ def test_the_steps_that_do_not_walk_get_the_pose_the_path_implies():
         np.testing.assert_allclose(alt.transform, np.linalg.inv(P[k + 1]) @ P[k], atol=1e-9)
 
 
-def test_the_selection_stage_takes_the_walk_and_says_so(monkeypatch):
+def _staged(monkeypatch, fit: float):
+    """:func:`_scan`'s pairs through the selection stage, the search finding the true pose at ``fit``."""
     P, pairs = _scan()
-    register, _ = _register_on(P, 0.95)
+    register, _ = _register_on(P, fit)
     monkeypatch.setattr(stage, "register_pair", _mock(register))
     pg = _graph(P, pairs)
     stage.select_with_implied(pg, [None] * len(P), RegistrationConfig())
+    return P, pg
+
+
+def test_the_selection_stage_takes_the_walk_and_says_so(monkeypatch):
+    P, pg = _staged(monkeypatch, 0.95)
     sel = pg.selection
     assert not sel["reasons"] and not sel.get("path_steps"), sel
     assert [d["edge"] for d in sel["path_implied"]] == ["00->01", "03->04"], sel
@@ -98,11 +104,7 @@ def test_the_selection_stage_takes_the_walk_and_says_so(monkeypatch):
 
 
 def test_a_pair_whose_points_do_not_fit_the_implied_pose_is_left(monkeypatch):
-    # the ICP from the implied pose matches far fewer points (0.5 against 0.95 kept): not a hypothesis
-    P, pairs = _scan()
-    register, _ = _register_on(P, 0.5)
-    monkeypatch.setattr(stage, "register_pair", _mock(register))
-    pg = _graph(P, pairs)
-    stage.select_with_implied(pg, [None] * len(P), RegistrationConfig())
+    # the search about the implied turn matches far fewer points (0.5 against 0.95 kept): not a hypothesis
+    _, pg = _staged(monkeypatch, 0.5)
     assert pg.selection["path_steps"] == ["00->01", "03->04"] and not pg.selection.get("path_implied")
     assert any("do not walk around the object" in r for r in pg.selection["reasons"])

@@ -13,6 +13,7 @@ import pytest
 
 from tofmetry.reconstruct import PairResult, PoseGraphBuilder, RegView, consistency_gate
 from tofmetry.reconstruct._loops import loop_closures
+from tofmetry.reconstruct._verdict import assess
 from tofmetry.reconstruct._regview import free_space_violation, visibility_violation
 from tofmetry.sensor import KINECT_V2
 
@@ -105,7 +106,9 @@ def test_the_camera_path_decides_between_indistinguishable_flips():
         assert not rep["reasons"] and not rep["changed"], rep
         if fit_right < 0.9:
             assert rep["decided_by_path"]["steps_before"] == ["01->02", "03->04"], rep
-            assert pg.optimize(0.003).consistency["reliable"]
+            res = pg.optimize(0.003)
+            verdict = assess(pg.names, res.edges, res.consistency, {}, None, None)
+            assert verdict["reliable"] and any("walks them around the object" in w for w in verdict["warnings"])
 
 
 def test_a_path_no_closing_choice_walks_is_flagged():

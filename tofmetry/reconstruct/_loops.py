@@ -285,11 +285,11 @@ def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg
             and _poses_differ(poses, c[2], max_deg, max_mm)
             and (walk is None or len(walk[id(c)]) <= len(walk[id(best)]))]
     if tied:  # the geometry cannot decide: the IR albedo may (a painted pattern lines up at one pose only)
-        pick = _ir_decides([consistent[0]] + tied, opts, max_deg, max_mm, ir_min_corr, ir_margin)
+        pick = _ir_decides([best] + tied, opts, max_deg, max_mm, ir_min_corr, ir_margin)
         if pick is not None:
             report["decided_by_ir"] = {"geometric_choice_changed": pick[1] != combo,
                                        "fitness_given_up": round(score - pick[0], 4), "n_tied": len(tied) + 1}
-            score, combo, poses, n_loops = pick
+            score, combo, poses, n_loops = best = pick
             tied = []
     for s2, c2, p2, _ in tied:
         diff = [f"{names[pairs[acc[m]].source]}->{names[pairs[acc[m]].target]}" for m in range(len(acc)) if c2[m] != combo[m]]
