@@ -108,3 +108,30 @@ def test_a_pair_whose_points_do_not_fit_the_implied_pose_is_left(monkeypatch):
     _, pg = _staged(monkeypatch, 0.5)
     assert pg.selection["path_steps"] == ["00->01", "03->04"] and not pg.selection.get("path_implied")
     assert any("do not walk around the object" in r for r in pg.selection["reasons"])
+
+
+def test_turned_skip_edges_that_bridge_failed_pairs_are_searched_again(monkeypatch):
+    # a box's 7 views: the successive pairs 0->1 and 3->4 failed the gates and the skip edges 0->2
+    # and 3->5 that bridge them were registered turned over: views 1-3 sit on the far side, the
+    # path steps back at 00->01 and 03->04; the search at those steps finds both failed pairs and
+    # both skip edges right, and the choice that walks is taken
+    P, _ = _scan()
+    n = len(P)
+
+    def edge(i, j, ok=True, turned=False):
+        T = np.linalg.inv(P[j]) @ (_half_turn() if turned else np.eye(4)) @ P[i]
+        return PairResult(i, j, T, 0.95 if ok else 0.2, 1.0, np.eye(6) * 1000, "fpfh+icp", ok)
+
+    pairs = [edge(0, 1, ok=False), edge(0, 2, turned=True), edge(1, 2), edge(2, 3), edge(3, 4, ok=False),
+             edge(3, 5, turned=True), edge(4, 5), edge(5, 6), edge(0, n - 1)]
+    register, _ = _register_on(P, 0.95)
+    monkeypatch.setattr(stage, "register_pair", _mock(register))
+    pg = _graph(P, pairs)
+    stage.select_with_implied(pg, [None] * n, RegistrationConfig())
+    sel = pg.selection
+    assert not sel["reasons"], sel
+    assert sorted(d["edge"] for d in sel["path_implied"]) == ["00->01", "00->02", "03->04", "03->05"], sel
+    res = pg.optimize(0.003)
+    for k in range(n):
+        E = np.linalg.inv(np.linalg.inv(P[0]) @ P[k]) @ res.poses[k]
+        assert rotation_angle_deg(E) < 1e-4, k
