@@ -101,3 +101,25 @@ def path_frame(poses: np.ndarray, views: list[int], centres: np.ndarray,
         cam = P[:, :3, 3] - P[:, :3, 3].mean(0)
         up = np.linalg.svd(cam, full_matrices=False)[2][-1]
     return c, np.asarray(up, np.float64)
+
+
+def path_walk(poses: np.ndarray, views: list[int], centres: np.ndarray, up: np.ndarray | None,
+              max_ratio: float) -> tuple[np.ndarray, list[int]]:
+    """The azimuth steps of placed views in scan order and those that do not walk.
+
+    Parameters
+    ----------
+    poses : (M, 4, 4) camera-to-world of the views ``views`` [m], in scan order (``views`` ascending)
+    views, centres, up : as :func:`path_frame`
+    max_ratio : :func:`path_anomalies`' leap bound (a step across views left out counts per scan step)
+
+    Returns
+    -------
+    steps : (M - 1,) :func:`path_steps` [deg] (all NaN where there is no vertical)
+    bad : :func:`path_anomalies` (indices into ``steps``)
+    """
+    frame = path_frame(poses, views, centres, up)
+    if frame is None:
+        return np.full(max(len(views) - 1, 0), np.nan), []
+    steps = path_steps(poses, *frame)
+    return steps, path_anomalies(steps, max_ratio, gaps=np.diff(views))

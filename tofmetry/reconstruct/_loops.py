@@ -13,7 +13,7 @@ from dataclasses import replace
 import numpy as np
 
 from tofmetry._shared.geometry import rotation_angle_deg
-from tofmetry.reconstruct._camera_path import path_anomalies, path_frame, path_steps
+from tofmetry.reconstruct._camera_path import path_walk
 from tofmetry.reconstruct._register import PairResult
 
 
@@ -190,9 +190,9 @@ def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg
 
     The cameras walk around the object in scan order (:mod:`tofmetry.reconstruct._camera_path`):
     where ``path_max_ratio`` and ``centres`` ((n, 3) object centre of each view in its camera frame
-    [m]) are given, a selection whose cameras step back or leap (:func:`path_anomalies`) yields to
-    the closing selection with fewer such steps and the most fitness, if that is within
-    ``path_margin`` of the best (``report["decided_by_path"]``); a tied selection with more of them
+    [m]) are given, a selection whose cameras step back or leap
+    (:func:`~tofmetry.reconstruct._camera_path.path_anomalies`) yields to the closing selection
+    with fewer such steps and the most fitness, if that is within ``path_margin`` of the best (``report["decided_by_path"]``); a tied selection with more of them
     than the one chosen is no alternative. The vertical: ``ups`` ((n, 3) the support plane's normal
     in each camera frame) where the root view has one, else the normal of the plane through the
     camera centres.
@@ -267,8 +267,8 @@ def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg
     consistent.sort(key=lambda c: -c[0])
     best = consistent[0]
     walk = None
+    order = sorted(main)
     if path_max_ratio is not None and centres is not None:
-        order = sorted(main)
         walk = {id(c): _path_anomalies(c[2], main, order, root, centres, ups, path_max_ratio) for c in consistent}
         if walk[id(best)]:
             fewer = [c for c in consistent if len(walk[id(c)]) < len(walk[id(best)]) and c[0] >= best[0] - path_margin]
@@ -325,7 +325,6 @@ def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg
             "of the scan and no closed loop verifies them (a nearly symmetric object matches itself turned over "
             "between distant views); take more views or views with more overlap")
     if walk is not None and walk[id(best)]:
-        order = sorted(main)
         report["path_steps"] = [f"{names[order[k]]}->{names[order[k + 1]]}" for k in walk[id(best)]]
         report["reasons"].append(
             f"the cameras do not walk around the object in scan order: from view {report['path_steps'][0]} "
@@ -351,11 +350,11 @@ def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg
 
 def _path_anomalies(poses_main: np.ndarray, main: list[int], order: list[int], root: int, centres: np.ndarray,
                     ups: np.ndarray | None, max_ratio: float) -> list[int]:
-    """:func:`path_anomalies` of a selection's cameras (``poses_main``: the views of ``main``, in
-    its order; the root's pose the identity), in scan order ``order``; indices into its steps."""
+    """:func:`~tofmetry.reconstruct._camera_path.path_walk`'s steps that do not walk, of a selection's
+    cameras (``poses_main``: the views of ``main``, in its order; the root's pose the identity), in
+    scan order ``order``; indices into its steps."""
     P = np.asarray(poses_main, np.float64)[np.argsort(main)]  # rows in the order of sorted(main)
-    frame = path_frame(P, order, centres, None if ups is None else ups[root])
-    return [] if frame is None else path_anomalies(path_steps(P, *frame), max_ratio, gaps=np.diff(order))
+    return path_walk(P, order, centres, None if ups is None else ups[root], max_ratio)[1]
 
 
 def _ir_rejects(primary: PairResult, alt: PairResult, min_corr: float, margin: float) -> bool:

@@ -26,7 +26,7 @@ from typing import Callable
 
 import numpy as np
 
-from tofmetry.reconstruct._camera_path import path_anomalies, path_frame, path_steps
+from tofmetry.reconstruct._camera_path import path_walk
 from tofmetry.reconstruct._loops import connected_components, spanning_tree
 from tofmetry.reconstruct._register import PairResult, _same_pose
 
@@ -51,7 +51,7 @@ def path_implied_hypotheses(n: int, pairs: list[PairResult], selected: list[Pair
     register : ``register(i, j, step_deg, tol_deg) -> PairResult``: the pair (i, j) searched for
         as a turntable's pair of that step and tolerance (:class:`~tofmetry.reconstruct._turntable.TurntablePrior`:
         the yaw search about the support plane's normal seeded by the turn, hypotheses off it refused)
-    max_ratio : :func:`path_anomalies`' leap bound
+    max_ratio : :func:`~tofmetry.reconstruct._camera_path.path_anomalies`' leap bound
     margin : a hypothesis is added where its fitness is at least the kept one's minus this
 
     Returns
@@ -63,12 +63,7 @@ def path_implied_hypotheses(n: int, pairs: list[PairResult], selected: list[Pair
     kept = [p for p in selected if p.accepted]
     main = sorted(max(connected_components(n, [(p.source, p.target) for p in kept]), key=len))
     poses = spanning_tree(n, kept, main[0])[0]
-    frame = path_frame(poses[main], main, centres, None if ups is None else ups[main[0]])
-    if frame is None:
-        return list(pairs), []
-    c, up = frame
-    steps = path_steps(poses[main], c, up)
-    bad = path_anomalies(steps, max_ratio, gaps=np.diff(main))
+    steps, bad = path_walk(poses[main], main, centres, None if ups is None else ups[main[0]], max_ratio)
     if not bad:
         return list(pairs), []
     per = steps / np.diff(main)

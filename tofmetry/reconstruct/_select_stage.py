@@ -37,42 +37,36 @@ def select_with_implied(pg: PoseGraphBuilder, regs: list[RegView], rc: Registrat
         c = rc.model_copy(update={"turntable_step_deg": step_deg, "turntable_tol_deg": tol_deg})
         return register_pair(regs[i], regs[j], i, j, c)
 
-    def used(found: list[dict], method: str) -> list[dict]:
-        now = {(q.source, q.target): q.method for q in pg.pairs if q.accepted}
-        return [f for f in found if now.get(tuple(f["edge"])) == method]
+    def retry(first: dict, pairs: list, found: list[dict], method: str, key: str, count: str, entry) -> dict:
+        """Select again from ``pairs``; kept (and returned) where it resolves, has fewer of the report's
+        ``count`` and chose a hypothesis tagged ``method`` (named under ``key``, with ``entry(f)``);
+        else the selection ``first`` is restored (and returned)."""
+        chosen = list(pg.pairs)
+        pg.pairs = pairs
+        again = select()
+        now = {(q.source, q.target): (q.method, round(float(q.fitness), 4)) for q in pg.pairs if q.accepted}
+        took = [f for f in found if now.get(tuple(f["edge"])) == (method, f["fitness"])]  # the hypothesis chosen
+        if again.get("resolved") and len(again.get(count, [])) < len(first[count]) and took:
+            again[key] = [{"edge": f"{names[f['edge'][0]]}->{names[f['edge'][1]]}", "fitness": f["fitness"],
+                           "replaced_fitness": f["kept_fitness"], **entry(f)} for f in took]
+            if first.get("loop_implied"):
+                again.setdefault("loop_implied", first["loop_implied"])
+            return again
+        pg.pairs, pg.selection = chosen, first
+        return first
 
     before = list(pg.pairs)
     first = select()
     if first.get("dropped") and rc.loop_implied_min_gain is not None:
-        chosen = list(pg.pairs)
-        pairs, found = loop_implied_hypotheses(len(regs), before, chosen, register, rc.loop_implied_min_gain)
+        pairs, found = loop_implied_hypotheses(len(regs), before, list(pg.pairs), register, rc.loop_implied_min_gain)
         if found:
-            pg.pairs = pairs
-            again = select()
-            took = used(found, LOOP_IMPLIED)
-            if again.get("resolved") and len(again.get("dropped", [])) < len(first["dropped"]) and took:
-                again["loop_implied"] = [{"edge": f"{names[f['edge'][0]]}->{names[f['edge'][1]]}",
-                                          "fitness": f["fitness"], "replaced_fitness": f["kept_fitness"],
-                                          "implied_by": f"{names[f['implied_by'][0]]}->{names[f['implied_by'][1]]}"}
-                                         for f in took]
-                before, first = pairs, again
-            else:
-                pg.pairs, pg.selection = chosen, first
+            kept = retry(first, pairs, found, LOOP_IMPLIED, "loop_implied", "dropped",
+                         lambda f: {"implied_by": f"{names[f['implied_by'][0]]}->{names[f['implied_by'][1]]}"})
+            if kept is not first:
+                before, first = pairs, kept
     if not first.get("path_steps") or rc.path_max_step_ratio is None or pg.centres is None:
         return
-    chosen = list(pg.pairs)
-    pairs, found = path_implied_hypotheses(len(regs), before, chosen, pg.centres, pg.ups, register_turn,
+    pairs, found = path_implied_hypotheses(len(regs), before, list(pg.pairs), pg.centres, pg.ups, register_turn,
                                            rc.path_max_step_ratio, rc.path_fitness_margin)
-    if not found:
-        return
-    pg.pairs = pairs
-    again = select()
-    took = used(found, PATH_IMPLIED)
-    if again.get("resolved") and len(again.get("path_steps", [])) < len(first["path_steps"]) and took:
-        again["path_implied"] = [{"edge": f"{names[f['edge'][0]]}->{names[f['edge'][1]]}", "fitness": f["fitness"],
-                                  "replaced_fitness": f["kept_fitness"], "step_deg": f["step_deg"]} for f in took]
-        for key in ("loop_implied",):
-            if first.get(key):
-                again[key] = first[key]
-        return
-    pg.pairs, pg.selection = chosen, first
+    if found:
+        retry(first, pairs, found, PATH_IMPLIED, "path_implied", "path_steps", lambda f: {"step_deg": f["step_deg"]})
