@@ -306,7 +306,8 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
                consistency={k: v for k, v in res.diagnostics["consistency"].items() if k != "selection"},
                selection={k: v for k, v in (res.diagnostics["consistency"].get("selection") or {}).items()
                           if k in ("changed", "dropped", "spread", "ambiguous_with", "reasons", "ir_vetoed",
-                                   "loop_implied", "decided_by_path", "path_steps", "path_implied")},
+                                   "loop_implied", "decided_by_path", "path_steps", "path_implied",
+                                   "closing_pair_walks")},
                pose_errors=pe.to_dict(),
                plan=res.diagnostics.get("plan"), amplitude_slope=res.diagnostics.get("amplitude_slope"),
                slab=res.diagnostics.get("slab"))

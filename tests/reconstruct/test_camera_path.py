@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tofmetry.reconstruct._camera_path import path_anomalies, path_steps
+from tofmetry.reconstruct._camera_path import closes_once, path_anomalies, path_steps
 from tofmetry.simulate.paths import handheld, turntable, two_rings
 
 CENTRE = np.array([0.1, -0.2, 0.05])
@@ -62,3 +62,33 @@ def test_zenithal_views_and_a_second_ring_have_no_step():
     # a view left out: the step across it spans two scan steps, and is taken per scan step
     s = path_steps(np.delete(np.array(turntable(9, 1.0, 30.0, CENTRE).poses), [2, 3, 4], axis=0), CENTRE, UP)
     assert path_anomalies(s) == [1] and path_anomalies(s, gaps=[1, 4, 1, 1, 1]) == []
+
+
+def _centres(P: np.ndarray) -> np.ndarray:
+    """The object centre in each camera's frame."""
+    return np.array([np.linalg.inv(T)[:3, :3] @ CENTRE + np.linalg.inv(T)[:3, 3] for T in P])
+
+
+def test_a_scan_that_goes_round_closes_once_and_one_that_does_not_never():
+    rng = np.random.default_rng(5)
+    for k in range(100):
+        n = int(rng.integers(6, 17))
+        d, el, start = float(rng.uniform(0.6, 1.5)), float(rng.uniform(15, 45)), float(rng.uniform(0, 360))
+        for path in (handheld(n, d, el, CENTRE, rng, start), turntable(n, d, el, CENTRE, start)):
+            P = np.array(path.poses)
+            views = list(range(n))
+            assert closes_once(P, views, n, _centres(P), UP if k % 2 else -UP, 3.0), (k, path.kind)
+            # a view left out of the model: the step across it counts per scan step
+            m = int(rng.integers(1, n - 1))
+            keep = [v for v in views if v != m]
+            assert closes_once(P[keep], keep, n, _centres(P), None, 3.0), (k, path.kind, m)
+    # half a turn in 6 views (30 deg steps): closing it leaps 180 deg
+    P = np.array(turntable(12, 1.0, 30.0, CENTRE).poses)[:6]
+    assert not closes_once(P, list(range(6)), 6, _centres(P), UP, 3.0)
+    # a run of views turned over (a box matched turned by its symmetry) does not walk
+    Q = np.array(turntable(8, 1.0, 30.0, CENTRE).poses)
+    Q[3:6] = [_turn(T, 180.0) for T in Q[3:6]]
+    assert not closes_once(Q, list(range(8)), 8, _centres(Q), UP, 3.0)
+    # too few views to tell
+    P = np.array(turntable(3, 1.0, 30.0, CENTRE).poses)
+    assert not closes_once(P, [0, 1, 2], 3, _centres(P), UP, 3.0)

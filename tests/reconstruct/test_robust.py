@@ -437,3 +437,27 @@ def test_alternatives_the_pattern_contradicts_are_not_chosen_for_a_trivially_clo
     chosen = [p for p in pg.pairs if p.accepted]
     assert len(chosen) == 8 and all(p.ir_corr == 0.9 for p in chosen), rep
     assert len(rep["ir_vetoed"]) == 8 and not rep["changed"], rep
+
+
+def test_the_closing_pair_of_a_scan_that_goes_round_is_a_successive_pair():
+    # 8 views, the successive pair 3->4 failed: the closing pair 7->0 (last view, first) is the only
+    # link between 0-3 and 4-7. Matched right, the cameras walk once round and it is trusted as the
+    # successive pair it is (family: three fandisks flagged for it alone, all within the gate)
+    edges = [(i, i + 1) for i in range(7) if i != 3] + [(0, 7)]
+    pg = _walk_frame(_right_edges(8, edges), 8)
+    rep = pg.select_hypotheses(2.0, 10.0, 0.05, path_max_ratio=3.0)
+    assert rep["resolved"] and not rep.get("unverified") and not rep["reasons"], rep
+    assert rep["closing_pair_walks"] == "00->07"
+    res = pg.optimize(0.003)
+    verdict = assess(pg.names, res.edges, res.consistency, {}, None, None)
+    assert verdict["reliable"] and any("taken as the successive pair it is" in w for w in verdict["warnings"]), verdict
+    # without the walk (the check switched off) nothing shows that it is right: flagged as before
+    rep = _walk_frame(_right_edges(8, edges), 8).select_hypotheses(2.0, 10.0, 0.05)
+    assert rep["unverified"] == ["00->07"] and any("between non-successive views" in r for r in rep["reasons"]), rep
+    # matched turned over, it places views 4-7 on the far side: the cameras do not walk round
+    P = _circle_poses(8)
+    pg = PoseGraphBuilder(8, [f"{k:02d}" for k in range(8)])
+    for i, j in edges:
+        pg.add(_edge(P, i, j, flip=(i, j) == (0, 7)))
+    rep = _walk_frame(pg, 8).select_hypotheses(2.0, 10.0, 0.05, path_max_ratio=3.0)
+    assert rep["unverified"] == ["00->07"] and "closing_pair_walks" not in rep, rep

@@ -123,3 +123,37 @@ def path_walk(poses: np.ndarray, views: list[int], centres: np.ndarray, up: np.n
         return np.full(max(len(views) - 1, 0), np.nan), []
     steps = path_steps(poses, *frame)
     return steps, path_anomalies(steps, max_ratio, gaps=np.diff(views))
+
+
+def closes_once(poses: np.ndarray, views: list[int], n_views: int, centres: np.ndarray, up: np.ndarray | None,
+                max_ratio: float) -> bool:
+    """Whether the placed cameras walk once around the object, back to the first: every step of the
+    scan order and the closing step from the last view to the first walk (:func:`path_anomalies`),
+    each has an azimuth, and together they turn by one full turn.
+
+    Where a successive pair failed, the scan's closing pair (its last view and its first, registered
+    as successive views, the path being a loop) is the only link between the two parts, and no loop
+    verifies it. Matched wrongly, it cannot close the path this way: a scan that does not go round
+    (a half arc whose ends a symmetric object matched) would have to leap where the pair failed.
+
+    Parameters
+    ----------
+    poses : (M, 4, 4) camera-to-world of ``views`` [m], in scan order (``views`` ascending, the
+        first and the last view of the scan among them)
+    views : their indices in the scan; n_views : the scan's number of views
+    centres, up : as :func:`path_frame`
+    max_ratio : :func:`path_anomalies`' leap bound
+
+    Returns
+    -------
+    bool
+    """
+    frame = path_frame(poses, views, centres, up)
+    if frame is None or len(views) < 4:
+        return False
+    P = np.asarray(poses, np.float64)
+    steps = path_steps(np.concatenate([P, P[:1]]), *frame)
+    gaps = np.diff(list(views) + [views[0] + n_views])
+    if not np.isfinite(steps).all() or path_anomalies(steps, max_ratio, gaps=gaps):
+        return False
+    return bool(abs(abs(float(steps.sum())) - 360.0) < 1.0)

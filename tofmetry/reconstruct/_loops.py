@@ -13,7 +13,7 @@ from dataclasses import replace
 import numpy as np
 
 from tofmetry._shared.geometry import rotation_angle_deg
-from tofmetry.reconstruct._camera_path import path_walk
+from tofmetry.reconstruct._camera_path import closes_once, path_walk
 from tofmetry.reconstruct._register import PairResult
 
 
@@ -316,8 +316,16 @@ def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg
     kept_edges = [(p.source, p.target) for p in kept]
     br = bridges(n, kept_edges)
     in_main = set(main)  # views of a smaller group are left out of the model (and said so) anyway
+    closing = None  # whether the scan's closing pair (last view, first) walks like a successive pair
     for k, e in enumerate(kept):  # a match between non-successive views that no loop verifies is not trusted
         if abs(e.source - e.target) != 1 and k in br and e.source in in_main:
+            if {e.source, e.target} == {0, n - 1} and path_max_ratio is not None and centres is not None:
+                if closing is None:
+                    P = np.asarray(poses, np.float64)[np.argsort(main)]
+                    closing = closes_once(P, order, n, centres, None if ups is None else ups[root], path_max_ratio)
+                if closing:
+                    report["closing_pair_walks"] = f"{names[e.source]}->{names[e.target]}"
+                    continue
             report["unverified"] = report.get("unverified", []) + [f"{names[e.source]}->{names[e.target]}"]
     if report.get("unverified"):
         report["reasons"].append(

@@ -221,13 +221,13 @@ def consistency_gate(edges: list[dict], cycle: tuple[float, float, int] | None, 
 
     Returns
     -------
-    dict: reliable (bool), reasons (list of str), max_kept_residual_deg / _mm, cycle_closure_deg / _mm,
-    cycle_per_edge_deg / _mm, n_pruned, thresholds.
+    dict: reliable (bool), reasons (list of str), loop_reasons (those of the two loop tests),
+    max_kept_residual_deg / _mm, cycle_closure_deg / _mm, cycle_per_edge_deg / _mm, n_pruned, thresholds.
     """
     kept = [e for e in edges if e.get("kept")]
     r_deg = max((e.get("residual_rot_deg", 0.0) for e in kept), default=0.0)
     r_mm = max((e.get("residual_trans_mm", 0.0) for e in kept), default=0.0)
-    reasons = []
+    reasons, loop_reasons = [], []
     if r_deg > max_deg or r_mm > max_mm:
         worst = max(kept, key=lambda e: max(e.get("residual_rot_deg", 0) / max_deg, e.get("residual_trans_mm", 0) / max_mm))
         reasons.append(f"kept edge {worst['source']}->{worst['target']} disagrees with the optimised poses by "
@@ -242,16 +242,19 @@ def consistency_gate(edges: list[dict], cycle: tuple[float, float, int] | None, 
         out.update(cycle_closure_deg=float(c_deg), cycle_closure_mm=float(c_mm), cycle_per_edge_deg=float(pe_deg),
                    cycle_per_edge_mm=float(pe_mm))
         if pe_deg > max_deg or pe_mm > max_mm:
-            reasons.append(f"the circle of successive views does not close: {c_deg:.2f} deg / {c_mm:.1f} mm over {n} "
-                           f"edges ({pe_deg:.2f} deg / {pe_mm:.1f} mm per edge; limit {max_deg:g} deg / {max_mm:g} mm)")
+            loop_reasons.append(f"the circle of successive views does not close: {c_deg:.2f} deg / {c_mm:.1f} mm over "
+                                f"{n} edges ({pe_deg:.2f} deg / {pe_mm:.1f} mm per edge; limit {max_deg:g} deg / {max_mm:g} mm)")
     else:
         out.update(cycle_closure_deg=None, cycle_closure_mm=None, cycle_per_edge_deg=None, cycle_per_edge_mm=None)
     loops = loops or []
     bad = [lp for lp in loops if lp["per_edge_deg"] > max_deg or lp["per_edge_mm"] > max_mm]
     if bad:
         w = max(bad, key=lambda lp: max(lp["per_edge_deg"] / max_deg, lp["per_edge_mm"] / max_mm))
-        reasons.append(f"the loop closed by edge {w['edge'][0]}->{w['edge'][1]} ({w['n_edges']} edges) does not close: "
-                       f"{w['closure_deg']:.2f} deg / {w['closure_mm']:.1f} mm ({len(bad)} failing loop(s) of {len(loops)})")
+        loop_reasons.append(f"the loop closed by edge {w['edge'][0]}->{w['edge'][1]} ({w['n_edges']} edges) does not "
+                            f"close: {w['closure_deg']:.2f} deg / {w['closure_mm']:.1f} mm ({len(bad)} failing loop(s) of "
+                            f"{len(loops)})")
+    reasons.extend(loop_reasons)
+    out["loop_reasons"] = list(loop_reasons)
     out["loops"] = loops
     if selection is not None:
         out["selection"] = selection

@@ -49,7 +49,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tofmetry.reconstruct._adjust_restart import came_back
+from tofmetry.reconstruct._adjust_restart import came_back, settles_loops
 from tofmetry.reconstruct._calibration_support import (
     calibration_central_mm,
     station_spacing_mm,
@@ -200,10 +200,12 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
     b_deg = max((lp["closure_deg"] for lp in loops), default=0.0) / 2
     b_mm = max((lp.get("closure_object_mm", lp["closure_mm"]) for lp in loops), default=0.0) / 2
     sel = consistency.get("selection") or {}
+    loop_msgs = list(consistency.get("loop_reasons") or [])
     if sel.get("spread") and (b_deg > pose_gate_deg or b_mm > pose_gate_mm):
-        graph.append(f"the loops close only to {2 * b_deg:.2f} deg / {2 * b_mm:.1f} mm at the object; spread over "
-                       f"their edges this leaves up to ~{b_deg:.2f} deg / {b_mm:.1f} mm on a view (limit "
-                       f"{pose_gate_deg:g} deg / {pose_gate_mm:g} mm): the views disagree (depth-calibration residual?)")
+        loop_msgs.append(f"the loops close only to {2 * b_deg:.2f} deg / {2 * b_mm:.1f} mm at the object; spread over "
+                         f"their edges this leaves up to ~{b_deg:.2f} deg / {b_mm:.1f} mm on a view (limit "
+                         f"{pose_gate_deg:g} deg / {pose_gate_mm:g} mm): the views disagree (depth-calibration residual?)")
+        graph.append(loop_msgs[-1])
         reasons.append(graph[-1])
     if turntable_placed and turntable_accuracy_deg is not None and turntable_accuracy_deg <= pose_gate_deg:
         reasons = [r for r in reasons if r not in graph]
@@ -217,6 +219,10 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
         warnings.append("the geometry alone left the registration ambiguous (the object looks alike from different "
                         f"sides: {sel['decided_by_ir']['n_tied']} choices closed every loop); the IR albedo pattern "
                         "decided between them")
+    if sel.get("closing_pair_walks"):
+        warnings.append(f"edge {sel['closing_pair_walks']} (the scan's last view and its first) is the only link between "
+                        "two parts of the scan and no loop verifies it; with it the cameras walk once around the object "
+                        "in scan order, so it is taken as the successive pair it is")
     if sel.get("decided_by_path"):
         d = sel["decided_by_path"]
         warnings.append("the pairwise hypotheses that scored best stepped the cameras back or leapt (at "
@@ -239,6 +245,13 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
                 "the declared turntable" if turntable_placed else "the pairwise registrations",
                 max(pose_gate_deg, 2.0 * turntable_accuracy_deg) if turntable_placed and turntable_accuracy_deg else
                 pose_gate_deg, restart_share)
+    moves = _move_judged(adjustment)[0] if (adjustment or {}).get("moved_deg") else {}
+    if (loop_msgs and any(r in reasons for r in loop_msgs)
+            and settles_loops(consistency, (adjustment or {}).get("restart"), max(moves.values(), default=0.0),
+                              pose_gate_deg, pose_gate_mm, restart_share)):
+        reasons = [r for r in reasons if r not in loop_msgs]
+        warnings.extend("the joint fit of all views places them (its restart came back, and it moved no view beyond "
+                        "the pose gate), not the pairwise loops, which say: " + r for r in loop_msgs)
     warns = (calibration_prediction or {}).get("warnings") or []
     pc = calibration_central_mm(calibration_prediction)
     local = (calibration_prediction or {}).get("local") or {}
