@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.reconstruct import PairResult, PoseGraphBuilder, RegView, consistency_gate
 from tofmetry.reconstruct._loops import loop_closures
 from tofmetry.reconstruct._verdict import assess
@@ -461,3 +462,16 @@ def test_the_closing_pair_of_a_scan_that_goes_round_is_a_successive_pair():
         pg.add(_edge(P, i, j, flip=(i, j) == (0, 7)))
     rep = _walk_frame(pg, 8).select_hypotheses(2.0, 10.0, 0.05, path_max_ratio=3.0)
     assert rep["unverified"] == ["00->07"] and "closing_pair_walks" not in rep, rep
+
+
+def test_the_tied_choices_are_kept_for_the_joint_fit_to_decide():
+    # the indistinguishable flips: the selection keeps the tied choice's pairs, and its pose graph
+    # places views 2-3 on the far side (turned half a turn about the object's axis)
+    pg = _even_flips(6)
+    pg.select_hypotheses(2.0, 10.0, 0.05)
+    assert len(pg.tied) == 1 and "_tied_pairs" not in pg.selection
+    chosen = pg.optimize(0.003).poses
+    (other,) = pg.tied_poses(0.003)
+    turned = [rotation_angle_deg(np.linalg.inv(a) @ b) for a, b in zip(chosen, other)]
+    assert np.allclose(np.array(turned)[[0, 1, 4, 5]], 0.0, atol=1e-4) and min(turned[2], turned[3]) > 170.0, turned
+    assert pg.tied_poses(0.003, limit=0) == []  # more tied choices than can be checked: none

@@ -372,3 +372,26 @@ def test_a_determined_joint_fit_within_the_gate_settles_loops_that_fail_at_the_c
     wide = dict(loop, closure_deg=9.0, per_edge_deg=9.0 / 13 ** 0.5)
     v = run(back, loop=wide)[1]
     assert not v["reliable"] and any("does not close" in r for r in v["reasons"])
+
+
+def test_an_ambiguity_the_joint_fit_decides_is_a_warning():
+    """Choices of pairwise hypotheses tied with the chosen one: where the joint fit from each ends
+    within half the pose gate of its solution, the points decide and the run is not flagged for it;
+    one that ends farther, or a tied choice not fitted, keeps the reason."""
+    names = _names(3)
+    e = [_edge("00", "01"), _edge("01", "02"), _edge("00", "02")]
+    amb = "registration ambiguous: 1 other choice(s) ..."
+
+    def run(tied, n_tied=1):
+        sel = {"ambiguous_reason": amb, "ambiguous_with": [{"edges": ["01->02"]}] * n_tied, "reasons": [amb]}
+        adj = {"moved_deg": {"00": 0.0, "01": 0.1, "02": 0.1}, "gain_note": "not asked for", "tied": tied}
+        return assess(names, [dict(x) for x in e], {"reasons": [amb], "loops": [], "selection": sel}, adjustment=adj,
+                      calibration_prediction={})
+
+    near = {"deg": 0.08, "mm": 0.6, "view": 2, "per_view_deg": [0.0, 0.02, 0.08]}
+    v = run([near])
+    assert v["reliable"] and any(w.startswith(amb) and "the points of all views decide" in w for w in v["warnings"])
+    assert not run([dict(near, deg=0.3)])["reliable"]  # beyond half the gate (0.25 deg)
+    assert not run([dict(near, mm=1.6)])["reliable"]
+    assert not run([near], n_tied=2)["reliable"]  # a tied choice not fitted
+    assert not run(None)["reliable"] and not run([{"failed": "too few correspondences"}])["reliable"]

@@ -82,7 +82,14 @@ def restart_probe(solution: np.ndarray, start: np.ndarray, rerun: Callable[[np.n
     """
     J = np.asarray(solution, np.float64)
     S = reflected_start(J, start, min_deg)
-    R2 = np.asarray(rerun(S), np.float64)
+    out = _apart(J, np.asarray(rerun(S), np.float64), object_points)
+    out["start_deg"] = round(float(max(rotation_angle_deg(S[v] @ np.linalg.inv(J[v])) for v in range(len(J)))), 4)
+    return out
+
+
+def _apart(J: np.ndarray, R2: np.ndarray, object_points: np.ndarray) -> dict:
+    """How far the poses ``R2`` end from ``J`` (V, 4, 4): the largest rotation [deg] (``deg``, its
+    ``view``, ``per_view_deg``) and the largest displacement of an object point [mm] (``mm``)."""
     pts = np.asarray(object_points, np.float64)
     deg, mm = [], []
     for v in range(len(J)):
@@ -91,8 +98,32 @@ def restart_probe(solution: np.ndarray, start: np.ndarray, rerun: Callable[[np.n
         mm.append(float(np.linalg.norm(transform_points(pts, E) - pts, axis=1).max()) * 1e3 if len(pts) else 0.0)
     k = int(np.argmax(deg))
     return {"deg": round(float(deg[k]), 4), "mm": round(float(max(mm)), 3), "view": k,
-            "start_deg": round(float(max(rotation_angle_deg(S[v] @ np.linalg.inv(J[v])) for v in range(len(J)))), 4),
             "per_view_deg": [round(float(x), 4) for x in deg]}
+
+
+def tied_probe(solution: np.ndarray, starts: list, rerun: Callable[[np.ndarray], np.ndarray],
+               object_points: np.ndarray) -> list[dict]:
+    """The joint fit started from the pose graph of each choice of pairwise hypotheses the selection
+    found tied with its own (:meth:`~tofmetry.reconstruct.PoseGraphBuilder.tied_poses`): how far from
+    ``solution`` does it end?
+
+    A nearly symmetric object lets several choices of the pairs' hypotheses close every loop with
+    the same matched share ("registration ambiguous"). The pairs cannot tell them apart; the points of
+    all views, matched jointly, may: where the fit from every tied choice ends at the same poses, the
+    points decide between them, and the ambiguity is the pairs', not the model's.
+
+    Parameters
+    ----------
+    solution : (V, 4, 4) the joint fit's poses from the chosen pose graph [m]
+    starts : (V, 4, 4) pose-graph poses of each tied choice, in the same frame
+    rerun, object_points : as :func:`restart_probe`
+
+    Returns
+    -------
+    per start: ``deg``, ``mm``, ``view``, ``per_view_deg`` (as :func:`restart_probe`)
+    """
+    J = np.asarray(solution, np.float64)
+    return [_apart(J, np.asarray(rerun(np.asarray(S, np.float64)), np.float64), object_points) for S in starts]
 
 
 def came_back(restart: dict | None, pose_gate_deg: float, pose_gate_mm: float, share: float = 1.0) -> bool:

@@ -49,6 +49,9 @@ class AdjustResult:
     restart : the adjustment restarted from the far side of its solution
         (:func:`~tofmetry.reconstruct._adjust_restart.restart_probe`: ``deg``, ``mm``, ``view``,
         ``start_deg``, ``per_view_deg``; ``{"failed": reason}``), or None when not run
+    tied : the adjustment run from the pose graph of each choice of pairwise hypotheses the selection
+        found tied with its own (:func:`~tofmetry.reconstruct._adjust_restart.tied_probe`: per choice
+        ``deg``, ``mm``, ``view``, ``per_view_deg``; ``[{"failed": reason}]``), or None when not run
     image_tilt_m, image_tilt_sigma_m, image_tilt_sigma_data_m, image_tilt_estimated, image_tilt_note :
         the depth error linear in the image position, ``Z -> Z + a x + b y`` ((a, b) [m per unit of
         ``x / z``, ``y / z``]; ``tilt_prior_m`` of :func:`~tofmetry.reconstruct._adjust.global_adjust`)
@@ -111,6 +114,7 @@ class AdjustResult:
     amplitude_gain_correlation: float = float("nan")
     amplitude_gain_slope: float = float("nan")
     restart: dict | None = None
+    tied: list | None = None
     calibration_pose: dict | None = None
     albedo: dict | None = None
     support_plane: dict | None = None
@@ -186,7 +190,8 @@ class AdjustResult:
                 {n: round(float(x), 5) for n, x in zip(names, self.pose_sigma_deg)},
                 "pose_sigma_mm": None if self.pose_sigma_mm is None else
                 {n: round(float(x), 4) for n, x in zip(names, self.pose_sigma_mm)},
-                "restart": self.restart, "calibration_pose": self.calibration_pose, "image_tilt": self.tilt_report(),
+                "restart": self.restart, "tied": self.tied, "calibration_pose": self.calibration_pose,
+                "image_tilt": self.tilt_report(),
                 "albedo": self.albedo, "support_plane": self.support_plane, "turn_axis": self.turn_axis,
                 "pairs": [{"source": names[i], "target": names[j], "n": int(self.pair_counts[i, j]),
                            "rms_mm": round(float(self.pair_rms_mm[i, j]), 3)}

@@ -17,7 +17,7 @@ from tofmetry.reconstruct._adjust import AdjustView, calibration_pose, field_pos
 from tofmetry.reconstruct._adjust_albedo import albedo_gradients
 from tofmetry.reconstruct._adjust_apply import correct_views
 from tofmetry.reconstruct._adjust_circle import turntable_path
-from tofmetry.reconstruct._adjust_restart import came_back, pair_walks, restart_probe
+from tofmetry.reconstruct._adjust_restart import came_back, pair_walks, restart_probe, tied_probe
 from tofmetry.reconstruct._adjust_result import AdjustResult, keep_amplitude_if_it_explains
 from tofmetry.reconstruct._amplitude import amplitude_log_ratio
 from tofmetry.reconstruct._calibration_support import calibration_central_mm, calibration_gain_sigma, depth_field_prior
@@ -85,7 +85,7 @@ def _views(regs: list[RegView]) -> list[AdjustView]:
 def joint_adjustment(views, segs, regs: list[RegView], poses: np.ndarray, cfg: ReconstructionConfig, cal,
                      white_map: np.ndarray | None, progress, *, turntable: bool = False,
                      loops: list[dict] | None = None, edges=(), edge_ir=(),
-                     yaw_free: bool = False) -> tuple[AdjustResult | None, str | None]:
+                     yaw_free: bool = False, tied=()) -> tuple[AdjustResult | None, str | None]:
     """Global adjustment of the pose-graph poses ``poses`` (V, 4, 4) camera to world [m] (and the
     depth gain); applies the gain to ``views`` (depth and points) in place.
 
@@ -98,6 +98,8 @@ def joint_adjustment(views, segs, regs: list[RegView], poses: np.ndarray, cfg: R
     ``yaw_free``: one of them leaves the rotation about the vertical free (a surface of
     revolution): then the joint fit matches the albedo too, about the vertical only, when their
     median reaches ``adjust_albedo_min_corr`` (:mod:`tofmetry.reconstruct._adjust_albedo`).
+    ``tied``: the pose-graph poses (V, 4, 4) of the choices of pairwise hypotheses tied with the one
+    ``poses`` come from; the fit is run from each too (:func:`tied_probe`, in ``AdjustResult.tied``).
 
     Returns
     -------
@@ -165,6 +167,8 @@ def joint_adjustment(views, segs, regs: list[RegView], poses: np.ndarray, cfg: R
                 res.restart = _restart(res, poses, regs, cfg, lambda S: run(
                     amp_prior if res.amplitude_estimated else None, S).poses)
                 _pair_walks(res, regs, edges, cfg)
+            if len(tied):
+                res.tied = _tied(res, tied, regs, lambda S: run(amp_prior if res.amplitude_estimated else None, S).poses)
             if degree_why and res.range_curve_m is not None:
                 res.range_curve_note = f"{res.range_curve_note} ({degree_why})"
             if field is not None:  # once, on the adjustment kept
@@ -188,6 +192,17 @@ def _restart(res: AdjustResult, start: np.ndarray, regs: list[RegView], cfg: Rec
         return restart_probe(res.poses, start, rerun, obj, cfg.registration.pose_gate_deg)
     except EstimationError as exc:
         return {"failed": str(exc)}
+
+
+def _tied(res: AdjustResult, starts, regs: list[RegView], rerun) -> list[dict]:
+    """:func:`tied_probe` of the adjustment ``res`` from the tied choices' poses ``starts``, measured
+    as :func:`_restart` does; a fit that fails says why (``{"failed": reason}``)."""
+    obj = np.concatenate([transform_points(r.obj_points, T) for r, T in zip(regs, res.poses)])
+    obj = obj[:: max(1, len(obj) // 5000)]
+    try:
+        return tied_probe(res.poses, list(starts), rerun, obj)
+    except EstimationError as exc:
+        return [{"failed": str(exc)}]
 
 
 def _pair_walks(res: AdjustResult, regs: list[RegView], edges, cfg: ReconstructionConfig) -> None:

@@ -294,24 +294,17 @@ def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg
     for s2, c2, p2, _ in tied:
         diff = [f"{names[pairs[acc[m]].source]}->{names[pairs[acc[m]].target]}" for m in range(len(acc)) if c2[m] != combo[m]]
         report["ambiguous_with"].append({"score_difference": round(score - s2, 4), "edges": diff})
-    out = list(pairs)
-    for m, c in enumerate(combo):
-        p = pairs[acc[m]]
-        ch = opts[m][c]
-        tag = f"{names[p.source]}->{names[p.target]}"
-        if ch is None:
-            out[acc[m]] = replace(p, accepted=False, method=p.method + " (dropped: contradicts the other views)")
-            report["dropped"].append(tag)
-        elif ch is not p:
-            out[acc[m]] = p.with_hypothesis(ch)
-            report["changed"].append(tag)
+    out = _with_choice(pairs, acc, opts, combo, names, report)
+    # the pairs of each tied choice, for the joint fit to start from (popped by PoseGraphBuilder)
+    report["_tied_pairs"] = [_with_choice(pairs, acc, opts, c2, names) for _, c2, _, _ in tied]
     if report["ambiguous_with"]:
         a = report["ambiguous_with"][0]
-        report["reasons"].append(
+        report["ambiguous_reason"] = (
             f"registration ambiguous: {len(report['ambiguous_with'])} other choice(s) of the pairwise hypotheses close "
             f"every loop with a summed fitness within {margin:g} (e.g. changing {', '.join(a['edges'])}: "
             f"{a['score_difference']:.3f} lower) but place the cameras differently; the object looks alike from "
             "different sides (symmetry): the camera poses are not determined by the geometry")
+        report["reasons"].append(report["ambiguous_reason"])
     kept = [out[acc[m]] for m, c in enumerate(combo) if opts[m][c] is not None]
     kept_edges = [(p.source, p.target) for p in kept]
     br = bridges(n, kept_edges)
@@ -354,6 +347,26 @@ def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg
                 "nothing decides which is wrong (a nearly symmetric object matches itself turned over); take more "
                 "views or views with more overlap")
     return out, report
+
+
+def _with_choice(pairs: list[PairResult], acc: list[int], opts: list, combo, names: list[str],
+                 report: dict | None = None) -> list[PairResult]:
+    """``pairs`` with the hypothesis ``combo`` picks for each accepted edge (``acc``, ``opts``): an edge
+    whose pick is None is dropped; with ``report``, the dropped and changed edges are listed in it."""
+    out = list(pairs)
+    for m, c in enumerate(combo):
+        p = pairs[acc[m]]
+        ch = opts[m][c]
+        tag = f"{names[p.source]}->{names[p.target]}"
+        if ch is None:
+            out[acc[m]] = replace(p, accepted=False, method=p.method + " (dropped: contradicts the other views)")
+            if report is not None:
+                report["dropped"].append(tag)
+        elif ch is not p:
+            out[acc[m]] = p.with_hypothesis(ch)
+            if report is not None:
+                report["changed"].append(tag)
+    return out
 
 
 def _path_anomalies(poses_main: np.ndarray, main: list[int], order: list[int], root: int, centres: np.ndarray,

@@ -113,6 +113,7 @@ class ReconstructionPipeline:
         self.other_edges: list[dict] = []
         self.turntable: dict | None = None  # the declared turntable's axis fit and bridges (turntable_bridges)
         self.pattern: dict | None = None  # the edges searched again by the IR pattern (search_by_pattern)
+        self.tied_starts: list[np.ndarray] = []  # pose-graph poses of the choices tied with the chosen one
 
     # -- stages -----------------------------------------------------------------------------
     def _intrinsics(self, cap):
@@ -233,6 +234,8 @@ class ReconstructionPipeline:
                                 for p in pg.pairs if not (p.source in keep and p.target in keep)]
             pg = pg.subgraph(keep)
         res = pg.optimize(rc.icp_radii_mm[-1] * 1e-3, rc.edge_prune, rc.gate_max_deg, rc.gate_max_mm)
+        # the choices tied with the chosen one, for the joint fit to decide between (all views kept only)
+        self.tied_starts = [] if len(keep) < n else pg.tied_poses(rc.icp_radii_mm[-1] * 1e-3, rc.edge_prune)
         for d, p in zip(res.edges, pg.pairs):  # why a pair failed, with its figures and the gates
             if not p.accepted:
                 d["reason"] = rejection_reason(p, rc)
@@ -240,11 +243,11 @@ class ReconstructionPipeline:
 
     def adjust(self, views: list[ViewData], segs: list[Segmentation], regs: list[RegView],
                poses: np.ndarray, loops: list[dict] | None = None, edges=(), edge_ir=(),
-               yaw_free: bool = False) -> AdjustResult | None:
+               yaw_free: bool = False, tied=()) -> AdjustResult | None:
         """The joint fit of the poses (:func:`joint_adjustment`; its failure in :attr:`adjust_failure`)."""
         res, self.adjust_failure = joint_adjustment(views, segs, regs, poses, self.cfg, self.cal, self.white_map,
                                                     self.progress, turntable=bool(self.turntable), loops=loops,
-                                                    edges=edges, edge_ir=edge_ir, yaw_free=yaw_free)
+                                                    edges=edges, edge_ir=edge_ir, yaw_free=yaw_free, tied=tied)
         return res
 
     def fuse(self, views, segs, poses, intr):
@@ -285,7 +288,8 @@ class ReconstructionPipeline:
         adj = self.adjust(views, segs, regs, start, (graph.consistency or {}).get("loops"),
                           [(idx[e["source"]], idx[e["target"]]) for e in kept_edges],
                           [e.get("ir_corr") for e in kept_edges],
-                          any(leaves_yaw_free(e.get("conditioning"), self.cfg.registration.yaw_free_ratio) for e in kept_edges))
+                          any(leaves_yaw_free(e.get("conditioning"), self.cfg.registration.yaw_free_ratio) for e in kept_edges),
+                          () if self.turntable else self.tied_starts)
         t2 = time.perf_counter()
         poses = start if adj is None else adj.poses
         V, F, N, P, PN, fusion_info = self.fuse(views, segs, poses, intr)

@@ -64,6 +64,7 @@ class PoseGraphBuilder:
         self.selection: dict | None = None
         self.centres: np.ndarray | None = None  # (n, 3) object centre per view, camera frame [m]
         self.ups: np.ndarray | None = None  # (n, 3) support plane's normal per view, camera frame (NaN: none)
+        self.tied: list[list[PairResult]] = []  # the pairs of each choice the selection found tied with its own
 
     def add(self, pair: PairResult) -> None:
         self.pairs.append(pair)
@@ -143,17 +144,34 @@ class PoseGraphBuilder:
         to a few degrees, measured)."""
         path = {"centres": self.centres, "ups": self.ups, "path_max_ratio": path_max_ratio, "path_margin": path_margin}
         pairs, report = select_hypotheses(self.n, self.pairs, self.names, max_deg, max_mm, margin, max_combos, **path)
+        tied = report.pop("_tied_pairs", [])
         report["spread"] = False
         if report.get("dropped") and spread_deg is not None and spread_mm is not None:
             pairs2, rep2 = select_hypotheses(self.n, self.pairs, self.names, spread_deg, spread_mm, margin, max_combos,
                                               **path)
+            tied2 = rep2.pop("_tied_pairs", [])
             if rep2.get("resolved") and len(rep2.get("dropped", [])) < len(report["dropped"]):
-                pairs, report = pairs2, rep2
+                pairs, report, tied = pairs2, rep2, tied2
                 report["spread"] = True
                 report["spread_bounds"] = {"deg": spread_deg, "mm": spread_mm}
-        self.pairs = pairs
+        self.pairs, self.tied = pairs, tied
         self.selection = report
         return report
+
+    def tied_poses(self, max_corr_m: float, edge_prune: float = 0.25, limit: int = 2) -> list[np.ndarray]:
+        """The optimised poses (V, 4, 4) of each of the first ``limit`` choices the selection found tied
+        with its own (:attr:`tied`), as :meth:`optimize` gives the chosen one's; empty when there are
+        more tied choices than ``limit`` (they cannot all be checked) or one leaves the views apart."""
+        if not self.tied or len(self.tied) > limit:
+            return []
+        out = []
+        for pairs in self.tied:
+            alt = PoseGraphBuilder(self.n, self.names)
+            alt.pairs, alt.centres, alt.ups = list(pairs), self.centres, self.ups
+            if len(alt.components()[0]) < self.n:
+                return []
+            out.append(alt.optimize(max_corr_m, edge_prune).poses)
+        return out
 
     def optimize(self, max_corr_m: float, edge_prune: float = 0.25, gate_deg: float = 2.0,
                  gate_mm: float = 10.0) -> PoseGraphResult:
@@ -243,7 +261,8 @@ def consistency_gate(edges: list[dict], cycle: tuple[float, float, int] | None, 
                    cycle_per_edge_mm=float(pe_mm))
         if pe_deg > max_deg or pe_mm > max_mm:
             loop_reasons.append(f"the circle of successive views does not close: {c_deg:.2f} deg / {c_mm:.1f} mm over "
-                                f"{n} edges ({pe_deg:.2f} deg / {pe_mm:.1f} mm per edge; limit {max_deg:g} deg / {max_mm:g} mm)")
+                                f"{n} edges ({pe_deg:.2f} deg / {pe_mm:.1f} mm per edge; limit {max_deg:g} deg / "
+                                f"{max_mm:g} mm)")
     else:
         out.update(cycle_closure_deg=None, cycle_closure_mm=None, cycle_per_edge_deg=None, cycle_per_edge_mm=None)
     loops = loops or []

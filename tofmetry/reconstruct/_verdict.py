@@ -58,6 +58,10 @@ from tofmetry.reconstruct._loops import bridges
 from tofmetry.reconstruct._pattern_search import METHOD as PATTERN_METHOD
 from tofmetry.reconstruct._regview import leaves_yaw_free
 
+#: the share of the pose gate within which the joint fits from every tied choice of pairwise hypotheses
+#: must end (of each other's solution) for the points to decide between them
+TIED_SHARE = 0.5
+
 
 def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dict | None = None,
            adjustment: dict | None = None, calibration_prediction: dict | None = None,
@@ -245,6 +249,15 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
                 "the declared turntable" if turntable_placed else "the pairwise registrations",
                 max(pose_gate_deg, 2.0 * turntable_accuracy_deg) if turntable_placed and turntable_accuracy_deg else
                 pose_gate_deg, restart_share)
+    amb = sel.get("ambiguous_reason")
+    tied = (adjustment or {}).get("tied") or []
+    if (amb in reasons and len(tied) == len(sel.get("ambiguous_with") or [])
+            and all(came_back(t, pose_gate_deg, pose_gate_mm, TIED_SHARE) for t in tied)):
+        reasons.remove(amb)
+        far = max(tied, key=lambda t: (t["deg"] / pose_gate_deg, t["mm"] / pose_gate_mm))
+        warnings.append(f"{amb}; but the joint fit of all views, started from each of them, ends within "
+                        f"{far['deg']:.2f} deg / {far['mm']:.1f} mm of its solution (limit {TIED_SHARE * pose_gate_deg:g} "
+                        f"deg / {TIED_SHARE * pose_gate_mm:g} mm): the points of all views decide")
     moves = _move_judged(adjustment)[0] if (adjustment or {}).get("moved_deg") else {}
     if (loop_msgs and any(r in reasons for r in loop_msgs)
             and settles_loops(consistency, (adjustment or {}).get("restart"), max(moves.values(), default=0.0),
