@@ -186,3 +186,26 @@ def test_a_loop_closure_icp_whose_wide_stages_slide_away_falls_back_on_its_last_
     monkeypatch.setattr(reg, "refine_fine", lambda src, tgt, T, c: slide @ T)
     q = reg.register_pair(v, v, 0, 1, cfg, init=init, global_search=False)
     assert not q.accepted and q.method == "none"
+
+
+def test_a_retry_not_kept_restores_the_first_selections_tied_choices(monkeypatch):
+    # the first selection's tied choices go with its pairs: a retry that is not kept must not leave its own
+    import tofmetry.reconstruct._posegraph as posegraph
+
+    calls = []
+    original = posegraph.PoseGraphBuilder.select_hypotheses
+
+    def select(self, *a, **k):
+        report = original(self, *a, **k)
+        calls.append(1)
+        self.tied = [["first"]] if len(calls) == 1 else [["retry"]]
+        return report
+
+    import tofmetry.reconstruct._select_stage as stage
+
+    monkeypatch.setattr(posegraph.PoseGraphBuilder, "select_hypotheses", select)
+    # the loops imply a hypothesis the selection then does not choose: the retry is not kept
+    monkeypatch.setattr(stage, "loop_implied_hypotheses", lambda n, before, chosen, register, gain: (
+        chosen, [{"edge": (0, 1), "fitness": 0.5, "kept_fitness": 0.69, "implied_by": (0, 8)}]))
+    _, pg = _pipeline_selection(monkeypatch, 0.70)
+    assert len(calls) == 2 and pg.tied == [["first"]] and "loop_implied" not in pg.selection

@@ -41,7 +41,7 @@ def select_with_implied(pg: PoseGraphBuilder, regs: list[RegView], rc: Registrat
         """Select again from ``pairs``; kept (and returned) where it resolves, has fewer of the report's
         ``count`` and chose a hypothesis tagged ``method`` (named under ``key``, with ``entry(f)``);
         else the selection ``first`` is restored (and returned)."""
-        chosen = list(pg.pairs)
+        chosen, tied = list(pg.pairs), pg.tied
         pg.pairs = pairs
         again = select()
         now = {(q.source, q.target): (q.method, round(float(q.fitness), 4)) for q in pg.pairs if q.accepted}
@@ -52,7 +52,7 @@ def select_with_implied(pg: PoseGraphBuilder, regs: list[RegView], rc: Registrat
             if first.get("loop_implied"):
                 again.setdefault("loop_implied", first["loop_implied"])
             return again
-        pg.pairs, pg.selection = chosen, first
+        pg.pairs, pg.selection, pg.tied = chosen, first, tied
         return first
 
     before = list(pg.pairs)
