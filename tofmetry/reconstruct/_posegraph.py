@@ -159,9 +159,9 @@ class PoseGraphBuilder:
         return report
 
     def tied_poses(self, max_corr_m: float, edge_prune: float = 0.25, limit: int = 2) -> list[np.ndarray]:
-        """The optimised poses (V, 4, 4) of each of the first ``limit`` choices the selection found tied
-        with its own (:attr:`tied`), as :meth:`optimize` gives the chosen one's; empty when there are
-        more tied choices than ``limit`` (they cannot all be checked) or one leaves the views apart."""
+        """The optimised poses (V, 4, 4) of each choice the selection found tied with its own
+        (:attr:`tied`), as :meth:`optimize` gives the chosen one's; empty when there are more than
+        ``limit`` (they cannot all be checked) or one leaves the views apart."""
         if not self.tied or len(self.tied) > limit:
             return []
         out = []
