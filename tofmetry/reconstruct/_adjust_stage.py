@@ -186,10 +186,8 @@ def _restart(res: AdjustResult, start: np.ndarray, regs: list[RegView], cfg: Rec
     """:func:`restart_probe` of the adjustment ``res`` started at ``start`` (``rerun``: the same
     adjustment from other poses), measured on ~5000 of the views' object points (not the ground
     ring); a restart that fails says why (``{"failed": reason}``; the verdict weighs it)."""
-    obj = np.concatenate([transform_points(r.obj_points, T) for r, T in zip(regs, res.poses)])
-    obj = obj[:: max(1, len(obj) // 5000)]
     try:
-        return restart_probe(res.poses, start, rerun, obj, cfg.registration.pose_gate_deg)
+        return restart_probe(res.poses, start, rerun, _object_sample(res, regs), cfg.registration.pose_gate_deg)
     except EstimationError as exc:
         return {"failed": str(exc)}
 
@@ -197,12 +195,17 @@ def _restart(res: AdjustResult, start: np.ndarray, regs: list[RegView], cfg: Rec
 def _tied(res: AdjustResult, starts, regs: list[RegView], rerun) -> list[dict]:
     """:func:`tied_probe` of the adjustment ``res`` from the tied choices' poses ``starts``, measured
     as :func:`_restart` does; a fit that fails says why (``{"failed": reason}``)."""
-    obj = np.concatenate([transform_points(r.obj_points, T) for r, T in zip(regs, res.poses)])
-    obj = obj[:: max(1, len(obj) // 5000)]
     try:
-        return tied_probe(res.poses, list(starts), rerun, obj)
+        return tied_probe(res.poses, list(starts), rerun, _object_sample(res, regs))
     except EstimationError as exc:
         return [{"failed": str(exc)}]
+
+
+def _object_sample(res: AdjustResult, regs: list[RegView]) -> np.ndarray:
+    """~5000 of the views' object points (not the ground ring) placed by the adjustment ``res``,
+    (N, 3) world [m]: where a probe's displacement at the object is measured."""
+    obj = np.concatenate([transform_points(r.obj_points, T) for r, T in zip(regs, res.poses)])
+    return obj[:: max(1, len(obj) // 5000)]
 
 
 def _pair_walks(res: AdjustResult, regs: list[RegView], edges, cfg: ReconstructionConfig) -> None:

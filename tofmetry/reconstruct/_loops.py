@@ -215,6 +215,23 @@ def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg
     pairs : the edges with the chosen hypotheses (dropped edges: ``accepted=False``)
     report : dict (changed edges, dropped edges, candidates tested, consistent ones, reasons)
     """
+    out, report, _ = select_with_tied(n, pairs, names, max_deg, max_mm, margin, max_combos, ir_min_corr, ir_margin,
+                                      ir_veto_corr, centres, ups, path_max_ratio, path_margin)
+    return out, report
+
+
+def select_with_tied(n: int, pairs: list[PairResult], names: list[str], max_deg: float = 2.0, max_mm: float = 10.0,
+                     margin: float = 0.05, max_combos: int = 1024, ir_min_corr: float = 0.3,
+                     ir_margin: float = 0.2, ir_veto_corr: float = 0.5, centres: np.ndarray | None = None,
+                     ups: np.ndarray | None = None, path_max_ratio: float | None = None,
+                     path_margin: float = 0.3) -> tuple[list[PairResult], dict, list[list[PairResult]]]:
+    """As :func:`select_hypotheses`, and the choices tied with the chosen one.
+
+    Returns
+    -------
+    pairs, report : as :func:`select_hypotheses`
+    tied : the edges of each choice tied with the chosen one (``report["ambiguous_with"]``), as ``pairs``
+    """
     acc = [k for k, p in enumerate(pairs) if p.accepted]
     opts = []
     vetoed = []
@@ -263,7 +280,7 @@ def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg
               "ambiguous_with": [], "ir_vetoed": vetoed}
     if not consistent:
         report["resolved"] = False
-        return pairs, report
+        return pairs, report, []
     consistent.sort(key=lambda c: -c[0])
     best = consistent[0]
     walk = None
@@ -295,8 +312,6 @@ def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg
         diff = [f"{names[pairs[acc[m]].source]}->{names[pairs[acc[m]].target]}" for m in range(len(acc)) if c2[m] != combo[m]]
         report["ambiguous_with"].append({"score_difference": round(score - s2, 4), "edges": diff})
     out = _with_choice(pairs, acc, opts, combo, names, report)
-    # the pairs of each tied choice, for the joint fit to start from (popped by PoseGraphBuilder)
-    report["_tied_pairs"] = [_with_choice(pairs, acc, opts, c2, names) for _, c2, _, _ in tied]
     if report["ambiguous_with"]:
         a = report["ambiguous_with"][0]
         report["ambiguous_reason"] = (
@@ -346,7 +361,7 @@ def select_hypotheses(n: int, pairs: list[PairResult], names: list[str], max_deg
                 "they join are linked otherwise only through edges no loop checks: one chain against one edge, and "
                 "nothing decides which is wrong (a nearly symmetric object matches itself turned over); take more "
                 "views or views with more overlap")
-    return out, report
+    return out, report, [_with_choice(pairs, acc, opts, c2, names) for _, c2, _, _ in tied]
 
 
 def _with_choice(pairs: list[PairResult], acc: list[int], opts: list, combo, names: list[str],

@@ -234,8 +234,10 @@ class ReconstructionPipeline:
                                 for p in pg.pairs if not (p.source in keep and p.target in keep)]
             pg = pg.subgraph(keep)
         res = pg.optimize(rc.icp_radii_mm[-1] * 1e-3, rc.edge_prune, rc.gate_max_deg, rc.gate_max_mm)
-        # the choices tied with the chosen one, for the joint fit to decide between (all views kept only)
-        self.tied_starts = [] if len(keep) < n else pg.tied_poses(rc.icp_radii_mm[-1] * 1e-3, rc.edge_prune)
+        # the choices tied with the chosen one, for the joint fit to decide between (all views kept only;
+        # a declared turntable places the views itself)
+        self.tied_starts = ([] if len(keep) < n or self.turntable else
+                            pg.tied_poses(rc.icp_radii_mm[-1] * 1e-3, rc.edge_prune))
         for d, p in zip(res.edges, pg.pairs):  # why a pair failed, with its figures and the gates
             if not p.accepted:
                 d["reason"] = rejection_reason(p, rc)
@@ -289,7 +291,7 @@ class ReconstructionPipeline:
                           [(idx[e["source"]], idx[e["target"]]) for e in kept_edges],
                           [e.get("ir_corr") for e in kept_edges],
                           any(leaves_yaw_free(e.get("conditioning"), self.cfg.registration.yaw_free_ratio) for e in kept_edges),
-                          () if self.turntable else self.tied_starts)
+                          self.tied_starts)
         t2 = time.perf_counter()
         poses = start if adj is None else adj.poses
         V, F, N, P, PN, fusion_info = self.fuse(views, segs, poses, intr)

@@ -8,7 +8,7 @@ import numpy as np
 
 from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.errors import EstimationError
-from tofmetry.reconstruct._loops import connected_components, loop_closures, select_hypotheses, spanning_tree
+from tofmetry.reconstruct._loops import connected_components, loop_closures, select_with_tied, spanning_tree
 from tofmetry.reconstruct._register import PairResult
 
 
@@ -133,7 +133,8 @@ class PoseGraphBuilder:
                           spread_mm: float | None = None, path_max_ratio: float | None = None,
                           path_margin: float = 0.3) -> dict:
         """Choose one hypothesis per edge so that every loop closes (see :func:`select_hypotheses`);
-        replaces :attr:`pairs` by the selection. Returns the selection report.
+        replaces :attr:`pairs` by the selection (and :attr:`tied` by the choices tied with it). Returns
+        the selection report.
 
         When the loops close within (``max_deg``, ``max_mm``) per edge only by dropping an edge and
         ``spread_deg`` / ``spread_mm`` are given, the selection is tried again within these wider
@@ -143,13 +144,12 @@ class PoseGraphBuilder:
         dropped (a few millimetres of depth-calibration residual make a loop of 8 views close only
         to a few degrees, measured)."""
         path = {"centres": self.centres, "ups": self.ups, "path_max_ratio": path_max_ratio, "path_margin": path_margin}
-        pairs, report = select_hypotheses(self.n, self.pairs, self.names, max_deg, max_mm, margin, max_combos, **path)
-        tied = report.pop("_tied_pairs", [])
+        pairs, report, tied = select_with_tied(self.n, self.pairs, self.names, max_deg, max_mm, margin, max_combos,
+                                               **path)
         report["spread"] = False
         if report.get("dropped") and spread_deg is not None and spread_mm is not None:
-            pairs2, rep2 = select_hypotheses(self.n, self.pairs, self.names, spread_deg, spread_mm, margin, max_combos,
-                                              **path)
-            tied2 = rep2.pop("_tied_pairs", [])
+            pairs2, rep2, tied2 = select_with_tied(self.n, self.pairs, self.names, spread_deg, spread_mm, margin,
+                                                   max_combos, **path)
             if rep2.get("resolved") and len(rep2.get("dropped", [])) < len(report["dropped"]):
                 pairs, report, tied = pairs2, rep2, tied2
                 report["spread"] = True

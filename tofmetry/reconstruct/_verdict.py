@@ -259,9 +259,9 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
                         f"{far['deg']:.2f} deg / {far['mm']:.1f} mm of its solution (limit {TIED_SHARE * pose_gate_deg:g} "
                         f"deg / {TIED_SHARE * pose_gate_mm:g} mm): the points of all views decide")
     moves = _move_judged(adjustment)[0] if (adjustment or {}).get("moved_deg") else {}
-    if (loop_msgs and any(r in reasons for r in loop_msgs)
-            and settles_loops(consistency, (adjustment or {}).get("restart"), max(moves.values(), default=0.0),
-                              pose_gate_deg, pose_gate_mm, restart_share)):
+    loop_msgs = [r for r in loop_msgs if r in reasons]
+    if loop_msgs and settles_loops(consistency, (adjustment or {}).get("restart"), max(moves.values(), default=0.0),
+                                   pose_gate_deg, pose_gate_mm, restart_share):
         reasons = [r for r in reasons if r not in loop_msgs]
         warnings.extend("the joint fit of all views places them (its restart came back, and it moved no view beyond "
                         "the pose gate), not the pairwise loops, which say: " + r for r in loop_msgs)
