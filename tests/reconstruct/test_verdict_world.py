@@ -13,7 +13,8 @@ from tofmetry.reconstruct._calibration_support import (
     extrapolation_warning,
     local_prediction,
 )
-from tofmetry.reconstruct._verdict import assess, curve_residual_mm, scale_report
+from tofmetry.reconstruct._scale_report import curve_residual_mm, scale_report
+from tofmetry.reconstruct._verdict import assess
 from tofmetry.reconstruct._world import support_plane_frame, transform_plane
 
 

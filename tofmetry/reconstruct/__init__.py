@@ -38,12 +38,7 @@ from tofmetry.reconstruct._fusion import (
     undistort_depth,
     undistort_maps,
 )
-from tofmetry.reconstruct._loops import (
-    connected_components,
-    loop_closures,
-    select_hypotheses,
-    spanning_tree,
-)
+from tofmetry.reconstruct._loops import loop_closures, select_hypotheses
 from tofmetry.reconstruct._o3d import (
     Match,
     estimate_normals,
@@ -83,6 +78,7 @@ from tofmetry.reconstruct._segment import (
     fit_support_plane,
     segment_object,
 )
+from tofmetry.reconstruct._view_graph import connected_components, spanning_tree
 from tofmetry.reconstruct._world import support_plane_frame, transform_plane
 
 __all__ = [

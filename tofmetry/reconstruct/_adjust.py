@@ -41,7 +41,7 @@ from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.errors import EstimationError, InputError
 from tofmetry.reconstruct._adjust_albedo import albedo_gradients, albedo_terms
 from tofmetry.reconstruct._adjust_circle import circle_terms, turn_axis_point
-from tofmetry.reconstruct._adjust_field import DepthFieldPrior, pose_spread
+from tofmetry.reconstruct._adjust_field import DepthFieldPrior
 from tofmetry.reconstruct._adjust_prior import pose_prior_terms
 from tofmetry.reconstruct._adjust_result import AdjustResult
 from tofmetry.reconstruct._adjust_sigma import (
@@ -60,8 +60,9 @@ from tofmetry.reconstruct._adjust_terms import (
     _normal_equations,
     apply_depth_gain,
 )
+from tofmetry.reconstruct._calibration_pose import calibration_pose
 
-__all__ = ["AdjustView", "TILT_MAX_PRIORS", "apply_depth_gain", "calibration_pose", "global_adjust"]
+__all__ = ["AdjustView", "TILT_MAX_PRIORS", "apply_depth_gain", "global_adjust"]
 
 
 #: an image tilt estimated beyond this many prior standard deviations is refused (it traded with the
@@ -140,8 +141,9 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
     prior_poses : (V, 4, 4) where that prior holds the views (default ``poses``): a restart from other
         poses keeps the prior of the fit it checks, so that it minimises the same objective
     depth_field : the size of the per-pixel depth residual the calibration leaves; the poses' spread
-        under such fields (:func:`calibration_pose`) is returned as :attr:`AdjustResult.calibration_pose`.
-        None: not predicted here (:func:`calibration_pose` can be asked for later)
+        under such fields (:func:`~tofmetry.reconstruct._calibration_pose.calibration_pose`) is returned
+        as :attr:`AdjustResult.calibration_pose`. None: not predicted here (the function can be asked
+        for later)
     tilt_prior_m : prior standard deviation of a depth error linear in the image position,
         ``Z -> Z + a x + b y`` (``x = X / Z``, ``y = Y / Z``) [m per unit]: a calibration from walls
         of unknown orientation cannot tell it from the walls' tilt and leaves it in. Estimated,
@@ -477,36 +479,3 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                                 + ", ".join(f"{x * 1e3:.3f}" for x in curve_sd) + " mm (data alone)" + curve_cut) \
             if curve_on else curve_note
     return res
-
-
-def field_pose_response(res: AdjustResult, depth_field: DepthFieldPrior) -> np.ndarray:
-    """How the calibration's residual field moves the poses of the adjustment ``res``: (6 (V - 1), T)
-    left increments (rotation vector [rad], translation [m], view 0 fixed) per unit coefficient of each
-    term of ``depth_field`` (``dx = -H^-1 F c``, :mod:`~tofmetry.reconstruct._adjust_field`), from one
-    more pass over its final correspondences (~0.5 s on 8 views)."""
-    views, P, g, z_ref_m, corr, k, estimate_gain, curve, amp, tilt, H_solve, _, sym = res.final_state
-    F = _normal_equations(views, P, g, z_ref_m, corr, k, estimate_gain, curve, amp, tilt, depth_field.basis,
-                          symmetric=sym)[-1]
-    return -np.linalg.solve(H_solve, F)[:6 * (len(views) - 1)]
-
-
-def calibration_pose(res: AdjustResult, depth_field: DepthFieldPrior, response: np.ndarray | None = None) -> dict:
-    """The poses' spread of the adjustment ``res`` under random depth fields of ``depth_field``'s
-    size (:func:`~tofmetry.reconstruct._adjust_field.pose_spread`), propagated through the normal
-    equations it ended with (:attr:`AdjustResult.final_state`; ``response``: :func:`field_pose_response`,
-    computed when not given). Asked for on the adjustment a pipeline keeps, not on each run it tries.
-
-    Returns
-    -------
-    dict of :func:`~tofmetry.reconstruct._adjust_field.pose_spread` (the field alone, and
-    ``with_noise``: with the poses' own noise covariance from the data, as ``pose_sigma_deg``) with
-    the prior's size (``offset_sigma_mm``, ``shape_rms_mm``, ``degree``, ``gain_sigma_pct``: the depth
-    gain's standard deviation [%], 0 without the range term)
-    """
-    views, P, *_, noise_cov, _ = res.final_state
-    resp = field_pose_response(res, depth_field) if response is None else response
-    obj = np.concatenate([v.source @ T[:3, :3].T + T[:3, 3] for v, T in zip(views, P)])
-    return pose_spread(resp, depth_field.coefficient_sigmas(), len(views), obj, noise_cov=noise_cov) | {
-        "offset_sigma_mm": round(depth_field.offset_sigma_m * 1e3, 4),
-        "shape_rms_mm": round(depth_field.shape_rms_m * 1e3, 4), "degree": depth_field.degree,
-        "gain_sigma_pct": round(depth_field.gain_sigma * 100, 4)}

@@ -45,7 +45,7 @@ class AdjustResult:
     amplitude_gain_correlation, amplitude_gain_slope : correlation of ``dk`` with the gain in the
         adjustment with ``dk`` free, and the gain's regression on it (gain per m per ln unit): how
         far the gain moves when ``k`` is wrong, which is how the amplitude coefficient's
-        uncertainty enters the gain's (:func:`~tofmetry.reconstruct._verdict.scale_report`)
+        uncertainty enters the gain's (:func:`~tofmetry.reconstruct._scale_report.scale_report`)
     restart : the adjustment restarted from the far side of its solution
         (:func:`~tofmetry.reconstruct._adjust_restart.restart_probe`: ``deg``, ``mm``, ``view``,
         ``start_deg``, ``per_view_deg``; ``{"failed": reason}``), or None when not run
@@ -65,7 +65,7 @@ class AdjustResult:
     field_response : how the calibration's residual field moves the poses, ``(response, prior)``:
         (6 (V - 1), T) left increments per unit coefficient of each term of the
         :class:`~tofmetry.reconstruct._adjust_field.DepthFieldPrior` ``prior``
-        (:func:`~tofmetry.reconstruct._adjust.field_pose_response`), or None when not predicted;
+        (:func:`~tofmetry.reconstruct._calibration_pose.field_pose_response`), or None when not predicted;
         not reported
     moved_turn_deg : (V,) the part of ``moved_deg`` about the vertical [deg] when the support planes
         held the views (:func:`~tofmetry.reconstruct._adjust_support.moved_about_vertical`), else None
@@ -74,7 +74,7 @@ class AdjustResult:
         ``sigma_mm`` and the planes' largest spread from their mean at the ``start`` and the ``end``
     turn_axis : the term holding a turntable's views to one turn axis (``sigma_mm``; each view's
         ``|M_v a - a|`` at the start and the end [mm], :mod:`._adjust_circle`), None when not used
-    final_state : what :func:`~tofmetry.reconstruct._adjust.calibration_pose` needs of the last
+    final_state : what :func:`~tofmetry.reconstruct._calibration_pose.calibration_pose` needs of the last
         Gauss-Newton step (views, poses, depth terms, correspondences, the solved normal matrix);
         not reported
     """

@@ -13,13 +13,14 @@ import numpy as np
 from tofmetry._shared.geometry import transform_points
 from tofmetry.errors import EstimationError
 from tofmetry.pointcloud import project_to_local_planes
-from tofmetry.reconstruct._adjust import AdjustView, calibration_pose, field_pose_response, global_adjust
+from tofmetry.reconstruct._adjust import AdjustView, global_adjust
 from tofmetry.reconstruct._adjust_albedo import albedo_gradients
 from tofmetry.reconstruct._adjust_apply import correct_views
 from tofmetry.reconstruct._adjust_circle import turntable_path
 from tofmetry.reconstruct._adjust_restart import came_back, pair_walks, restart_probe, tied_probe
 from tofmetry.reconstruct._adjust_result import AdjustResult, keep_amplitude_if_it_explains
 from tofmetry.reconstruct._amplitude import amplitude_log_ratio
+from tofmetry.reconstruct._calibration_pose import calibration_pose, field_pose_response
 from tofmetry.reconstruct._calibration_support import calibration_central_mm, calibration_gain_sigma, depth_field_prior
 from tofmetry.reconstruct._config import ReconstructionConfig
 from tofmetry.reconstruct._model_build import median_object_depth_m, object_depth_span_mm

@@ -25,7 +25,7 @@ from typing import Callable
 
 import numpy as np
 
-from tofmetry.reconstruct._loops import spanning_tree
+from tofmetry.reconstruct._view_graph import spanning_tree
 from tofmetry.reconstruct._register import PairResult, _same_pose
 
 #: method tag of a hypothesis found here

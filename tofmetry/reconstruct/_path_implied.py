@@ -27,7 +27,7 @@ from typing import Callable
 import numpy as np
 
 from tofmetry.reconstruct._camera_path import path_walk
-from tofmetry.reconstruct._loops import connected_components, spanning_tree
+from tofmetry.reconstruct._view_graph import connected_components, spanning_tree
 from tofmetry.reconstruct._register import PairResult, _same_pose
 
 #: method tag of a hypothesis found here

@@ -32,12 +32,13 @@ from tofmetry.reconstruct._posegraph import PoseGraphBuilder
 from tofmetry.reconstruct._preprocess import ViewData, prepare_view
 from tofmetry.reconstruct._register import register_pair, rejection_reason
 from tofmetry.reconstruct._regview import RegView, leaves_yaw_free, make_reg_view
+from tofmetry.reconstruct._scale_report import scale_report
 from tofmetry.reconstruct._segment import Segmentation, segment_object
 from tofmetry.reconstruct._select_stage import select_with_implied
 from tofmetry.reconstruct._thin_slab import slab_reason, thin_slab_check
 from tofmetry.reconstruct._turntable import turntable_poses
 from tofmetry.reconstruct._turntable_bridge import UNCONFIRMED_REASON, no_turn_error, turntable_bridges
-from tofmetry.reconstruct._verdict import assess, scale_report
+from tofmetry.reconstruct._verdict import assess
 from tofmetry.reconstruct._world import support_plane_frame, transform_plane
 
 @contextmanager

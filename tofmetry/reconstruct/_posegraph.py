@@ -8,8 +8,9 @@ import numpy as np
 
 from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.errors import EstimationError
-from tofmetry.reconstruct._loops import connected_components, loop_closures, select_with_tied, spanning_tree
+from tofmetry.reconstruct._loops import loop_closures, select_with_tied
 from tofmetry.reconstruct._register import PairResult
+from tofmetry.reconstruct._view_graph import connected_components, spanning_tree
 
 
 def relative_pose_errors(poses, true_poses) -> np.ndarray:

@@ -7,7 +7,7 @@ import numpy as np
 
 from tofmetry.errors import EstimationError
 from tofmetry.reconstruct._config import RegistrationConfig
-from tofmetry.reconstruct._loops import connected_components
+from tofmetry.reconstruct._view_graph import connected_components
 from tofmetry.reconstruct._register import PairResult, register_pair
 from tofmetry.reconstruct._regview import RegView, object_fitness, registration_conditioning, visibility_violation
 from tofmetry.reconstruct._turntable import TurntablePrior, fit_turntable, turn_about

@@ -43,6 +43,9 @@ The pose accuracy a loop can vouch for: after the pose graph spreads a loop's cl
 its ``m`` edges, a view half-way round the loop can still be off by about half the closure; the
 run is flagged when half the closure of a loop, at the object, exceeds (``pose_gate_deg``,
 ``pose_gate_mm``).
+
+The joint fit's move and restart have rules of their own (:mod:`~tofmetry.reconstruct._move_verdict`);
+the model's predicted scale, reported beside the verdict, is :mod:`~tofmetry.reconstruct._scale_report`'s.
 """
 
 from __future__ import annotations
@@ -50,13 +53,11 @@ from __future__ import annotations
 import numpy as np
 
 from tofmetry.reconstruct._adjust_restart import came_back, settles_loops
-from tofmetry.reconstruct._calibration_support import (
-    calibration_central_mm,
-    station_spacing_mm,
-)
-from tofmetry.reconstruct._loops import bridges
+from tofmetry.reconstruct._calibration_support import calibration_central_mm
+from tofmetry.reconstruct._move_verdict import _judge_move, _move_judged
 from tofmetry.reconstruct._pattern_search import METHOD as PATTERN_METHOD
 from tofmetry.reconstruct._regview import leaves_yaw_free
+from tofmetry.reconstruct._view_graph import bridges
 
 #: the share of the pose gate within which the joint fits from every tied choice of pairwise hypotheses
 #: must end (of each other's solution) for the points to decide between them
@@ -94,7 +95,8 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
         graph's poses no longer bears on the poses, and is a warning (the joint fit's move and
         restart still judge them)
     restart_share : the joint fit's restart, and a moved view's pairs registered again from it, must end
-        within this share of the pose gate (:func:`_judge_move`)
+        within this share of the pose gate
+        (:func:`~tofmetry.reconstruct._move_verdict._judge_move`)
     gain_alarm_factor : a depth gain the adjustment refused as implausible makes the run unreliable when it
         exceeds this many times the bound it broke (the calibration's allowance); below, it is a warning.
         Set on 8 family runs with a refused gain: asking 1.04-1.4 times the bound, 5 runs were within the
@@ -286,110 +288,6 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
             "loop_pose_bound": {"deg": round(b_deg, 4), "mm": round(b_mm, 3)}, "yaw_free_edges": yaw_free}
 
 
-def _judge_move(adjustment: dict, names: list[str], pose_gate_deg: float, pose_gate_mm: float, reasons: list[str],
-                warnings: list[str], placed_by: str = "the pairwise registrations", move_gate_deg: float | None = None,
-                share: float = 1.0) -> None:
-    """The joint fit's move from where ``placed_by`` put the views (the pose graph, or a declared
-    turntable), and its restart from the far side
-    (:mod:`tofmetry.reconstruct._adjust_restart`) when there is one.
-
-    * A restart that ends more than ``share`` of the pose gate from the solution is a reason, whatever
-      the move: the points do not pin the joint fit down (it slides along a direction they leave free,
-      or sits in a wrong basin); one that ends between half the gate and that is a warning. ``share``
-      was 0.5 until 2026-11-29: over the 144 family runs of draws 30-36, the restarts and pair walks
-      that ended between half and the whole gate were on 12 right runs and 3 truly wrong ones, each
-      of which another reason flagged as well. A flag now needs a check that shows the poses spread
-      by more than the gate itself. On the held-out draw 37 that cleared two right runs and let one
-      wrong run through (a fandisk 0.47 deg / 3.2 mm off, its restart 0.34 deg / 1.4 mm away).
-    * A move beyond ``pose_gate_deg`` is a reason even when the restart came back: the restart shows
-      that the points determine the joint fit locally, not that they are consistent with the truth.
-      Measured on the family (2026-11-27): clearing such moves freed seven right runs (domes, a box, a
-      rocker arm, bunnies, a fandisk: the pose graph had been off) but let three wrong runs through: an
-      igea 0.58 deg off and two plaques, 1.11 deg / 4.1 mm and 0.38 deg / 4.2 mm off, whose registration
-      thins the slab consistently in every pair (a stable wrong solution: restarts came back to 0.25 and
-      0.03 deg). The reason then says that the
-      fit is determined, so that the disagreement lies between the pairs and the joint fit.
-    * Such a move is cleared (a warning) when the moved view's pairs, registered again from the
-      joint fit (:func:`~tofmetry.reconstruct._adjust_restart.pair_walks`), stay within ``share`` of
-      the pose gate of it: then the pairs' own data accept the joint fit and the pose graph had been off.
-      Measured on six such runs of the family (2026-11-28): the plaque 0.33 deg / 3.1 mm off walked
-      0.94 and 1.26 deg back (kept flagged); of five right runs one pebble stayed (0.10, 0.15 deg,
-      cleared), the others walked 0.38-0.69 deg (kept flagged: the pairs prefer their own poses).
-    * A failed restart is a reason when the move is beyond the gate, a warning below it.
-    * From a declared turntable's poses the joint fit is expected to move the views by up to about
-      the turntable's accuracy: the move is then judged against ``move_gate_deg`` (twice that
-      accuracy, at least the pose gate); the restart still against the pose gate.
-    """
-    moved = adjustment.get("moved_deg") or {}
-    if not moved:
-        return
-    rs = adjustment.get("restart")
-    judged, held = _move_judged(adjustment)
-    worst = max(judged, key=judged.get)
-    gate = pose_gate_deg if move_gate_deg is None else move_gate_deg
-    beyond = judged[worst] > gate
-    tilt_part = "" if not held else (
-        f" ({judged[worst]:.2f} deg of it about the vertical; the rest, its tilt, is what the views' support planes "
-        f"asked for, within {held['spread_deg']:.2f} deg of one plane at the end)")
-    move = f"the global adjustment moved view {worst} by {moved[worst]:.2f} deg{tilt_part} from where {placed_by} put it"
-    if held and not beyond and max(moved.values()) > gate:
-        w = max(moved, key=moved.get)
-        warnings.append(f"the global adjustment moved view {w} by {moved[w]:.2f} deg from where {placed_by} put it, "
-                        f"{judged[w]:.2f} deg of it about the vertical: the rest tilted the views onto one support "
-                        f"plane (within {held['spread_deg']:.2f} deg at the end): the pose graph's tilts had been off")
-    if rs and came_back(rs, pose_gate_deg, pose_gate_mm, share) and not came_back(rs, pose_gate_deg, pose_gate_mm, 0.5):
-        warnings.append(f"restarted {rs['start_deg']:.2f} deg away on the far side, the joint fit ended {rs['deg']:.2f} "
-                        f"deg / {rs['mm']:.1f} mm at the object from its solution, within the pose gate but beyond half "
-                        "of it: the points determine the poses only to about that (on draw 37 of the family one such "
-                        "run was 0.47 deg / 3.2 mm off)")
-    if rs and "failed" in rs:
-        (reasons if beyond else warnings).append(f"{move}, and its restart from the far side failed ({rs['failed']}): "
-                                                 "the joint fit is not checked")
-    elif rs and not came_back(rs, pose_gate_deg, pose_gate_mm, share):
-        v = names[rs["view"]] if 0 <= rs["view"] < len(names) else rs["view"]
-        reasons.append(f"{move}; restarted {rs['start_deg']:.2f} deg away on the far side, it ended {rs['deg']:.2f} deg "
-                       f"/ {rs['mm']:.1f} mm at the object from its solution (view {v}; limit {share * pose_gate_deg:g} deg "
-                       f"/ {share * pose_gate_mm:g} mm): the points do not pin the joint fit down (they leave a direction "
-                       "free and the fit slides along it, a smooth or symmetric object, or the views sit in a wrong "
-                       "basin); add views that see a distinctive feature, or texture")
-    elif beyond and rs:
-        back = (f"{move} (limit {gate:g} deg); restarted {rs['start_deg']:.2f} deg away on the far side, "
-                f"the joint fit came back to within {rs['deg']:.2f} deg / {rs['mm']:.1f} mm: the points determine it")
-        walks = rs.get("pairs") or []
-        worst = max(walks, key=lambda w: (w["deg"] / pose_gate_deg, w["mm"] / pose_gate_mm), default=None)
-        if worst is not None and all(came_back(w, pose_gate_deg, pose_gate_mm, share) for w in walks):
-            warnings.append(f"{back}; the registrations of its {len(walks)} pair(s), started again at the joint fit, "
-                            f"stay there (at most {worst['deg']:.2f} deg / {worst['mm']:.1f} mm away; limit "
-                            f"{share * pose_gate_deg:g} deg / {share * pose_gate_mm:g} mm): the pose graph had been off")
-        else:
-            pw = "" if worst is None else (
-                f"; started again at the joint fit, the registration of pair {names[worst['source']]}->"
-                f"{names[worst['target']]} walks {worst['deg']:.2f} deg / {worst['mm']:.1f} mm away (limit "
-                f"{share * pose_gate_deg:g} deg / {share * pose_gate_mm:g} mm)")
-            reasons.append(f"{back}{pw}, so the pairwise registrations and the joint fit of all views disagree, and a "
-                           "consistent bias can hold both off (a thin object whose faces meet only at its rim)")
-    elif beyond:
-        reasons.append(f"{move} (limit {gate:g} deg): the pairs and the joint fit of all views "
-                       "disagree by more than the poses must hold, so one of them is off (a smooth or symmetric "
-                       "object sliding, or a depth-calibration residual)")
-
-
-def _move_judged(adjustment: dict) -> tuple[dict, dict | None]:
-    """The views' moves the verdict judges: their whole rotation, or, where the support planes held
-    the views (:mod:`~tofmetry.reconstruct._adjust_support`) and end on one plane (every view's within
-    twice the term's allowance, none off the plane), only the part about the vertical, the tilt part
-    being measured by the planes themselves. Returns ``(moves by view name [deg], the planes' end
-    state or None)``."""
-    moved = adjustment.get("moved_deg") or {}
-    turn = adjustment.get("moved_turn_deg")
-    sp = adjustment.get("support_plane") or {}
-    end = sp.get("end") or {}
-    if (turn and sp.get("used") and not end.get("off_plane") and end.get("n_views", 0) == len(moved)
-            and end.get("spread_deg", np.inf) <= 2 * sp.get("sigma_deg", 0.0)):
-        return turn, end
-    return moved, None
-
-
 def _loop_pinning_yaw(edge: dict, loops: list[dict], free: set, pose_gate_deg: float,
                       pose_gate_mm: float) -> dict | None:
     """A loop through ``edge`` in which it is the only yaw-free edge and whose closure, halved as
@@ -404,109 +302,3 @@ def _loop_pinning_yaw(edge: dict, loops: list[dict], free: set, pose_gate_deg: f
                 and lp.get("closure_object_mm", lp["closure_mm"]) / 2 <= pose_gate_mm):
             return lp
     return None
-
-
-def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z_ref_mm: float,
-                 budget=None, k_sigma_mm: float | None = None, floor_pct: float = 0.0) -> dict:
-    """The model's predicted scale and surface-offset uncertainty from the depth chain.
-
-    A range offset ``e`` left by the calibration moves every point along its ray: the surfaces
-    move by ``e`` toward their cameras (a normal offset of the model, which makes an object seen
-    from all round ``2 e`` thinner or thicker) and the lateral size scales by ``e / z``. A gain ``g``
-    left over the object's depth stretches each view along its line of sight; fused from all round
-    it scales the model by about ``g / 2``. So ``sigma_scale = sqrt((e / z)^2 + (sigma_g / 2)^2)``
-    with ``e`` the calibration's predicted central error (quadratic mean over its blocked folds)
-    and ``sigma_g`` the self-calibrated gain's standard error when it was estimated, otherwise
-    the gain a calibration with that error can leave between stations, ``e / (spacing / 2)``.
-    Not included: the lens calibration's focal error (it scales the lateral size as well).
-
-    A self-calibrated gain trades with the amplitude-bias coefficient ``k`` (both act through the
-    depth of points seen at different incidences): with ``k_sigma_mm`` [mm per ln unit], its
-    uncertainty, and the gain's regression on ``dk`` from the adjustment
-    (``amplitude_bias.gain_per_mm_per_ln``), ``sigma_g`` gains ``|slope| k_sigma_mm`` in quadrature.
-
-    ``budget``: optional callable ``(offset_sigma_m, gain_sigma) -> dict`` of
-    :func:`~tofmetry.reconstruct._scale_budget.scale_budget`: the same errors, and the amplitude
-    bias's uncertainty, propagated on the model's own geometry (poses held). The prediction is
-    the larger of the two (``rule_scale_sigma_pct``, ``budget_scale_sigma_pct``): the budget sees
-    which surfaces face the cameras, which on elongated or flat parts makes the scale far more
-    sensitive than the rule says; the rule's ``g / 2`` stands for the views re-registering, which
-    the budget does not model. Neither counts the registration's own errors or the fusion's. On
-    2026-11-25's family (README), before the gain inherited ``k``'s uncertainty both undershot
-    the measured scale error (1.55 sigma at the median); with it the measured error was 0.41 sigma
-    at the median, 5 of 5 reliable runs within 1.645 sigma.
-
-    Where the gain was not estimated but the joint fit estimated its range curve
-    (``adjustment.range_curve``), the curve's RMS over the object's depths (:func:`curve_residual_mm`)
-    is the views' own measure of the range error the calibration left there; when it exceeds ``e``,
-    the gain a calibration can leave is taken from it instead (``curve_residual_mm``). Measured on the
-    35 reliable runs of family draws 30-34 with a scale: two ended 2.7 and 2.8 sigma off (an igea
-    -0.60 % against 0.21 %, its curve 1.43 mm RMS where the calibration predicted 0.36 mm); recomputed
-    with the curve, 1 run beyond 2 sigma, |error| / sigma p68 0.31 (0.40 before), p90 0.78 (1.32).
-
-    ``floor_pct`` [%], the modelling chain's own scale error (registration, fusion, meshing; a
-    configured figure, :attr:`RegistrationConfig.scale_floor_pct`), is added in quadrature to the
-    prediction (``chain_floor_pct``).
-
-    Returns
-    -------
-    dict: depth_gain, gain_estimated, gain_sigma, predicted_scale_sigma_pct,
-    predicted_offset_sigma_mm, station_spacing_mm, source
-    """
-    adj = adjustment or {}
-    g = float(adj.get("depth_gain", 0.0) or 0.0)
-    est = bool(adj.get("gain_estimated", False))
-    out = {"depth_gain": g, "gain_estimated": est, "gain_note": adj.get("gain_note"), "z_ref_mm": float(z_ref_mm)}
-    if calibration_prediction is None:
-        return out | {"predicted_scale_sigma_pct": None, "predicted_offset_sigma_mm": None,
-                      "source": "raw depth: no calibration, no prediction"}
-    e = calibration_central_mm(calibration_prediction)
-    spacing = station_spacing_mm(calibration_prediction)
-    if e is None:
-        return out | {"predicted_scale_sigma_pct": None, "predicted_offset_sigma_mm": None,
-                      "source": "the calibration carries no predicted error"}
-    e_gain, e_curve = e, curve_residual_mm(adj)
-    if not est and e_curve is not None and e_curve > e:  # the views show more residual than predicted
-        e_gain = e_curve
-        out["curve_residual_mm"] = e_curve
-    sg = float(adj.get("gain_sigma_data", np.nan)) if est else e_gain / (spacing / 2)
-    slope = (adj.get("amplitude_bias") or {}).get("gain_per_mm_per_ln")
-    sg_k = abs(float(slope)) * k_sigma_mm if est and slope is not None and k_sigma_mm is not None else 0.0
-    if sg_k > 0:
-        out["gain_sigma_from_k"] = sg_k
-        sg = float(np.hypot(sg, sg_k))
-    s = float(np.hypot(e / z_ref_mm, sg / 2))
-    src = "calibration's predicted central error" + (" and the self-calibrated gain's standard error"
-                                                     if est else " (gain not estimated)")
-    if e_gain > e:
-        src += (f"; the gain it can leave taken from the joint fit's range curve, {e_gain:.2f} mm RMS over the "
-                f"object's depths (more than the calibration's predicted {e:.2f} mm)")
-    if sg_k > 0:
-        src += f" (with k known to +-{k_sigma_mm:.2f} mm per ln unit)"
-    out |= {"gain_sigma": sg, "predicted_scale_sigma_pct": 100 * s, "rule_scale_sigma_pct": 100 * s,
-            "predicted_offset_sigma_mm": float(e), "station_spacing_mm": spacing, "source": src}
-    b = budget(e * 1e-3, sg) if budget is not None and np.isfinite(sg) else None
-    if b is not None:
-        out["budget"] = b
-        out["budget_scale_sigma_pct"] = 100 * float(b["sigma"]) if np.isfinite(b.get("sigma", np.nan)) else None
-        if out["budget_scale_sigma_pct"] is not None and out["budget_scale_sigma_pct"] > 100 * s:
-            out["predicted_scale_sigma_pct"] = out["budget_scale_sigma_pct"]
-            out["source"] = src + ", propagated on the model's geometry" + (
-                "" if "amplitude" not in b else " with the amplitude bias's uncertainty") + (
-                "" if "sigma_poses_held" not in b else ", and the poses' own uncertainty")
-    if floor_pct > 0:
-        out["chain_floor_pct"] = float(floor_pct)
-        out["predicted_scale_sigma_pct"] = float(np.hypot(out["predicted_scale_sigma_pct"], floor_pct))
-        out["source"] += f"; the modelling chain's own {floor_pct:g} % in quadrature"
-    return out
-
-
-def curve_residual_mm(adjustment: dict | None) -> float | None:
-    """RMS [mm] of the joint fit's estimated range curve at its five reported depths
-    (``adjustment.range_curve.dz_mm``, zero at ``z_ref``): the range error the views show the
-    calibration left over the object's depths; None when the curve was not estimated."""
-    rc = (adjustment or {}).get("range_curve") or {}
-    dz = rc.get("dz_mm")
-    if not rc.get("estimated") or not dz:
-        return None
-    return float(np.sqrt(np.mean(np.square(np.asarray(dz, float)))))

@@ -1,0 +1,123 @@
+"""The model's predicted scale and surface-offset uncertainty (:func:`scale_report`), from the depth chain.
+
+The verdicts (:mod:`~tofmetry.reconstruct._verdict`) say whether the poses can be trusted; this says
+how far the model's size can be: what the depth calibration's predicted error, the self-calibrated
+gain's standard error, the amplitude bias's uncertainty and the joint fit's range curve
+(:func:`curve_residual_mm`) leave on the model's scale and on its surfaces' offset. It is reported
+beside the verdict (the reconstruction's ``scale``) and makes no run unreliable.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tofmetry.reconstruct._calibration_support import (
+    calibration_central_mm,
+    station_spacing_mm,
+)
+
+
+def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z_ref_mm: float,
+                 budget=None, k_sigma_mm: float | None = None, floor_pct: float = 0.0) -> dict:
+    """The model's predicted scale and surface-offset uncertainty from the depth chain.
+
+    A range offset ``e`` left by the calibration moves every point along its ray: the surfaces
+    move by ``e`` toward their cameras (a normal offset of the model, which makes an object seen
+    from all round ``2 e`` thinner or thicker) and the lateral size scales by ``e / z``. A gain ``g``
+    left over the object's depth stretches each view along its line of sight; fused from all round
+    it scales the model by about ``g / 2``. So ``sigma_scale = sqrt((e / z)^2 + (sigma_g / 2)^2)``
+    with ``e`` the calibration's predicted central error (quadratic mean over its blocked folds)
+    and ``sigma_g`` the self-calibrated gain's standard error when it was estimated, otherwise
+    the gain a calibration with that error can leave between stations, ``e / (spacing / 2)``.
+    Not included: the lens calibration's focal error (it scales the lateral size as well).
+
+    A self-calibrated gain trades with the amplitude-bias coefficient ``k`` (both act through the
+    depth of points seen at different incidences): with ``k_sigma_mm`` [mm per ln unit], its
+    uncertainty, and the gain's regression on ``dk`` from the adjustment
+    (``amplitude_bias.gain_per_mm_per_ln``), ``sigma_g`` gains ``|slope| k_sigma_mm`` in quadrature.
+
+    ``budget``: optional callable ``(offset_sigma_m, gain_sigma) -> dict`` of
+    :func:`~tofmetry.reconstruct._scale_budget.scale_budget`: the same errors, and the amplitude
+    bias's uncertainty, propagated on the model's own geometry (poses held). The prediction is
+    the larger of the two (``rule_scale_sigma_pct``, ``budget_scale_sigma_pct``): the budget sees
+    which surfaces face the cameras, which on elongated or flat parts makes the scale far more
+    sensitive than the rule says; the rule's ``g / 2`` stands for the views re-registering, which
+    the budget does not model. Neither counts the registration's own errors or the fusion's. On
+    2026-11-25's family (README), before the gain inherited ``k``'s uncertainty both undershot
+    the measured scale error (1.55 sigma at the median); with it the measured error was 0.41 sigma
+    at the median, 5 of 5 reliable runs within 1.645 sigma.
+
+    Where the gain was not estimated but the joint fit estimated its range curve
+    (``adjustment.range_curve``), the curve's RMS over the object's depths (:func:`curve_residual_mm`)
+    is the views' own measure of the range error the calibration left there; when it exceeds ``e``,
+    the gain a calibration can leave is taken from it instead (``curve_residual_mm``). Measured on the
+    35 reliable runs of family draws 30-34 with a scale: two ended 2.7 and 2.8 sigma off (an igea
+    -0.60 % against 0.21 %, its curve 1.43 mm RMS where the calibration predicted 0.36 mm); recomputed
+    with the curve, 1 run beyond 2 sigma, |error| / sigma p68 0.31 (0.40 before), p90 0.78 (1.32).
+
+    ``floor_pct`` [%], the modelling chain's own scale error (registration, fusion, meshing; a
+    configured figure, :attr:`RegistrationConfig.scale_floor_pct`), is added in quadrature to the
+    prediction (``chain_floor_pct``).
+
+    Returns
+    -------
+    dict: depth_gain, gain_estimated, gain_sigma, predicted_scale_sigma_pct,
+    predicted_offset_sigma_mm, station_spacing_mm, source
+    """
+    adj = adjustment or {}
+    g = float(adj.get("depth_gain", 0.0) or 0.0)
+    est = bool(adj.get("gain_estimated", False))
+    out = {"depth_gain": g, "gain_estimated": est, "gain_note": adj.get("gain_note"), "z_ref_mm": float(z_ref_mm)}
+    if calibration_prediction is None:
+        return out | {"predicted_scale_sigma_pct": None, "predicted_offset_sigma_mm": None,
+                      "source": "raw depth: no calibration, no prediction"}
+    e = calibration_central_mm(calibration_prediction)
+    spacing = station_spacing_mm(calibration_prediction)
+    if e is None:
+        return out | {"predicted_scale_sigma_pct": None, "predicted_offset_sigma_mm": None,
+                      "source": "the calibration carries no predicted error"}
+    e_gain, e_curve = e, curve_residual_mm(adj)
+    if not est and e_curve is not None and e_curve > e:  # the views show more residual than predicted
+        e_gain = e_curve
+        out["curve_residual_mm"] = e_curve
+    sg = float(adj.get("gain_sigma_data", np.nan)) if est else e_gain / (spacing / 2)
+    slope = (adj.get("amplitude_bias") or {}).get("gain_per_mm_per_ln")
+    sg_k = abs(float(slope)) * k_sigma_mm if est and slope is not None and k_sigma_mm is not None else 0.0
+    if sg_k > 0:
+        out["gain_sigma_from_k"] = sg_k
+        sg = float(np.hypot(sg, sg_k))
+    s = float(np.hypot(e / z_ref_mm, sg / 2))
+    src = "calibration's predicted central error" + (" and the self-calibrated gain's standard error"
+                                                     if est else " (gain not estimated)")
+    if e_gain > e:
+        src += (f"; the gain it can leave taken from the joint fit's range curve, {e_gain:.2f} mm RMS over the "
+                f"object's depths (more than the calibration's predicted {e:.2f} mm)")
+    if sg_k > 0:
+        src += f" (with k known to +-{k_sigma_mm:.2f} mm per ln unit)"
+    out |= {"gain_sigma": sg, "predicted_scale_sigma_pct": 100 * s, "rule_scale_sigma_pct": 100 * s,
+            "predicted_offset_sigma_mm": float(e), "station_spacing_mm": spacing, "source": src}
+    b = budget(e * 1e-3, sg) if budget is not None and np.isfinite(sg) else None
+    if b is not None:
+        out["budget"] = b
+        out["budget_scale_sigma_pct"] = 100 * float(b["sigma"]) if np.isfinite(b.get("sigma", np.nan)) else None
+        if out["budget_scale_sigma_pct"] is not None and out["budget_scale_sigma_pct"] > 100 * s:
+            out["predicted_scale_sigma_pct"] = out["budget_scale_sigma_pct"]
+            out["source"] = src + ", propagated on the model's geometry" + (
+                "" if "amplitude" not in b else " with the amplitude bias's uncertainty") + (
+                "" if "sigma_poses_held" not in b else ", and the poses' own uncertainty")
+    if floor_pct > 0:
+        out["chain_floor_pct"] = float(floor_pct)
+        out["predicted_scale_sigma_pct"] = float(np.hypot(out["predicted_scale_sigma_pct"], floor_pct))
+        out["source"] += f"; the modelling chain's own {floor_pct:g} % in quadrature"
+    return out
+
+
+def curve_residual_mm(adjustment: dict | None) -> float | None:
+    """RMS [mm] of the joint fit's estimated range curve at its five reported depths
+    (``adjustment.range_curve.dz_mm``, zero at ``z_ref``): the range error the views show the
+    calibration left over the object's depths; None when the curve was not estimated."""
+    rc = (adjustment or {}).get("range_curve") or {}
+    dz = rc.get("dz_mm")
+    if not rc.get("estimated") or not dz:
+        return None
+    return float(np.sqrt(np.mean(np.square(np.asarray(dz, float)))))
