@@ -45,3 +45,14 @@ def test_photometric_icp_fixes_the_slide_along_a_cylinder():
     assert moved_mm(geo) > 6.0
     # ...the pattern brings it back to within the noise (0.5 mm) and a fraction of a pattern cell
     assert moved_mm(pho) < 1.0
+
+
+def test_photometric_icp_without_correspondences_returns_none():
+    """A start that leaves no source point within the radius of the target is a failed refinement
+    (None: the caller keeps its geometric registration), not an Open3D error out of the run."""
+    rng = np.random.default_rng(4)
+    tgt = _painted_cylinder(rng, 0.0)
+    src = _painted_cylinder(rng, 0.0)
+    init = np.eye(4)
+    init[2, 3] = 0.5  # 0.5 m away along the line of sight: nothing within 6 mm
+    assert photometric_icp(src, tgt, init, (0.006, 0.003)) is None

@@ -10,6 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tofmetry.errors import EstimationError
+
 
 def quiet() -> None:
     """Silence Open3D's console warnings (we report quality ourselves)."""
@@ -187,9 +189,15 @@ def colored_icp(src_pts, src_vals, tgt_pts, tgt_nrm, tgt_vals, init: np.ndarray,
         return c
 
     k = kernel_k_m if kernel_k_m is not None else max_dist_m / 3
-    res = reg.registration_colored_icp(
-        pcd(src_pts, src_nrm, src_vals), pcd(tgt_pts, tgt_nrm, tgt_vals), max_dist_m, np.asarray(init, np.float64),
-        reg.TransformationEstimationForColoredICP(lambda_geometric, reg.HuberLoss(k)),
-        reg.ICPConvergenceCriteria(relative_fitness=1e-7, relative_rmse=1e-7, max_iteration=max_iter))
+    try:
+        res = reg.registration_colored_icp(
+            pcd(src_pts, src_nrm, src_vals), pcd(tgt_pts, tgt_nrm, tgt_vals), max_dist_m, np.asarray(init, np.float64),
+            reg.TransformationEstimationForColoredICP(lambda_geometric, reg.HuberLoss(k)),
+            reg.ICPConvergenceCriteria(relative_fitness=1e-7, relative_rmse=1e-7, max_iteration=max_iter))
+    except RuntimeError as exc:  # Open3D raises when an iteration finds no correspondence within max_dist_m
+        if "correspondence" not in str(exc).lower():
+            raise
+        raise EstimationError(f"coloured ICP: no source point came within {max_dist_m * 1e3:.1f} mm of the "
+                              "target") from exc
     return Match(np.asarray(res.transformation).copy(), float(res.fitness), float(res.inlier_rmse),
                  len(res.correspondence_set))

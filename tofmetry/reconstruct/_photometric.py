@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from tofmetry.errors import EstimationError
 from tofmetry.reconstruct._o3d import colored_icp
 from tofmetry.sensor import CameraIntrinsics
 
@@ -215,11 +216,15 @@ def photometric_icp(src, tgt, T: np.ndarray, radii_m: tuple[float, ...], lambda_
 
     Returns
     -------
-    (4, 4) refined source -> target transform
+    (4, 4) refined source -> target transform, or None when an iteration left no source point within
+    the radius of the target (the refinement failed; the caller keeps ``T``)
     """
     a, b = albedo_intensity(src.icp_ir), albedo_intensity(tgt.icp_ir)
-    for r in radii_m:
-        T = colored_icp(src.icp_points, a, tgt.icp_points, tgt.icp_normals, b, T, r, lambda_geometric).transform
+    try:
+        for r in radii_m:
+            T = colored_icp(src.icp_points, a, tgt.icp_points, tgt.icp_normals, b, T, r, lambda_geometric).transform
+    except EstimationError:
+        return None
     return T
 
 

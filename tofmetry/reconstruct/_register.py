@@ -244,14 +244,15 @@ def register_pair(src: RegView, tgt: RegView, i: int, j: int, cfg: RegistrationC
         # geometry matches as well (the object fitness within its noise, 0.005)
         T = photometric_icp(src, tgt, best.transform, tuple(x * 1e-3 for x in cfg.icp_radii_mm[-2:]),
                             cfg.ir_icp_lambda)
-        fit, rmse = object_fitness(src, tgt, T, r_final)
-        c1 = ir_agreement(src, tgt, T, r_final)
-        v = vis(T)
-        if (c1 is not None and c1 >= cfg.ir_icp_min_corr and c1 - c0 >= cfg.ir_icp_min_gain
-                and fit >= best.fitness - 0.005 and passes_gates(fit, rmse, cfg) and v <= cfg.max_see_through
-                and plane_consistent(src, tgt, T) and allowed(T)):
-            best = pair_result(src, tgt, i, j, T, fit, rmse, v, best.method + "+ir-icp", True, r_final, ir_corr=c1)
-            out = [best] + out[1:]
+        if T is not None:  # None: no correspondence left (the geometric registration stays)
+            fit, rmse = object_fitness(src, tgt, T, r_final)
+            c1 = ir_agreement(src, tgt, T, r_final)
+            v = vis(T)
+            if (c1 is not None and c1 >= cfg.ir_icp_min_corr and c1 - c0 >= cfg.ir_icp_min_gain
+                    and fit >= best.fitness - 0.005 and passes_gates(fit, rmse, cfg) and v <= cfg.max_see_through
+                    and plane_consistent(src, tgt, T) and allowed(T)):
+                best = pair_result(src, tgt, i, j, T, fit, rmse, v, best.method + "+ir-icp", True, r_final, ir_corr=c1)
+                out = [best] + out[1:]
     if cfg.ir_yaw and leaves_yaw_free(best.conditioning, cfg.yaw_free_ratio) and src.obj_ir is not None and tgt.icp_ir is not None:
         # the geometry leaves the yaw free: let the painted pattern (IR amplitude) choose it
         sw = ir_yaw_sweep(src, tgt, best.transform, r_final)
@@ -319,10 +320,11 @@ def _ir_turned(src: RegView, tgt: RegView, i: int, j: int, T0: np.ndarray, cfg: 
         # the geometric ICP is free to slide in yaw here: the pattern holds it (measured on a
         # painted vase at 0.74 m: the geometric refinement left 7.4 degrees, the pattern 1.4)
         Tp = photometric_icp(src, tgt, T0, tuple(x * 1e-3 for x in cfg.icp_radii_mm[-2:]), cfg.ir_icp_lambda)
-        fit_p, rmse_p = object_fitness(src, tgt, Tp, r_final)
-        cp = ir_agreement(src, tgt, Tp, r_final)
-        if cp is not None and (c is None or cp > c) and fit_p >= fit - 0.005:
-            T, fit, rmse, c = Tp, fit_p, rmse_p, cp
+        if Tp is not None:
+            fit_p, rmse_p = object_fitness(src, tgt, Tp, r_final)
+            cp = ir_agreement(src, tgt, Tp, r_final)
+            if cp is not None and (c is None or cp > c) and fit_p >= fit - 0.005:
+                T, fit, rmse, c = Tp, fit_p, rmse_p, cp
     v = vis(T)
     ok = passes_gates(fit, rmse, cfg) and v <= cfg.max_see_through
     return pair_result(src, tgt, i, j, T, fit, rmse, v, method, ok, r_final, ir_yaw=sweep, ir_corr=c)
