@@ -396,3 +396,28 @@ def test_an_ambiguity_the_joint_fit_decides_is_a_warning():
     assert not run([dict(near, mm=1.6)])["reliable"]
     assert not run([near], n_tied=2)["reliable"]  # a tied choice not fitted
     assert not run(None)["reliable"] and not run([{"failed": "too few correspondences"}])["reliable"]
+
+
+def test_unchecked_views_with_a_loose_restart_make_the_run_unreliable():
+    """Views on no closed loop are trusted to their chain of pairs (a warning) while the joint fit's
+    restart comes back within half the pose gate; beyond half of it (within the gate), nothing holds
+    them within the gate: a reason, as on a held-out bar whose 10 of 13 views hung on the closing
+    pair (restart 0.16 deg / 1.7 mm, the views 0.40 deg / 4.1 mm off). Views all on a loop are judged
+    by it, whatever the restart."""
+    names = _names(5)
+    chain = [_edge("00", "01"), _edge("01", "02"), _edge("00", "02"), _edge("02", "03"), _edge("03", "04")]
+    ring = chain[:3] + [_edge("02", "03"), _edge("03", "04"), _edge("02", "04")]
+
+    def run(edges, deg, mm):
+        restart = {"view": 4, "start_deg": 0.5, "deg": deg, "mm": mm, "per_view_deg": [0.0] * 5}
+        adj = {"moved_deg": {n: 0.1 for n in names}, "restart": restart, "gain_note": "not asked for"}
+        return assess(names, [dict(x) for x in edges], {"reasons": [], "loops": []}, adjustment=adj,
+                      calibration_prediction={})
+
+    v = run(chain, 0.05, 0.4)  # came back within half the gate (0.25 deg / 1.5 mm)
+    assert v["reliable"], v["reasons"]
+    assert any("03, 04 are on no closed loop" in w for w in v["warnings"])
+    for deg, mm in ((0.16, 1.7), (0.3, 0.4)):  # beyond half the gate in displacement, in rotation
+        v = run(chain, deg, mm)
+        assert not v["reliable"] and any("neither a loop nor the points of all views" in r for r in v["reasons"])
+    assert run(ring, 0.16, 1.7)["reliable"]
