@@ -6,7 +6,7 @@ says of its own poses (loops, ambiguity, free yaws). The joint fit of all views 
 again from all their points at once: where it moves a view beyond the pose gate, the pairs and the
 joint fit disagree and one of them is off; where its restart does not come back, the points do not
 pin it down. That judgement has rules of its own, each set on measured family runs, so it lives here
-(:func:`_judge_move`), with which part of a move it judges (:func:`_move_judged`: the turn about the
+(:func:`judge_move`), with which part of a move it judges (:func:`move_judged`: the turn about the
 vertical alone where the support planes held the tilts); the verdict's module keeps the rest of its
 reasons.
 """
@@ -18,7 +18,7 @@ import numpy as np
 from tofmetry.reconstruct._adjust_restart import came_back
 
 
-def _judge_move(adjustment: dict, names: list[str], pose_gate_deg: float, pose_gate_mm: float, reasons: list[str],
+def judge_move(adjustment: dict, names: list[str], pose_gate_deg: float, pose_gate_mm: float, reasons: list[str],
                 warnings: list[str], placed_by: str = "the pairwise registrations", move_gate_deg: float | None = None,
                 share: float = 1.0) -> None:
     """The joint fit's move from where ``placed_by`` put the views (the pose graph, or a declared
@@ -56,7 +56,7 @@ def _judge_move(adjustment: dict, names: list[str], pose_gate_deg: float, pose_g
     if not moved:
         return
     rs = adjustment.get("restart")
-    judged, held = _move_judged(adjustment)
+    judged, held = move_judged(adjustment)
     worst = max(judged, key=judged.get)
     gate = pose_gate_deg if move_gate_deg is None else move_gate_deg
     beyond = judged[worst] > gate
@@ -106,7 +106,7 @@ def _judge_move(adjustment: dict, names: list[str], pose_gate_deg: float, pose_g
                        "object sliding, or a depth-calibration residual)")
 
 
-def _move_judged(adjustment: dict) -> tuple[dict, dict | None]:
+def move_judged(adjustment: dict) -> tuple[dict, dict | None]:
     """The views' moves the verdict judges: their whole rotation, or, where the support planes held
     the views (:mod:`~tofmetry.reconstruct._adjust_support`) and end on one plane (every view's within
     twice the term's allowance, none off the plane), only the part about the vertical, the tilt part

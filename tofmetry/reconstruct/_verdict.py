@@ -54,7 +54,7 @@ import numpy as np
 
 from tofmetry.reconstruct._adjust_restart import came_back, settles_loops
 from tofmetry.reconstruct._calibration_support import calibration_central_mm
-from tofmetry.reconstruct._move_verdict import _judge_move, _move_judged
+from tofmetry.reconstruct._move_verdict import judge_move, move_judged
 from tofmetry.reconstruct._pattern_search import METHOD as PATTERN_METHOD
 from tofmetry.reconstruct._regview import leaves_yaw_free
 from tofmetry.reconstruct._view_graph import bridges
@@ -101,7 +101,7 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
         restart still judge them)
     restart_share : the joint fit's restart, and a moved view's pairs registered again from it, must end
         within this share of the pose gate
-        (:func:`~tofmetry.reconstruct._move_verdict._judge_move`)
+        (:func:`~tofmetry.reconstruct._move_verdict.judge_move`)
     gain_alarm_factor : a depth gain the adjustment refused as implausible makes the run unreliable when it
         exceeds this many times the bound it broke (the calibration's allowance); below, it is a warning.
         Set on 8 family runs with a refused gain: asking 1.04-1.4 times the bound, 5 runs were within the
@@ -252,7 +252,7 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
                        "than it allows (wrong poses on a smooth or symmetric object, or a wrong calibration)")
     if adjustment is not None and (adjustment.get("gain_note") or "").startswith("not observable"):
         warnings.append(f"depth gain {adjustment['gain_note']}")
-    _judge_move(adjustment or {}, names, pose_gate_deg, pose_gate_mm, reasons, warnings,
+    judge_move(adjustment or {}, names, pose_gate_deg, pose_gate_mm, reasons, warnings,
                 "the declared turntable" if turntable_placed else "the pairwise registrations",
                 max(pose_gate_deg, 2.0 * turntable_accuracy_deg) if turntable_placed and turntable_accuracy_deg else
                 pose_gate_deg, restart_share)
@@ -273,10 +273,10 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
         warnings.append(f"{amb}; but the joint fit of all views, started from each of them, ends within "
                         f"{far['deg']:.2f} deg / {far['mm']:.1f} mm of its solution (limit {TIED_SHARE * pose_gate_deg:g} "
                         f"deg / {TIED_SHARE * pose_gate_mm:g} mm): the points of all views decide")
-    moves = _move_judged(adjustment)[0] if (adjustment or {}).get("moved_deg") else {}
+    moves = move_judged(adjustment)[0] if (adjustment or {}).get("moved_deg") else {}
     loop_msgs = [r for r in loop_msgs if r in reasons]
-    if loop_msgs and settles_loops(consistency, (adjustment or {}).get("restart"), max(moves.values(), default=0.0),
-                                   pose_gate_deg, pose_gate_mm, restart_share):
+    if loop_msgs and settles_loops(consistency, rs, max(moves.values(), default=0.0), pose_gate_deg, pose_gate_mm,
+                                   restart_share):
         reasons = [r for r in reasons if r not in loop_msgs]
         warnings.extend("the joint fit of all views places them (its restart came back, and it moved no view beyond "
                         "the pose gate), not the pairwise loops, which say: " + r for r in loop_msgs)
