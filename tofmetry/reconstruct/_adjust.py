@@ -39,7 +39,7 @@ import numpy as np
 
 from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.errors import EstimationError, InputError
-from tofmetry.reconstruct._adjust_albedo import albedo_gradients, albedo_terms
+from tofmetry.reconstruct._adjust_albedo import albedo_gradients, albedo_terms, weak_bases
 from tofmetry.reconstruct._adjust_circle import circle_terms, turn_axis_point
 from tofmetry.reconstruct._adjust_field import DepthFieldPrior
 from tofmetry.reconstruct._adjust_prior import pose_prior_terms
@@ -82,7 +82,8 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                   albedo: bool = False, up: np.ndarray | None = None,
                   prior_poses: np.ndarray | None = None, symmetric_normals: bool = True,
                   support_planes: list | None = None, support_sigma: tuple[float, float] | None = None,
-                  circle_up: np.ndarray | None = None, circle_sigma_m: float | None = None) -> AdjustResult:
+                  circle_up: np.ndarray | None = None, circle_sigma_m: float | None = None,
+                  albedo_weak_ratio: float | None = None) -> AdjustResult:
     """Jointly refine all poses (view 0 fixed) and, optionally, the depth gain.
 
     Each outer iteration matches every view's ``source`` points (gain-corrected, to world) to
@@ -169,6 +170,10 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
     circle_up, circle_sigma_m : the vertical (3,) in the frame of ``poses`` and a standard deviation [m]:
         the views were taken on a turntable, and every view's motion from view 0 is held to a turn
         about one vertical axis (:mod:`tofmetry.reconstruct._adjust_circle`). None: not used
+    albedo_weak_ratio : with ``albedo`` and no ``up``: the albedo term acts on each view only along the
+        directions of its pose where its information is at least this many times the geometry's
+        (:func:`~tofmetry.reconstruct._adjust_albedo.weak_bases`, recomputed at every step: the
+        turn about a vase's own axis, the slide along a bar). None: on all six degrees of freedom
 
     Returns
     -------
@@ -250,12 +255,23 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
     alb_axis = None if up is None or not alb_on else (
         np.asarray(up, np.float64), np.concatenate([v.source @ T[:3, :3].T + T[:3, 3] for v, T in zip(views, poses)]).mean(0))
     alb_info: dict = {"used": False, "note": "not asked for" if not albedo else "not available: a view carries no albedo"}
+    alb_weak = None
+    if alb_on and alb_axis is None and albedo_weak_ratio is not None:
+        pts = np.concatenate([v.source @ T[:3, :3].T + T[:3, 3] for v, T in zip(views, poses)])
+        c0 = pts.mean(0)
+        alb_weak = (c0, float(np.sqrt(np.mean(np.sum((pts - c0) ** 2, 1)))), float(albedo_weak_ratio))
 
     def ne(with_gain: bool):
         """The normal equations of the correspondences, with the albedo term when it is on."""
         out = _normal_equations(views, P, g, z_ref_m, corr, k, with_gain, cv(), ampv(), tv(), symmetric=symmetric_normals)
         if alb_on:
-            Ha, ba, info = albedo_terms(P, alb_src, alb_tgt, corr, len(out[1]), out[2], alb_axis)
+            bases = None
+            if alb_weak is not None:  # where the albedo tells more than the geometry (weak_bases)
+                Hf = albedo_terms(P, alb_src, alb_tgt, corr, len(out[1]), out[2])[0]
+                bases = weak_bases(out[0], V, *alb_weak, Hf)
+            Ha, ba, info = albedo_terms(P, alb_src, alb_tgt, corr, len(out[1]), out[2], alb_axis, bases)
+            if bases is not None:
+                info["weak_directions"] = [0 if B is None else B[0].shape[1] for B in bases]
             out[0][:] += Ha
             out[1][:] += ba
             alb_info.update(used=True, note="used", **info)
@@ -411,7 +427,8 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                               gain_prior_sigma, max_normal_deg, tol_deg, tol_m, gain_max_sigma, sigma_inflation,
                               gain_max_abs, systematic_m, curve_degree, curve_prior_m, curve_half_span_m,
                               amplitude_prior_m, pose_prior_deg, pose_prior_m, depth_field, None, albedo, up,
-                              prior_poses, symmetric_normals, support_planes, support_sigma, circle_up, circle_sigma_m)
+                              prior_poses, symmetric_normals, support_planes, support_sigma, circle_up, circle_sigma_m,
+                              albedo_weak_ratio)
         fixed.image_tilt_sigma_data_m = tilt_sd
         fixed.image_tilt_note = ("implausible: the views ask for " + ", ".join(f"{x * 1e3:+.1f}" for x in t_xy)
                                  + f" mm per unit, beyond {TILT_MAX_PRIORS:g} x its prior (+-{tilt_prior_m * 1e3:.1f}): "
@@ -425,7 +442,8 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
                               pose_prior_deg=pose_prior_deg, pose_prior_m=pose_prior_m, depth_field=depth_field,
                               tilt_prior_m=tilt_prior_m, albedo=albedo, up=up, prior_poses=prior_poses,
                               symmetric_normals=symmetric_normals, support_planes=support_planes,
-                              support_sigma=support_sigma, circle_up=circle_up, circle_sigma_m=circle_sigma_m)
+                              support_sigma=support_sigma, circle_up=circle_up, circle_sigma_m=circle_sigma_m,
+                              albedo_weak_ratio=albedo_weak_ratio)
         fixed.gain_sigma_data, fixed.gain_sigma_systematic = sigma_data, sigma_sys
         fixed.gain_refused, fixed.gain_max_abs = float(g), float(gain_max_abs)
         if np.isfinite(amp_slope):  # the gain's trade with dk, from this run where the gain was free

@@ -24,6 +24,13 @@ dark paint), and over all six degrees of freedom they pull poses where the geome
 to 1.9 and 2.4 %). So the term acts only on the direction the geometry leaves free: each view's
 rotation about the vertical (the support plane's normal) through the object's centre.
 
+Or, more generally (``albedo_weak_ratio`` of the joint fit, :func:`weak_bases`): along the directions of
+each view's pose where the albedo tells more than the geometry. The view's block of the geometric normal
+matrix, rotations taken about the object's centre and scaled to its radius, gives its eigen-directions;
+the albedo acts along those where its own information is at least ``ratio`` times the geometry's. On a
+vase that is the turn about the vase's own axis (not the vertical through the points' centre); on a bar,
+its slide or roll where the pattern sees it; on a feature-rich object, nothing.
+
 Weighting: the albedo residuals enter at their own robust scale (``1.4826 MAD``) beside the
 geometric residuals at theirs (both as unit-variance residuals, Huber at 1.345 scales), so that
 neither is tuned: where the pattern is faint or absent its scale is large against its response and
@@ -79,9 +86,45 @@ def albedo_gradients(points: np.ndarray, normals: np.ndarray, values: np.ndarray
     return g
 
 
+def weak_bases(H: np.ndarray, V: int, centre: np.ndarray, radius_m: float, ratio: float,
+               H_albedo: np.ndarray) -> list:
+    """Per view, the directions of its pose where the albedo tells more than the geometry.
+
+    Parameters
+    ----------
+    H : (n, n) the geometric normal matrix of the joint fit (poses first, 6 per view 1..V-1, left
+        increments: rotation w [rad], translation t [m], world frame)
+    V : number of views
+    centre : (3,) the object's centre [m] (world frame): rotations are taken about it
+    radius_m : the object's radius [m]: a rotation counts by the displacement it gives there
+    ratio : a direction (eigenvector of the view's geometric block, rotation about ``centre`` scaled
+        to ``radius_m``) is weak when the albedo's information along it is at least this many times
+        the geometry's
+    H_albedo : (n, n) the albedo term's normal matrix on all six degrees of freedom, at the same scale
+
+    Returns
+    -------
+    list of V: None for view 0 (fixed) and where no direction is weak, else ``(G, Q)``: (6, k) maps
+    of the weak coordinates ``a`` to the increment (``xi = G a``) and of the increment to them
+    (``a = Q^T xi``)
+    """
+    c = np.asarray(centre, np.float64)
+    cx = np.array([[0, -c[2], c[1]], [c[2], 0, -c[0]], [-c[1], c[0], 0]])
+    MS = np.block([[np.eye(3) / radius_m, np.zeros((3, 3))], [cx / radius_m, np.eye(3)]])
+    MS_inv_T = np.linalg.inv(MS).T
+    out: list = [None]
+    for v in range(1, V):
+        blk = slice(6 * (v - 1), 6 * v)
+        lam, E = np.linalg.eigh(MS.T @ H[blk, blk] @ MS)
+        alb = np.einsum("dk,de,ek->k", E, MS.T @ H_albedo[blk, blk] @ MS, E)
+        weak = alb >= ratio * np.maximum(lam, 0.0)
+        out.append((MS @ E[:, weak], MS_inv_T @ E[:, weak]) if weak.any() else None)
+    return out
+
+
 def albedo_terms(P: np.ndarray, sources: list, targets: list, corr, npar: int,
-                 geometric_variance: float, axis: tuple[np.ndarray, np.ndarray] | None = None
-                 ) -> tuple[np.ndarray, np.ndarray, dict]:
+                 geometric_variance: float, axis: tuple[np.ndarray, np.ndarray] | None = None,
+                 bases: list | None = None) -> tuple[np.ndarray, np.ndarray, dict]:
     """Gauss-Newton terms of the albedo residuals (module docstring) for the joint fit's correspondences.
 
     Parameters
@@ -140,6 +183,9 @@ def albedo_terms(P: np.ndarray, sources: list, targets: list, corr, npar: int,
         J[:, 9:12] = g
         if u is not None:
             J = np.hstack([(J[:, 0:6] @ u)[:, None] * u, (J[:, 6:12] @ u)[:, None] * u])
+        elif bases is not None:  # only along each view's weak directions (weak_bases)
+            J = np.hstack([np.zeros((len(e), 6)) if bases[v] is None else J[:, s:s + 6] @ bases[v][0] @ bases[v][1].T
+                           for v, s in ((i, 0), (j, 6))])
         cols = np.r_[np.arange(6 * (i - 1), 6 * i) if i > 0 else np.full(6, -1),
                      np.arange(6 * (j - 1), 6 * j) if j > 0 else np.full(6, -1)]
         keep = cols >= 0

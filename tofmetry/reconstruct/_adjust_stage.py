@@ -98,7 +98,9 @@ def joint_adjustment(views, segs, regs: list[RegView], poses: np.ndarray, cfg: R
     (:func:`pair_walks`). ``edge_ir``: those pairs' IR albedo correlations (None where unknown);
     ``yaw_free``: one of them leaves the rotation about the vertical free (a surface of
     revolution): then the joint fit matches the albedo too, about the vertical only, when their
-    median reaches ``adjust_albedo_min_corr`` (:mod:`tofmetry.reconstruct._adjust_albedo`).
+    median reaches ``adjust_albedo_min_corr`` (:mod:`tofmetry.reconstruct._adjust_albedo`); with
+    ``adjust_albedo_weak_ratio`` (opt-in), on any object whose pairs see the pattern, along each view's
+    weak directions instead.
     ``tied``: the pose-graph poses (V, 4, 4) of the choices of pairwise hypotheses tied with the one
     ``poses`` come from; the fit is run from each too (:func:`tied_probe`, in ``AdjustResult.tied``).
 
@@ -122,10 +124,12 @@ def joint_adjustment(views, segs, regs: list[RegView], poses: np.ndarray, cfg: R
     if e_sys is None:  # opt-in: the calibration's predicted central error
         e_sys = (calibration_central_mm(cal.prediction or {}) if cal is not None else None) or 0.0
     av = _views(regs)
-    albedo = (rc.adjust_albedo_min_corr is not None and bool(edge_ir) and yaw_free and segs[0].plane is not None
+    weak = rc.adjust_albedo_weak_ratio
+    albedo = (rc.adjust_albedo_min_corr is not None and bool(edge_ir) and (yaw_free or weak is not None)
+              and (segs[0].plane is not None or weak is not None)
               and float(np.median([c if c is not None else -1.0 for c in edge_ir])) >= rc.adjust_albedo_min_corr)
     vertical = None if segs[0].plane is None else poses[0][:3, :3] @ np.asarray(segs[0].plane[:3], np.float64)
-    up = vertical if albedo else None
+    up = vertical if albedo and weak is None else None
     circle = (None if turntable or rc.turn_axis_mm is None else
               turntable_path(poses, vertical, rc.turn_axis_detect_mm * 1e-3))
     if rc.adjust_target_smooth_k:  # the targets without their noise (tofmetry.pointcloud._smooth)
@@ -157,7 +161,8 @@ def joint_adjustment(views, segs, regs: list[RegView], poses: np.ndarray, cfg: R
                              support_sigma=None if rc.support_plane_deg is None else (rc.support_plane_deg,
                                                                                       rc.support_plane_mm * 1e-3),
                              circle_up=None if circle is None else vertical,
-                             circle_sigma_m=None if circle is None else rc.turn_axis_mm * 1e-3)
+                             circle_sigma_m=None if circle is None else rc.turn_axis_mm * 1e-3,
+                             albedo_weak_ratio=weak)
 
     with progress("global adjustment", None):
         try:

@@ -242,6 +242,14 @@ class RegistrationConfig(BaseModel):
     adjust_iters: tuple[int, ...] = Field((2, 6), description="at most this many outer iterations (new correspondences) "
                                           "at each radius; stops earlier when converged (measured on the 8-view scans: "
                                           "converged after 2 + 6-7)")
+    adjust_albedo_weak_ratio: float | None = Field(None, gt=0, description="experimental: the joint fit "
+                                                   "matches the IR albedo along the directions of each view's pose where "
+                                                   "its information is at least this many times the geometry's, on any "
+                                                   "object whose kept registrations line a pattern up; None (the "
+                                                   "default): about the vertical only, where the geometry leaves it "
+                                                   "free. Measured (bench/robustness/README.md, session 26): with 1 "
+                                                   "vases and bars came closer, a fandisk and an igea farther; with 4 "
+                                                   "a held-out vase and pebble farther")
     adjust_albedo_min_corr: float | None = Field(0.5, ge=-1, le=1, description="where a kept pairwise registration "
                                                  "leaves the rotation about the vertical free (yaw_free_ratio: a surface "
                                                  "of revolution), the global adjustment also matches the views' IR albedo "
