@@ -46,6 +46,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from tofmetry._shared.geometry import skew
+
 #: neighbours of a target point its albedo gradient is fitted to
 GRADIENT_NEIGHBOURS = 12
 
@@ -108,8 +110,7 @@ def weak_bases(H: np.ndarray, V: int, centre: np.ndarray, radius_m: float, ratio
     of the weak coordinates ``a`` to the increment (``xi = G a``) and of the increment to them
     (``a = Q^T xi``)
     """
-    c = np.asarray(centre, np.float64)
-    cx = np.array([[0, -c[2], c[1]], [c[2], 0, -c[0]], [-c[1], c[0], 0]])
+    cx = skew(np.asarray(centre, np.float64))
     MS = np.block([[np.eye(3) / radius_m, np.zeros((3, 3))], [cx / radius_m, np.eye(3)]])
     MS_inv_T = np.linalg.inv(MS).T
     out: list = [None]
@@ -124,7 +125,7 @@ def weak_bases(H: np.ndarray, V: int, centre: np.ndarray, radius_m: float, ratio
 
 def albedo_terms(P: np.ndarray, sources: list, targets: list, corr, npar: int,
                  geometric_variance: float, axis: tuple[np.ndarray, np.ndarray] | None = None,
-                 bases: list | None = None) -> tuple[np.ndarray, np.ndarray, dict]:
+                 weak: tuple | None = None) -> tuple[np.ndarray, np.ndarray, dict]:
     """Gauss-Newton terms of the albedo residuals (module docstring) for the joint fit's correspondences.
 
     Parameters
@@ -138,13 +139,16 @@ def albedo_terms(P: np.ndarray, sources: list, targets: list, corr, npar: int,
         carry: the albedo terms are scaled to it (unit-variance residuals both)
     axis : ``(up (3,), centre (3,))`` world frame: the albedo then acts on each view's rotation
         about the vertical through the object's centre only (module docstring); None: on all six
-        degrees of freedom
+        degrees of freedom (or along ``weak``'s directions)
+    weak : ``(H (npar, npar) geometric normal matrix, centre (3,) [m], radius [m], ratio)``: the albedo
+        acts on each view only along the directions :func:`weak_bases` finds from those and from its own
+        normal matrix on all six degrees of freedom; None: not used
 
     Returns
     -------
     H : (npar, npar) addition to the normal matrix; b : (npar,) addition to the gradient
     info : dict: ``n`` (residuals), ``scale`` (their robust standard deviation, log albedo units),
-    ``n_pairs``
+    ``n_pairs``; with ``weak``, ``weak_directions`` (how many per view)
     """
     H = np.zeros((npar, npar))
     b = np.zeros(npar)
@@ -173,6 +177,7 @@ def albedo_terms(P: np.ndarray, sources: list, targets: list, corr, npar: int,
         up = np.asarray(axis[0], np.float64) / np.linalg.norm(axis[0])
         u = np.r_[up, -np.cross(up, np.asarray(axis[1], np.float64))]
     huber = 1.345 * scale
+    rows = []
     for i, j, p, q, g, e in blocks:
         w = np.where(np.abs(e) <= huber, 1.0, huber / np.maximum(np.abs(e), 1e-15))
         # left increments (rotation w, translation t) of both views, as the geometric term
@@ -181,16 +186,33 @@ def albedo_terms(P: np.ndarray, sources: list, targets: list, corr, npar: int,
         J[:, 3:6] = -g
         J[:, 6:9] = np.cross(q, g) - np.cross(g, p - q)
         J[:, 9:12] = g
-        if u is not None:
-            J = np.hstack([(J[:, 0:6] @ u)[:, None] * u, (J[:, 6:12] @ u)[:, None] * u])
-        elif bases is not None:  # only along each view's weak directions (weak_bases)
-            J = np.hstack([np.zeros((len(e), 6)) if bases[v] is None else J[:, s:s + 6] @ bases[v][0] @ bases[v][1].T
-                           for v, s in ((i, 0), (j, 6))])
         cols = np.r_[np.arange(6 * (i - 1), 6 * i) if i > 0 else np.full(6, -1),
                      np.arange(6 * (j - 1), 6 * j) if j > 0 else np.full(6, -1)]
-        keep = cols >= 0
-        c = cols[keep]
-        Jw = J * w[:, None]
-        H[np.ix_(c, c)] += lam * (Jw.T @ J)[np.ix_(keep, keep)]
-        b[c] += lam * (Jw.T @ e)[keep]
-    return H, b, {"n": int(len(all_e)), "scale": round(scale, 4), "n_pairs": len(blocks)}
+        rows.append((i, j, J, w, e, cols))
+
+    def normal(project=None) -> tuple[np.ndarray, np.ndarray]:
+        """The rows' normal equations, each row's Jacobian mapped by ``project(i, j, J)`` first."""
+        H = np.zeros((npar, npar))
+        b = np.zeros(npar)
+        for i, j, J, w, e, cols in rows:
+            if project is not None:
+                J = project(i, j, J)
+            keep = cols >= 0
+            c = cols[keep]
+            Jw = J * w[:, None]
+            H[np.ix_(c, c)] += lam * (Jw.T @ J)[np.ix_(keep, keep)]
+            b[c] += lam * (Jw.T @ e)[keep]
+        return H, b
+
+    info = {"n": int(len(all_e)), "scale": round(scale, 4), "n_pairs": len(blocks)}
+    if u is not None:
+        H, b = normal(lambda i, j, J: np.hstack([(J[:, 0:6] @ u)[:, None] * u, (J[:, 6:12] @ u)[:, None] * u]))
+    elif weak is not None:  # only along each view's weak directions
+        bases = weak_bases(weak[0], len(P), weak[1], weak[2], weak[3], normal()[0])
+        H, b = normal(lambda i, j, J: np.hstack([np.zeros((len(J), 6)) if bases[v] is None else
+                                                 J[:, s:s + 6] @ bases[v][0] @ bases[v][1].T
+                                                 for v, s in ((i, 0), (j, 6))]))
+        info["weak_directions"] = [0 if B is None else B[0].shape[1] for B in bases]
+    else:
+        H, b = normal()
+    return H, b, info

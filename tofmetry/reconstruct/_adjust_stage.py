@@ -125,8 +125,8 @@ def joint_adjustment(views, segs, regs: list[RegView], poses: np.ndarray, cfg: R
         e_sys = (calibration_central_mm(cal.prediction or {}) if cal is not None else None) or 0.0
     av = _views(regs)
     weak = rc.adjust_albedo_weak_ratio
-    albedo = (rc.adjust_albedo_min_corr is not None and bool(edge_ir) and (yaw_free or weak is not None)
-              and (segs[0].plane is not None or weak is not None)
+    albedo = (rc.adjust_albedo_min_corr is not None and bool(edge_ir)
+              and (weak is not None or (yaw_free and segs[0].plane is not None))
               and float(np.median([c if c is not None else -1.0 for c in edge_ir])) >= rc.adjust_albedo_min_corr)
     vertical = None if segs[0].plane is None else poses[0][:3, :3] @ np.asarray(segs[0].plane[:3], np.float64)
     up = vertical if albedo and weak is None else None
