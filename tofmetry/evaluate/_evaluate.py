@@ -8,6 +8,7 @@ import numpy as np
 from pydantic import BaseModel, Field
 from scipy.spatial import cKDTree
 
+from tofmetry._shared.geometry import skew
 from tofmetry.errors import InputError
 from tofmetry.evaluate._align import (
     AlignmentResult,
@@ -143,7 +144,7 @@ def _ground_prior(plane: np.ndarray, mod_s: np.ndarray, ref_s: np.ndarray, up: n
     up = up / max(np.linalg.norm(up), 1e-12)
     n, d = plane[:3] / np.linalg.norm(plane[:3]), plane[3]
     v, c = np.cross(n, up), float(n @ up)
-    K = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    K = skew(v)
     R0 = np.eye(3) + K + K @ K / (1 + c) if c > -0.999 else -np.eye(3)  # Rodrigues: n -> up
     h_ground = float((ref_s @ up).min())
     cm, cr, p0 = mod_s.mean(0), ref_s.mean(0), -d * n

@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from tofmetry._shared.geometry import skew
 from tofmetry.errors import FormatError, InputError
 from tofmetry.io._atomic import atomic_write_bytes
 from tofmetry.sensor.extrinsics import Extrinsics
@@ -362,9 +363,7 @@ def write_calib_depth(path: str | os.PathLike, depth_shift_mm: float) -> Path:
 def essential_fundamental(extr: Extrinsics, ir: CameraIntrinsics, color: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray]:
     """Essential ``E = [t]x R`` and fundamental ``F = Kc^-T E Kir^-1`` (scaled to ``F[2,2] = 1``)
     as ``cv::stereoCalibrate`` returns them for camera 1 = IR, camera 2 = colour."""
-    t = extr.translation
-    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
-    E = tx @ extr.rotation
+    E = skew(extr.translation) @ extr.rotation
     F = np.linalg.inv(color.K).T @ E @ np.linalg.inv(ir.K)
     if abs(F[2, 2]) > 1e-300:
         F = F / F[2, 2]
@@ -384,8 +383,7 @@ def write_calib_pose(path: str | os.PathLike, extr: Extrinsics, ir: CameraIntrin
     if ir is not None and color is not None:
         E, F = essential_fundamental(extr, ir, color)
     else:
-        t = extr.translation
-        E = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]]) @ extr.rotation
+        E = skew(extr.translation) @ extr.rotation
         F = np.zeros((3, 3))
     E = E if essential is None else np.asarray(essential, float).reshape(3, 3)
     F = F if fundamental is None else np.asarray(fundamental, float).reshape(3, 3)

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from tofmetry._shared.geometry import skew
 from tofmetry.reconstruct._range_curve import range_basis
 
 @dataclass
@@ -80,7 +81,7 @@ def _exp_se3(xi: np.ndarray) -> np.ndarray:
     """4x4 from a 6-vector (rotation vector, translation) - left update."""
     w, t = xi[:3], xi[3:]
     th = np.linalg.norm(w)
-    K = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
+    K = skew(w)
     if th < 1e-12:
         R = np.eye(3) + K
     else:

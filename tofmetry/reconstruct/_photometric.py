@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from tofmetry._shared.geometry import skew
 from tofmetry.errors import EstimationError
 from tofmetry.reconstruct._o3d import colored_icp
 from tofmetry.sensor import CameraIntrinsics
@@ -82,7 +83,7 @@ def revolution_axis(points: np.ndarray, normals: np.ndarray, up: np.ndarray) -> 
 def _rot_about(axis_pt: np.ndarray, up: np.ndarray, deg: float) -> np.ndarray:
     a = np.radians(deg)
     u = up / np.linalg.norm(up)
-    K = np.array([[0, -u[2], u[1]], [u[2], 0, -u[0]], [-u[1], u[0], 0]])
+    K = skew(u)
     R = np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = R, axis_pt - R @ axis_pt

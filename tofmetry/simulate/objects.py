@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tofmetry._shared.geometry import skew
 from tofmetry.errors import InputError
 
 #: Real meshes: file in the scan-meshes folder, the mesh's up axis (it stands on the opposite side)
@@ -345,7 +346,7 @@ def _up_rotation(up) -> np.ndarray:
     v, c = np.cross(u, z), float(u @ z)
     if c < -0.999999:
         return np.diag([1.0, -1.0, -1.0])
-    K = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    K = skew(v)
     return np.eye(3) + K + K @ K / (1 + c)
 
 
