@@ -412,8 +412,8 @@ def summarize(rows: list[dict]) -> dict:
     # accuracy figures over the runs the chain vouches for (reliable), and over all
     for tag, group in (("reliable", rel), ("all", ok)):
         out[tag] = {k: _dist(group, k, k == "completeness" or k == "completeness_observed")
-                    for k in ("rot_deg", "object_mm", "camera_mm", "mean_mm", "std_mm", "p95_mm", "max_mm",
-                              "completeness", "completeness_observed", "scale_error_pct", "plan_error_pts",
+                    for k in ("rot_deg", "object_mm", "camera_mm", "mean_mm", "mean_signed_mm", "std_mm", "p95_mm",
+                              "max_mm", "completeness", "completeness_observed", "scale_error_pct", "plan_error_pts",
                               "reconstruct_s")}
     return out
 
