@@ -426,22 +426,13 @@ class FusionConfig(BaseModel):
     """TSDF fusion (Open3D tensor VoxelBlockGrid) and meshing.
 
     Defaults follow the sensor: at range z the pixel footprint is z / f (1000 / 365 = 2.7 mm at
-    1 m); voxel = 0.6 * footprint (~1.6 mm at 1 m); truncation = max(4 sigma_eff, 3 voxels,
-    ``trunc_min_mm``) with sigma_eff the depth noise after averaging plus calibration / registration
-    residuals (~1.5 mm at 1 m) -> about 6 mm, and at least 8 mm: registered views still disagree by
-    their pose scatter (~1 mm at the object), and a narrow band lets one view's free space carve
-    into another's edges, so the model comes out small (measured below, ``trunc_min_mm``).
+    1 m); voxel = 0.6 * footprint (~1.6 mm at 1 m); truncation = max(4 sigma_eff, 3 voxels) with
+    sigma_eff the depth noise after averaging plus calibration / registration residuals
+    (~1.5 mm at 1 m) -> about 6 mm.
     """
 
     voxel_mm: float | None = Field(None, description="TSDF voxel [mm]; None = 0.6 * z_median / f")
-    trunc_mm: float | None = Field(None, description="TSDF truncation [mm]; None = max(4 sigma_eff, 3 voxels, "
-                                   "trunc_min_mm)")
-    trunc_min_mm: float = Field(8.0, ge=0, description="the least automatic truncation [mm]. Views fused at poses "
-                                "that scatter by ~1 mm at the object carve into each other's edges within a narrow "
-                                "band: a box's true poses turned 0.15 deg and moved 0.8 mm at random came out "
-                                "0.15 mm small with the 4.3 mm band and 0.07 mm with 8 mm; through the chain, six "
-                                "development runs of the object family went from 0.42 to 0.40 mm mean |d| "
-                                "(bench/robustness/README.md, session 27). 0: the noise rule alone")
+    trunc_mm: float | None = Field(None, description="TSDF truncation [mm]; None = max(4 sigma_eff, 3 voxels)")
     sigma_eff_1m_mm: float = Field(1.5, gt=0, description="effective depth uncertainty at 1 m after averaging/calibration [mm]")
     block_resolution: int = Field(8, description="voxels per block side")
     poisson: bool = Field(False, description="also build a Poisson mesh of the fused cloud (density-trimmed)")
@@ -457,7 +448,7 @@ class FusionConfig(BaseModel):
         """Truncation [mm]."""
         if self.trunc_mm is not None:
             return self.trunc_mm
-        return float(max(4.0 * self.sigma_eff_1m_mm * z_mm / 1000.0, 3.0 * voxel_mm, self.trunc_min_mm))
+        return float(max(4.0 * self.sigma_eff_1m_mm * z_mm / 1000.0, 3.0 * voxel_mm))
 
 
 class ReconstructionConfig(BaseModel):
