@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tofmetry._shared.geometry import rotation_angle_deg, transform_points
+from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.errors import EstimationError, InputError
 from tofmetry.reconstruct._adjust_albedo import albedo_gradients, albedo_terms
 from tofmetry.reconstruct._adjust_circle import circle_terms, turn_axis_point
@@ -59,6 +59,7 @@ from tofmetry.reconstruct._adjust_terms import (
     _exp_se3,
     _normal_equations,
     apply_depth_gain,
+    world_sources,
 )
 from tofmetry.reconstruct._calibration_pose import calibration_pose
 
@@ -68,11 +69,6 @@ __all__ = ["AdjustView", "TILT_MAX_PRIORS", "apply_depth_gain", "global_adjust"]
 #: an image tilt estimated beyond this many prior standard deviations is refused (it traded with the
 #: poses: measured -46 and -39 mm per unit on a vase and a plaque whose sensors had 8 and 4)
 TILT_MAX_PRIORS = 3.0
-
-
-def _world_points(views: list[AdjustView], poses: np.ndarray) -> np.ndarray:
-    """(M, 3) every view's ``source`` points [m] placed by ``poses`` (V, 4, 4), all views together."""
-    return np.concatenate([transform_points(v.source, T) for v, T in zip(views, poses)])
 
 
 def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, radii_m: tuple[float, ...] = (0.006, 0.003),
@@ -207,7 +203,7 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
         plane_info = {"start": plane_spread(poses, support_planes)}
     circle_on = circle_up is not None and circle_sigma_m is not None and V >= 3
     held_at = poses if prior_poses is None else prior_poses  # where the pose prior holds the views
-    centre = _world_points(views, held_at).mean(0) if prior_on else None
+    centre = world_sources(views, held_at).mean(0) if prior_on else None
     cos_max = np.cos(np.radians(max_normal_deg))
     rms_hist: list[float] = []
     schedule = [r for r, n in zip(radii_m, iters_per_radius) for _ in range(n)]
@@ -256,11 +252,11 @@ def global_adjust(views: list[AdjustView], poses: np.ndarray, z_ref_m: float, ra
     alb_src = [(v.source, v.source_ir) for v in views] if alb_on else None
     alb_tgt = ([(v.target, v.target_ir, v.target_ir_gradient if v.target_ir_gradient is not None else
                  albedo_gradients(v.target, v.target_normals, v.target_ir)) for v in views] if alb_on else None)
-    alb_axis = None if up is None or not alb_on else (np.asarray(up, np.float64), _world_points(views, poses).mean(0))
+    alb_axis = None if up is None or not alb_on else (np.asarray(up, np.float64), world_sources(views, poses).mean(0))
     alb_info: dict = {"used": False, "note": "not asked for" if not albedo else "not available: a view carries no albedo"}
     alb_weak = None
     if alb_on and alb_axis is None and albedo_weak_ratio is not None:
-        pts = _world_points(views, poses)
+        pts = world_sources(views, poses)
         c0 = pts.mean(0)
         alb_weak = (c0, float(np.sqrt(np.mean(np.sum((pts - c0) ** 2, 1)))), float(albedo_weak_ratio))
 

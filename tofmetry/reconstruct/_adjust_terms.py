@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from tofmetry._shared.geometry import skew
+from tofmetry._shared.geometry import skew, transform_points
 from tofmetry.reconstruct._range_curve import range_basis
 
 @dataclass
@@ -122,6 +122,11 @@ def _world(views: list[AdjustView], P: np.ndarray, g: float, z_ref_m: float, whi
         nrm.append(n @ R.T)
         dg.append((c * ((z - z_ref_m) / z)) @ R.T)
     return pts, nrm, dg, dc
+
+
+def world_sources(views: list[AdjustView], poses: np.ndarray) -> np.ndarray:
+    """(M, 3) every view's ``source`` points [m] placed by ``poses`` (V, 4, 4), all views together."""
+    return np.concatenate([transform_points(v.source, T) for v, T in zip(views, poses)])
 
 
 def _correspondences(views, P, g, z_ref_m, r, cos_max, pairs=None, curve=None,

@@ -16,7 +16,7 @@ import numpy as np
 
 from tofmetry.reconstruct._adjust_field import DepthFieldPrior, pose_spread
 from tofmetry.reconstruct._adjust_result import AdjustResult
-from tofmetry.reconstruct._adjust_terms import _normal_equations
+from tofmetry.reconstruct._adjust_terms import _normal_equations, world_sources
 
 
 def field_pose_response(res: AdjustResult, depth_field: DepthFieldPrior) -> np.ndarray:
@@ -45,7 +45,7 @@ def calibration_pose(res: AdjustResult, depth_field: DepthFieldPrior, response: 
     """
     views, P, *_, noise_cov, _ = res.final_state
     resp = field_pose_response(res, depth_field) if response is None else response
-    obj = np.concatenate([v.source @ T[:3, :3].T + T[:3, 3] for v, T in zip(views, P)])
+    obj = world_sources(views, P)
     return pose_spread(resp, depth_field.coefficient_sigmas(), len(views), obj, noise_cov=noise_cov) | {
         "offset_sigma_mm": round(depth_field.offset_sigma_m * 1e3, 4),
         "shape_rms_mm": round(depth_field.shape_rms_m * 1e3, 4), "degree": depth_field.degree,
