@@ -421,3 +421,29 @@ def test_unchecked_views_with_a_loose_restart_make_the_run_unreliable():
         v = run(chain, deg, mm)
         assert not v["reliable"] and any("neither a loop nor the points of all views" in r for r in v["reasons"])
     assert run(ring, 0.16, 1.7)["reliable"]
+
+
+def test_a_predicted_pose_error_beyond_the_gate_is_a_warning():
+    """The joint fit's own predicted pose error (calibration residual and noise) at p90 beyond the pose
+    gate is a warning, not a reason (it is pessimistic where the calibration's stations are sparse);
+    within the gate, or without a prediction, nothing is said."""
+    e = [_edge("00", "01"), _edge("01", "02"), _edge("00", "02")]
+
+    def run(p90, with_noise=True):
+        rot = {"rot_deg": {"p50": p90 / 2, "p90": p90}, "object_mm": {"p50": 0.5, "p90": 1.0}}
+        cp = dict(rot, with_noise=rot) if with_noise else rot
+        adj = {"moved_deg": {"00": 0.0, "01": 0.1, "02": 0.1}, "gain_note": "not asked for", "calibration_pose": cp}
+        return assess(_names(3), [dict(x) for x in e], {"reasons": [], "loops": []}, adjustment=adj,
+                      calibration_prediction={})
+
+    def said(v):
+        return [w for w in v["warnings"] if "own predicted pose error" in w]
+
+    assert run(0.45)["reliable"] and not said(run(0.45))
+    v = run(0.61)
+    assert v["reliable"] and len(said(v)) == 1 and "0.30 / 0.61 deg" in said(v)[0] and "views' noise" in said(v)[0]
+    v = run(0.61, with_noise=False)
+    assert v["reliable"] and "views' noise" not in said(v)[0]
+    v = assess(_names(3), [dict(x) for x in e], {"reasons": [], "loops": []},
+               adjustment={"moved_deg": {"00": 0.0}, "gain_note": "not asked for"}, calibration_prediction={})
+    assert v["reliable"] and not said(v)

@@ -185,7 +185,9 @@ def summarize_family(results: list[SensorResult], warned: bool | None = False) -
         ratios = np.array([c[key]["ratio"] for c in checks if key in c])
         out[f"prediction_{key}"] = {
             "ratio_median": float(np.median(ratios)) if ratios.size else float("nan"),
-            "ratio_p90": float(np.percentile(ratios, 90)) if ratios.size else float("nan"),
+            # an infinite ratio (a prediction of 0 with an error measured) is the nearest rank, not interpolated
+            "ratio_p90": float(np.percentile(ratios, 90, method="linear" if np.isfinite(ratios).all() else "higher"))
+            if ratios.size else float("nan"),
             "ratio_max": float(ratios.max()) if ratios.size else float("nan"),
             "within_1p5": float(np.mean(ratios <= 1.5)) if ratios.size else float("nan"),
             "over_2": int(np.sum(ratios > 2.0)),
