@@ -162,7 +162,7 @@ def joint_adjustment(views, segs, regs: list[RegView], poses: np.ndarray, cfg: R
                                                                                       rc.support_plane_mm * 1e-3),
                              circle_up=None if circle is None else vertical,
                              circle_sigma_m=None if circle is None else rc.turn_axis_mm * 1e-3,
-                             albedo_weak_ratio=weak)
+                             albedo_weak_ratio=weak, extrapolate=rc.adjust_extrapolate)
 
     with progress("global adjustment", None):
         try:

@@ -242,6 +242,13 @@ class RegistrationConfig(BaseModel):
     adjust_iters: tuple[int, ...] = Field((2, 6), description="at most this many outer iterations (new correspondences) "
                                           "at each radius; stops earlier when converged (measured on the 8-view scans: "
                                           "converged after 2 + 6-7)")
+    adjust_extrapolate: float = Field(8.0, ge=0, description="at the last radius, a joint-fit step that points the "
+                                      "way the previous one did and is shorter is taken up to 1 + this many times, as "
+                                      "far as the two steps' ratio says the fit still creeps (Besl-McKay accelerated "
+                                      "ICP; tofmetry.reconstruct._adjust.creep_factor); 0: off. Measured on held-out "
+                                      "draw 66 run both ways (bench/robustness/README.md, session 28): the same "
+                                      "verdicts; a turntable box's model 1.09 -> 0.81 mm mean |d|, signed -0.92 -> "
+                                      "-0.65 mm; the other right runs within 0.03 mm")
     adjust_albedo_weak_ratio: float | None = Field(None, gt=0, description="experimental: the joint fit "
                                                    "matches the IR albedo along the directions of each view's pose where "
                                                    "its information is at least this many times the geometry's, on any "
