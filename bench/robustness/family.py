@@ -226,6 +226,15 @@ def calibrate_sensor(draw, seed: int, n_frames: int = 20, amplitude_max_mm: floa
     return cal, white, time.perf_counter() - t0
 
 
+def draw_mat(seed: int):
+    """The printed dot mat of ``seed``: an A1 sheet (:class:`tofmetry.simulate.mat.DotMat`, its dot
+    layout drawn from the seed) turned by a random yaw under the object."""
+    from tofmetry.simulate.mat import DotMat
+
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x3A7]))
+    return DotMat(seed=int(rng.integers(2**31 - 1)), yaw_deg=float(rng.uniform(0.0, 180.0)))
+
+
 def board_captures(draw, seed: int, work: Path, n_frames: int = 10) -> list[Path]:
     """Grey-level board captures of ``draw`` at :data:`BOARD_DISTANCES_M` (folders with ``capture/``)."""
     from tofmetry.simulate import datasets
@@ -237,13 +246,14 @@ def board_captures(draw, seed: int, work: Path, n_frames: int = 10) -> list[Path
 def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, mesh_dir: Path | None = MESH_DIR,
              keep: bool = False, config=None, stations_mm=FAMILY_DISTANCES_MM, boards: bool = True,
              complete_to: float | None = None, turntable: float | None = None, turntable_jitter: float = 0.0,
-             tilt_boards: bool = True, planned: float | None = None) -> dict:
+             tilt_boards: bool = True, planned: float | None = None, mat: bool = False) -> dict:
     """Simulate, calibrate, reconstruct and evaluate one draw (``complete_to``: :func:`draw_case`;
     ``tilt_boards``: the depth tilt fitted on checkerboard captures, :func:`calibrate_sensor`;
     ``turntable``: a turntable path's step is declared, ``registration.turntable_step_deg``, with
     this accuracy [deg], as a user with a turntable does; ``turntable_jitter``: a turntable path's
     views turned about the vertical through the object by N(0, jitter) [deg] each, as a manual
-    turntable's steps are off); returns one JSON-able row."""
+    turntable's steps are off); ``mat``: the object stands on a printed dot mat (:func:`draw_mat`);
+    returns one JSON-able row."""
     from tofmetry.evaluate import EvaluationConfig, evaluate_model, pose_errors, scale_from_reference
     from tofmetry.io import read_json
     from tofmetry.io.mesh import Geometry
@@ -269,11 +279,16 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
     row["calibration"]["true_tilt_mm"] = residual_tilt_mm(d.sensor, tilt_fit.get("z_ref_mm", 1000.0))
     scan_dir = work / f"scan-{seed}"
     t1 = time.perf_counter()
+    dmat = draw_mat(seed) if mat else None
+    if dmat is not None:
+        row["mat"] = dmat.to_dict()
     datasets.scan(scan_dir, n_frames=n_frames, mesh=d.mesh, poses=d.path.poses,
-                  sensor=d.sensor, seed=seed, force=True, info=d.describe())
+                  sensor=d.sensor, seed=seed, force=True, info=d.describe(), mat=dmat)
     t2 = time.perf_counter()
     row["simulate_s"] = round(t2 - t1, 1)
     cfg = config or ReconstructionConfig()
+    if dmat is not None:  # the user names the mat they printed (its layout; where it lies is found)
+        cfg.registration.mat = dmat.to_dict()
     if turntable and d.path.kind == "turntable":
         cfg.registration.turntable_step_deg = 360.0 / d.path.n_views
         cfg.registration.turntable_accuracy_deg = turntable
@@ -292,6 +307,14 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
     true_poses = np.array([by_name[n] for n in res.names])
     ref = Geometry(d.object.vertices, d.object.triangles, source="reference")
     pe = pose_errors(res.poses, true_poses, d.object.vertices)
+    if res.diagnostics.get("mat"):  # where the mat alone put the views it placed (before the joint fit)
+        fixes = res.diagnostics["mat"]
+        on = [k for k, n in enumerate(res.names) if fixes[n]["located"]]
+        if len(on) >= 2:
+            pm = pose_errors(np.array([fixes[res.names[k]]["camera_to_mat"] for k in on]), true_poses[on],
+                             d.object.vertices)
+            row["mat_pose_errors"] = {"rot_deg": round(float(pm.rot_deg.max()), 4),
+                                      "object_mm": round(float(pm.object_mm.max()), 3), "views": len(on)}
     row.update(reliable=bool(res.diagnostics.get("reliable")), reasons=res.diagnostics["reliability"].get("reasons", []),
                warnings=res.diagnostics["reliability"].get("warnings", []),
                views_left_out=res.diagnostics.get("left_out") or {},
@@ -310,7 +333,7 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
                                    "closing_pair_walks")},
                pose_errors=pe.to_dict(),
                plan=res.diagnostics.get("plan"), amplitude_slope=res.diagnostics.get("amplitude_slope"),
-               slab=res.diagnostics.get("slab"))
+               slab=res.diagnostics.get("slab"), mat_fixes=res.diagnostics.get("mat"))
     model = Geometry(res.mesh_vertices, res.mesh_triangles, source="model")
     try:
         ev = evaluate_model(model, ref, EvaluationConfig(align=True, exclude_normal=(0.0, 0.0, -1.0)), poses=doc)
@@ -484,6 +507,8 @@ def main(argv=None) -> int:
                     "and how accurately it turns (the simulated turntable is exact; a stepper motor's ~0.1)")
     ap.add_argument("--turntable-jitter", type=float, default=0.0, metavar="DEG",
                     help="turn each view of a turntable path by N(0, DEG) about the vertical (a manual turntable)")
+    ap.add_argument("--mat", action="store_true",
+                    help="every object stands on a printed A1 dot mat (the study's flat targets as a pattern: draw_mat)")
     ap.add_argument("--set", action="append", default=[], metavar="STAGE.FIELD=JSON",
                     help="override one field of the reconstruction config, e.g. "
                     "registration.adjust_radii_mm=[12,6,3] (repeatable; for A/B runs)")
@@ -509,7 +534,7 @@ def main(argv=None) -> int:
                          config=None if config is None else config.model_copy(deep=True),
                          stations_mm=STATION_SETS[a.stations],
                          boards=not a.no_boards, complete_to=a.complete_to, turntable=a.turntable,
-                         turntable_jitter=a.turntable_jitter, tilt_boards=not a.no_tilt_boards, planned=a.planned)
+                         turntable_jitter=a.turntable_jitter, tilt_boards=not a.no_tilt_boards, planned=a.planned, mat=a.mat)
             rows.append(r)
             with open(jl, "a") as fh:
                 fh.write(json.dumps(r, default=float) + "\n")

@@ -58,6 +58,10 @@ def reconstruct(
     turntable_accuracy: float = typer.Option(
         1.0, "--turntable-accuracy", help="How accurately the turntable turns by its step [deg] (manual marks ~1, a "
         "stepper motor ~0.1): views linked by the step alone are this accurate; above 0.5 deg the run is flagged."),
+    mat: Path | None = typer.Option(
+        None, "--mat", help="The mat.json of the printed dot mat the object stood on (tofmetry mat): each view is "
+        "placed on the mat on its own (no chain of pairwise registrations: any shape, a vase of revolution or a thin "
+        "plaque as well as a bust), the joint fit refines the placements, and the model comes out in the mat's frame."),
     plan: Path | None = typer.Option(
         None, "--plan", help="A plan.json (tofmetry plan): the views as registered are set beside the views it asked "
         "for, both predicted on its object size (written to poses.json as diagnostics.plan). No reference needed; "
@@ -68,6 +72,7 @@ def reconstruct(
         "unreliable (the outputs are written and flagged in poses.json either way; without this option the exit code is 3)."),
 ) -> None:
     """Automatic 3D model of an object from several views: segment, register (pose graph), fuse (TSDF), mesh."""
+    from tofmetry.io.mat_json import read_mat
     from tofmetry.pipelines.paths import refuse_existing
     from tofmetry.pipelines.plan import read_plan
     from tofmetry.pipelines.reconstruct import reconstruct_scan
@@ -92,6 +97,9 @@ def reconstruct(
     if plan is not None and rig is not None:
         raise InputError("--plan is not available with --rig (the rig's sensors stand where the rig holds them)")
     plan_doc = read_plan(plan) if plan is not None else None  # a bad plan.json fails before the reconstruction
+    if mat is not None and (rig is not None or turntable_step is not None):
+        raise InputError("--mat places each view on the mat: it does not go with --rig or --turntable-step")
+    mat_doc = read_mat(mat) if mat is not None else None
     refuse_existing(output, force)
     cfg = ReconstructionConfig()
     cfg.segment.keep_all = keep_all
@@ -110,6 +118,8 @@ def reconstruct(
             raise InputError(f"--turntable-accuracy: expected an accuracy above 0 and at most 90 deg, found {turntable_accuracy}")
         cfg.registration.turntable_accuracy_deg = turntable_accuracy
     cfg.color = color
+    if mat_doc is not None:
+        cfg.registration.mat = mat_doc.to_dict()
     if rig is not None:
         _reconstruct_rig(scan_dir, rig, sensor_calibration or [], output, cfg, force, allow_unreliable)
         return
@@ -418,8 +428,45 @@ def _span(p) -> str:
     return f"{lo:.0%}-{hi:.0%}"
 
 
+_PAPER_M = {"a1": (0.594, 0.841), "a2": (0.42, 0.594), "a3": (0.297, 0.42)}
+
+
+def mat(
+    output: Path = typer.Option(..., "-o", "--output", help="Output folder (mat.png to print, mat.json to reconstruct with)."),
+    seed: int = typer.Option(0, "--seed", help="The dot layout's seed (another seed, another mat)."),
+    paper: str = typer.Option("a1", "--paper", help="Sheet size: a1 (0.594 x 0.841 m), a2 or a3 (for objects up to "
+                              "about a third of the sheet's width)."),
+    dpi: float = typer.Option(150.0, "--dpi", help="Resolution of mat.png [dots per inch]."),
+    force: bool = typer.Option(False, "--force", help="Replace an existing output folder."),
+) -> None:
+    """A dot mat to print and lay under the object: `reconstruct --mat mat.json` places every view on it.
+
+    The study registered its views on flat targets around the object (2 cm, picked by hand); the mat is
+    such a target, found automatically in the IR amplitude. Print mat.png at 100 % on matt paper (laser
+    toner is dark in the near infrared) and keep it flat; the object stands in its middle."""
+    from tofmetry._shared.dot_mat import DotMat, dot_mat_image
+    from tofmetry.io import atomic_dir
+    from tofmetry.io.images import write_png
+    from tofmetry.io.mat_json import write_mat
+    from tofmetry.pipelines.paths import refuse_existing
+
+    if paper.lower() not in _PAPER_M:
+        raise InputError(f"--paper: expected one of {sorted(_PAPER_M)}, found {paper!r}")
+    if not 30.0 <= dpi <= 1200.0:
+        raise InputError(f"--dpi: expected 30-1200 dots per inch, found {dpi}")
+    refuse_existing(output, force)
+    m = DotMat(seed=seed, size_m=_PAPER_M[paper.lower()])
+    with atomic_dir(output, force=force) as tmp:
+        write_png(tmp / "mat.png", dot_mat_image(m, dpi))
+        write_mat(tmp / "mat.json", m, "mat.png", dpi)
+    n = len(m.dots()[0])
+    console.print(f"mat {seed}: {n} dots on {paper.upper()} ({1e3 * m.size_m[0]:.0f} x {1e3 * m.size_m[1]:.0f} mm); "
+                  f"print {output / 'mat.png'} at 100 % ({dpi:g} dpi); reconstruct with --mat {output / 'mat.json'}")
+
+
 def register(app: typer.Typer) -> None:
     """Add this module's commands to the main app."""
     app.command("reconstruct")(reconstruct)
+    app.command("mat")(mat)
     app.command("evaluate")(evaluate)
     app.command("plan")(plan)

@@ -152,15 +152,22 @@ def scan(output: Path = _OUT, views: int = typer.Option(8, "--views", help="Numb
          elevation: float = typer.Option(30.0, "--elevation-deg", help="Camera elevation above horizontal [deg]."),
          color: bool = typer.Option(False, "--color", help="Also a colour frame per view from the virtual colour camera "
                                     "(Kinect v2 1920x1080, 2 DN noise; its own viewpoint; calibration beside the frames)."),
+         mat: Optional[Path] = typer.Option(None, "--mat", help="The object stands on this printed dot mat "
+                                            "(a mat.json of tofmetry mat), turned by --mat-yaw-deg."),
+         mat_yaw: float = typer.Option(20.0, "--mat-yaw-deg", help="How the mat lies under the object [deg]."),
          seed: int = _SEED, no_errors: bool = _NOERR, without: Optional[List[str]] = _WITHOUT,
          sensor: str = _SENSOR, force: bool = _FORCE) -> None:
     """Scan dataset: views/NN captures around an object, reference.ply, true poses in truth.json."""
+    from dataclasses import replace
+
+    from tofmetry.io.mat_json import read_mat
     from tofmetry.simulate import datasets
 
     draw = _sensor(sensor, seed, no_errors, without)
+    dot_mat = None if mat is None else replace(read_mat(mat), yaw_deg=mat_yaw)
     with progress(f"simulating {views} views", views * frames) as adv:
         p = datasets.scan(output, views, radius_m, frames, mesh, None, seed, elevation,
-                          force=force, progress=adv, sensor=draw, color=color)
+                          force=force, progress=adv, sensor=draw, color=color, mat=dot_mat)
     _done(p, f"scan dataset ({views} views{', with colour' if color else ''})")
 
 

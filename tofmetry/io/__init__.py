@@ -12,6 +12,7 @@
 * :mod:`~tofmetry.io.azure_kinect` — Azure Kinect ``.mkv`` recordings and their factory calibration
 * :mod:`~tofmetry.io.tum`, :mod:`~tofmetry.io.open3d_rgbd` — TUM and Open3D RGB-D folders
 * :mod:`~tofmetry.io.e57` — E57 point clouds (pye57)
+* :mod:`~tofmetry.io.mat_json` — ``mat.json``, the layout of a printed dot mat
 * :mod:`~tofmetry.io.registry` — importer / exporter registry behind ``tofmetry import|export``
 """
 

@@ -184,8 +184,9 @@ def yaw_free_warning(turn: dict) -> str | None:
     return (f"the object is nearly a surface of revolution: its surface resists a turn about the vertical "
             f"{turn['ratio']:.2f} times as much as a shift (below {turn['free_below']:g}), so no set of views fixes "
             "their turn from the geometry; on the family's held-out draws 25-34, 2 of 26 such scans came out right and "
-            "reliable. Give the surface a pattern (paint, texture or markers: the IR albedo then fixes the turn) or "
-            "scan it on a turntable and declare its step (reconstruct --turntable-step)")
+            "reliable. Stand it on a printed dot mat (tofmetry mat; reconstruct --mat places every view on it), give the "
+            "surface a pattern (paint, texture or markers: the IR albedo then fixes the turn) or scan it on a turntable "
+            "and declare its step (reconstruct --turntable-step)")
 
 
 def calibrated_range_warning(obj: PlanObject, distance_m: float, calibration) -> str | None:

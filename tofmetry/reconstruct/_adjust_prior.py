@@ -32,8 +32,11 @@ def pose_prior_terms(P: np.ndarray, P0: np.ndarray, centre_m: np.ndarray, sigma_
     ----------
     P, P0 : (V, 4, 4) current and prior camera-to-world poses; view 0 is fixed (not an unknown)
     centre_m : (3,) object centre, world frame [m]
-    sigma_rad : prior standard deviation of each view's rotation [rad]
-    sigma_m : prior standard deviation of the object centre's displacement [m]
+    sigma_rad : prior standard deviation of each view's rotation [rad]; or (3,), one per world axis
+        (a view placed on a dot mat knows its turn about the vertical far better than its tilt); or
+        (V, 3), per view and axis
+    sigma_m : prior standard deviation of the object centre's displacement [m]; or (3,) or (V, 3), as
+        ``sigma_rad``
     weight : the data term's residual variance times the square of its sigma inflation [m^2]:
         the prior enters as ``weight / sigma^2`` beside the data's unscaled normal equations, so
         that both are compared at the data's honest (inflated) uncertainty
@@ -49,13 +52,19 @@ def pose_prior_terms(P: np.ndarray, P0: np.ndarray, centre_m: np.ndarray, sigma_
     c = np.asarray(centre_m, np.float64)
     Jc = np.hstack([-skew(c), np.eye(3)])  # d(E c) / d(left increment (w, t)) at E ~ I
     Jr = np.hstack([np.eye(3), np.zeros((3, 3))])
-    wr, wc = weight / sigma_rad ** 2, weight / sigma_m ** 2
-    Hv = wr * Jr.T @ Jr + wc * Jc.T @ Jc
+    wr = weight / _per_view(sigma_rad, V) ** 2
+    wc = weight / _per_view(sigma_m, V) ** 2
     for v in range(1, V):
         E = P[v] @ np.linalg.inv(P0[v])
         r_rot = Rotation.from_matrix(E[:3, :3]).as_rotvec()
         r_c = E[:3, :3] @ c + E[:3, 3] - c
         s = slice(6 * (v - 1), 6 * v)
-        H[s, s] = Hv
-        b[s] = wr * Jr.T @ r_rot + wc * Jc.T @ r_c
+        H[s, s] = Jr.T @ (wr[v][:, None] * Jr) + Jc.T @ (wc[v][:, None] * Jc)
+        b[s] = Jr.T @ (wr[v] * r_rot) + Jc.T @ (wc[v] * r_c)
     return H, b
+
+
+def _per_view(sigma, n_views: int) -> np.ndarray:
+    """(V, 3) standard deviations from a scalar, a (3,) per world axis or a (V, 3) per view and axis."""
+    a = np.asarray(sigma, np.float64)
+    return np.broadcast_to(a if a.ndim == 2 else np.broadcast_to(a, (3,)), (n_views, 3))

@@ -86,11 +86,15 @@ def _views(regs: list[RegView]) -> list[AdjustView]:
 def joint_adjustment(views, segs, regs: list[RegView], poses: np.ndarray, cfg: ReconstructionConfig, cal,
                      white_map: np.ndarray | None, progress, *, turntable: bool = False,
                      loops: list[dict] | None = None, edges=(), edge_ir=(),
-                     yaw_free: bool = False, tied=()) -> tuple[AdjustResult | None, str | None]:
+                     yaw_free: bool = False, tied=(), placed: tuple[float, float] | None = None
+                     ) -> tuple[AdjustResult | None, str | None]:
     """Global adjustment of the pose-graph poses ``poses`` (V, 4, 4) camera to world [m] (and the
     depth gain); applies the gain to ``views`` (depth and points) in place.
 
     ``turntable``: the poses start on a declared turntable (the pose prior is its accuracy).
+    ``placed``: the poses were placed each on its own (on a dot mat, whose frame is the world): the
+    pose prior is this (rotation [deg], displacement at the object [mm]), each (3,) along the world's
+    x, y, z.
     ``loops``: the pose graph's loop closures (:func:`loop_closures`); half the worst one widens
     the pose prior (a loop that closes only to X deg leaves up to X / 2 on a view once spread).
     ``edges``: the pose graph's kept pairs (i, j); when the fit moved a view beyond the pose gate
@@ -113,7 +117,9 @@ def joint_adjustment(views, segs, regs: list[RegView], poses: np.ndarray, cfg: R
     if not rc.global_adjust:
         return None, None
     prior_deg, prior_mm = rc.adjust_prior_deg, rc.adjust_prior_mm
-    if turntable:  # the poses start on the declared turntable
+    if placed is not None:  # each view placed on its own: no loops, no turntable path
+        prior_deg, prior_mm = (np.asarray(x, np.float64) for x in placed)
+    elif turntable:  # the poses start on the declared turntable
         prior_deg, prior_mm = rc.turntable_accuracy_deg, rc.turntable_axis_mm
     elif prior_deg is not None and prior_mm is not None and loops:
         prior_deg = max(prior_deg, max(lp["closure_deg"] for lp in loops) / 2)
@@ -130,7 +136,7 @@ def joint_adjustment(views, segs, regs: list[RegView], poses: np.ndarray, cfg: R
               and float(np.median([c if c is not None else -1.0 for c in edge_ir])) >= rc.adjust_albedo_min_corr)
     vertical = None if segs[0].plane is None else poses[0][:3, :3] @ np.asarray(segs[0].plane[:3], np.float64)
     up = vertical if albedo and weak is None else None
-    circle = (None if turntable or rc.turn_axis_mm is None else
+    circle = (None if turntable or placed is not None or rc.turn_axis_mm is None else
               turntable_path(poses, vertical, rc.turn_axis_detect_mm * 1e-3))
     if rc.adjust_target_smooth_k:  # the targets without their noise (tofmetry.pointcloud._smooth)
         for a in av:
@@ -140,6 +146,8 @@ def joint_adjustment(views, segs, regs: list[RegView], poses: np.ndarray, cfg: R
             a.target_ir_gradient = albedo_gradients(a.target, a.target_normals, a.target_ir)
     amp_prior = rc.amplitude_k_prior_mm if white_map is not None else None
     degree, degree_why = curve_degree_for(view_distance_spread(regs, poses), cfg)
+    if placed is not None and not rc.mat_range_curve:  # views placed on a mat: no range curve to slide them along
+        degree, degree_why = 0, ""
     field = None if cal is None else depth_field_prior(cal.prediction or {}, object_depth_span_mm(views, segs),
                                                        regs[0].intr, tilt_sigma_mm=rc.uncalibrated_tilt_mm,
                                                        z_ref_m=z_ref if rc.predict_gain_pose else None)

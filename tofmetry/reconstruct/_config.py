@@ -147,6 +147,20 @@ class RegistrationConfig(BaseModel):
                                      "registrations [mm]: with a declared turntable the global adjustment starts from "
                                      "the turntable's poses and holds each view within turntable_accuracy_deg of its "
                                      "turn and this of its object centre's place (the adjustment's pose prior)")
+    mat: dict | None = Field(None, description="the printed dot mat the object stands on (tofmetry._shared.dot_mat."
+                             "DotMat.to_dict: seed, size_m, dot_radius_m, cover; its yaw is unknown and unused): each "
+                             "view is placed on it alone (tofmetry.reconstruct._mat_locate) and the joint fit refines "
+                             "the placements; the model comes out in the mat's frame. None: no mat")
+    mat_min_dots: int = Field(6, ge=3, description="a view is placed on the mat when at least this many dots it sees "
+                              "match the printed layout; the others are left out of the model")
+    mat_prior_deg: float = Field(0.5, gt=0, description="the joint fit holds each mat-placed view within about this of "
+                                 "its placement [deg] (the placement's tilt comes from the support plane, which the "
+                                 "depth calibration's residual tilts by ~0.1-0.2 deg)")
+    mat_prior_mm: float = Field(3.0, gt=0, description="... and within about this at the object [mm]")
+    mat_range_curve: bool = Field(False, description="with a mat, the joint fit also estimates the range curve "
+                                  "(range_curve_degree). Off: measured on 4 development scans (a baluster, a plaque, a "
+                                  "vase, a dome), its 5 free coefficients let the views slide off the mat's placements "
+                                  "(the baluster 1.2 -> 3.8 mm at the object, 2.7 mm without the curve)")
     max_loop_jump_deg: float = Field(5.0, gt=0, description="a loop-closure ICP may move at most this far from the "
                                       "chained initial pose [deg]")
     max_loop_jump_mm: float = Field(30.0, gt=0, description="... and this far [mm]")

@@ -28,6 +28,7 @@ from tofmetry.reconstruct._model_build import (
     world_plane,
 )
 from tofmetry.reconstruct._pattern_search import search_by_pattern
+from tofmetry.reconstruct._mat_stage import place_views
 from tofmetry.reconstruct._posegraph import PoseGraphBuilder
 from tofmetry.reconstruct._preprocess import ViewData, prepare_view
 from tofmetry.reconstruct._register import register_pair, rejection_reason
@@ -115,6 +116,7 @@ class ReconstructionPipeline:
         self.turntable: dict | None = None  # the declared turntable's axis fit and bridges (turntable_bridges)
         self.pattern: dict | None = None  # the edges searched again by the IR pattern (search_by_pattern)
         self.tied_starts: list[np.ndarray] = []  # pose-graph poses of the choices tied with the chosen one
+        self.mat = None  # the views' placements on a dot mat (place_views), when registration.mat is set
 
     # -- stages -----------------------------------------------------------------------------
     def _intrinsics(self, cap):
@@ -246,11 +248,12 @@ class ReconstructionPipeline:
 
     def adjust(self, views: list[ViewData], segs: list[Segmentation], regs: list[RegView],
                poses: np.ndarray, loops: list[dict] | None = None, edges=(), edge_ir=(),
-               yaw_free: bool = False, tied=()) -> AdjustResult | None:
+               yaw_free: bool = False, tied=(), placed: tuple[float, float] | None = None) -> AdjustResult | None:
         """The joint fit of the poses (:func:`joint_adjustment`; its failure in :attr:`adjust_failure`)."""
         res, self.adjust_failure = joint_adjustment(views, segs, regs, poses, self.cfg, self.cal, self.white_map,
                                                     self.progress, turntable=bool(self.turntable), loops=loops,
-                                                    edges=edges, edge_ir=edge_ir, yaw_free=yaw_free, tied=tied)
+                                                    edges=edges, edge_ir=edge_ir, yaw_free=yaw_free, tied=tied,
+                                                    placed=placed)
         return res
 
     def fuse(self, views, segs, poses, intr):
@@ -275,7 +278,18 @@ class ReconstructionPipeline:
         if self.cal is not None:  # the calibration's predicted error where this object lies
             self.prediction_at_object = local_prediction(self.cal.prediction or {}, object_depth_span_mm(views, segs))
         t1 = time.perf_counter()
-        graph = self.register(regs)
+        rc = self.cfg.registration
+        if rc.mat is not None:  # each view placed on the dot mat on its own
+            with self.progress("placing the views on the mat", 1) as adv:
+                self.mat = place_views(views, segs, regs, intr, self.white_map, rc, list(self.ds.names),
+                                       self.cfg.segment.plane_threshold_mm * 1e-3)
+                adv()
+            if len(self.mat.kept) < 2:
+                raise EstimationError("fewer than two views were placed on the dot mat: " + "; ".join(
+                    f"{n}: {f.reason}" for n, f in self.mat.fixes.items() if not f.located))
+            self.kept, self.left_out, graph = self.mat.kept, dict(self.mat.left_out), self.mat.graph
+        else:
+            graph = self.register(regs)
         if len(self.kept) < len(views):  # views no registration links to the others are left out
             views, segs, regs = ([x[k] for k in self.kept] for x in (views, segs, regs))
         names = [self.ds.names[k] for k in self.kept]
@@ -291,8 +305,9 @@ class ReconstructionPipeline:
         adj = self.adjust(views, segs, regs, start, (graph.consistency or {}).get("loops"),
                           [(idx[e["source"]], idx[e["target"]]) for e in kept_edges],
                           [e.get("ir_corr") for e in kept_edges],
-                          any(leaves_yaw_free(e.get("conditioning"), self.cfg.registration.yaw_free_ratio) for e in kept_edges),
-                          self.tied_starts)
+                          self.mat is None and any(leaves_yaw_free(e.get("conditioning"), rc.yaw_free_ratio)
+                                                   for e in kept_edges),
+                          self.tied_starts, None if self.mat is None else self.mat.prior(rc.mat_prior_deg, rc.mat_prior_mm))
         t2 = time.perf_counter()
         poses = start if adj is None else adj.poses
         V, F, N, P, PN, fusion_info = self.fuse(views, segs, poses, intr)
@@ -302,7 +317,7 @@ class ReconstructionPipeline:
         plane_w = world_plane(segs[0].plane, poses[0])
         V, F, N, P, PN, poisson = self.crop_model(V, F, N, P, PN, world_obj, plane_w)
         W, poses_fit = np.eye(4), poses  # poses_fit: in the frame of the joint fit's increments
-        if self.cfg.world_frame == "support" and plane_w is not None:
+        if self.cfg.world_frame == "support" and plane_w is not None and self.mat is None:
             W = support_plane_frame(plane_w, world_obj, poses[0])
             poses = np.einsum("ij,vjk->vik", W, poses)
             V, P = transform_points(V, W), transform_points(P, W)
@@ -310,7 +325,6 @@ class ReconstructionPipeline:
             if poisson is not None:
                 poisson = (transform_points(poisson[0], W), poisson[1])
             plane_w = transform_plane(plane_w, W)
-        rc = self.cfg.registration
         slab = thin_slab_check(P, regs, poses, rc.icp_radii_mm[-1] * 1e-3, rc.slab_max_thickness_share)
         t4 = time.perf_counter()
         colours, colour_diag = None, None
@@ -333,8 +347,9 @@ class ReconstructionPipeline:
                          rc.max_calibration_mm,
                          rc.pose_gate_deg, rc.pose_gate_mm, rc.yaw_free_ratio, rc.max_left_out,
                          turntable_accuracy_deg=rc.turntable_accuracy_deg,
-                         turntable_placed=bool(self.turntable), restart_share=rc.restart_share)
-        if slab is not None and slab["slab"]:
+                         turntable_placed=bool(self.turntable), restart_share=rc.restart_share,
+                         placed=None if self.mat is None else {"by": "the dot mat", "views": self.mat.view_verdicts()})
+        if slab is not None and slab["slab"] and self.mat is None:  # the mat places both faces
             verdict["reasons"].append(slab_reason(slab, names))
             verdict["reliable"] = False
         off_axis = off_axis_reason(adj_d, names, rc.turn_axis_max_sigmas)
@@ -348,7 +363,9 @@ class ReconstructionPipeline:
             w = extrapolation_warning({v.name: v.stats for v in views}, pred, self.cal.support.range_mm)
             if w:
                 verdict["warnings"].append(w)
-        world = ({"frame": "support plane z = 0 (normal up), origin under the object's footprint centre, x along the "
+        world = ({"frame": "the dot mat's: z up from the sheet, origin at its centre, x along its width",
+                  "from_first_camera": poses[0].tolist()} if self.mat is not None else
+                 {"frame": "support plane z = 0 (normal up), origin under the object's footprint centre, x along the "
                            "first view's viewing direction projected on the plane", "from_first_camera": W.tolist()}
                  if not np.allclose(W, np.eye(4)) else {"frame": "camera frame of the first view (x right, y down, z "
                                                                  "forward)", "from_first_camera": W.tolist()})
@@ -361,7 +378,7 @@ class ReconstructionPipeline:
                 "world": world, "slab": slab,
                 "views": {v.name: v.stats for v in views}, "fusion": fusion_info, "timings_s": self.timings,
                 "adjustment": adj_d, "left_out": self.left_out, "color": colour_diag, "turntable": self.turntable,
-                "pattern": self.pattern,
+                "pattern": self.pattern, "mat": None if self.mat is None else self.mat.to_dict(),
                 "calibrated": self.cal is not None, "amplitude_corrected": self.white_map is not None, "intrinsics": intr.to_dict(),
                 "calibration_local": (self.prediction_at_object or {}).get("local"),
                 "working_range_mm": self.working_range_mm(), "config": self.cfg.model_dump()}

@@ -107,7 +107,7 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
            max_calibration_mm: float = 1.5, pose_gate_deg: float = 0.5, pose_gate_mm: float = 3.0,
            yaw_free_ratio: float = 0.15, max_left_out: float = 0.25, gain_alarm_factor: float = 1.5,
            turntable_accuracy_deg: float | None = None, turntable_placed: bool = False,
-           restart_share: float = 1.0) -> dict:
+           restart_share: float = 1.0, placed: dict | None = None) -> dict:
     """Verdicts of the edges (added to each edge dict as ``verdict`` and ``reason``), the views and the run.
 
     Parameters
@@ -135,6 +135,9 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
     restart_share : the joint fit's restart, and a moved view's pairs registered again from it, must end
         within this share of the pose gate
         (:func:`~tofmetry.reconstruct._move_verdict.judge_move`)
+    placed : each view was placed on its own by a known target (a dot mat): ``{"by": what placed them,
+        "views": {name: {verdict, reason}}}``; the edges of method ``"mat"`` are then checks of the object
+        at the placed poses (an object that does not fit there is a warning), and no view needs a loop
     gain_alarm_factor : a depth gain the adjustment refused as implausible makes the run unreliable when it
         exceeds this many times the bound it broke (the calibration's allowance); below, it is a warning.
         Set on 8 family runs with a refused gain: asking 1.04-1.4 times the bound, 5 runs were within the
@@ -169,6 +172,14 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
             e["verdict"], e["reason"] = "pruned", "pruned by the pose-graph optimisation (disagrees with the others)"
             continue
         k = kept.index(e)
+        if placed is not None and e.get("method") == "mat":
+            bad = e.get("object_disagrees")
+            e["verdict"] = "placed by the mat" if not bad else "object disagrees"
+            e["reason"] = ("both views were placed on the mat; the object's points fit at those poses" if not bad else
+                           f"both views were placed on the mat, but the object's points do not fit there ({bad})")
+            if bad:
+                warnings.append(f"edge {e['source']}->{e['target']}: {e['reason']}")
+            continue
         if e.get("method") == "turntable-step":
             e["verdict"] = "turntable step"
             e["reason"] = ("no registration of these views passed the gates; the declared turntable step links them, "
@@ -210,7 +221,7 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
     if yaw_free:
         graph.append(f"edge(s) {', '.join(yaw_free)}: the views overlap on a nearly rotation-symmetric part only; their "
                        "rotation about the vertical is not determined by the geometry (add views that see a distinctive "
-                       "feature, or texture/markers)")
+                       "feature, texture/markers, or stand the object on a printed dot mat: tofmetry mat, reconstruct --mat)")
         reasons.append(graph[-1])
     if stepped:
         msg = (f"edge(s) {', '.join(stepped)}: no registration passed the gates; the declared turntable step links the "
@@ -227,17 +238,21 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
             views[nm] = {"verdict": "verified", "reason": "on a closed loop of the view graph"}
         else:
             views[nm] = {"verdict": "unverified", "reason": "linked to the others by unverified edges only"}
+    if placed is not None:
+        views = dict(placed["views"])
     for nm, why in left_out.items():
         views[nm] = {"verdict": "left out", "reason": why}
     unver = [nm for nm, v in views.items() if v["verdict"] == "unverified"]
     n_all = len(names) + len(left_out)
+    why_out = "no registration links them to the others" if placed is None else f"{placed['by']} did not place them"
     if left_out and len(left_out) > max_left_out * n_all:
-        reasons.append(f"{len(left_out)} of {n_all} views left out of the model (no registration links them to the "
-                       f"others; more than {100 * max_left_out:.0f} %): the registration failed for most of the scan "
-                       "(too little overlap between successive views, or a shape the views cannot be matched on)")
+        reasons.append(f"{len(left_out)} of {n_all} views left out of the model ({why_out}; more than "
+                       f"{100 * max_left_out:.0f} %): the registration failed for most of the scan "
+                       + ("(too little overlap between successive views, or a shape the views cannot be matched on)"
+                          if placed is None else "(the views' reasons say why: the mat out of view, or hidden)"))
     elif left_out:
-        warnings.append(f"view(s) {', '.join(left_out)} left out of the model (no registration links them to the "
-                        "others): the model is incomplete there")
+        warnings.append(f"view(s) {', '.join(left_out)} left out of the model ({why_out}): the model is incomplete "
+                        "there")
     if unver:
         warnings.append(f"view(s) {', '.join(unver)} are on no closed loop: their poses are not checked")
     # loops: what a spread closure leaves on the views
@@ -286,6 +301,7 @@ def assess(names: list[str], edges: list[dict], consistency: dict, left_out: dic
     if adjustment is not None and (adjustment.get("gain_note") or "").startswith("not observable"):
         warnings.append(f"depth gain {adjustment['gain_note']}")
     judge_move(adjustment or {}, names, pose_gate_deg, pose_gate_mm, reasons, warnings,
+                placed["by"] if placed is not None else
                 "the declared turntable" if turntable_placed else "the pairwise registrations",
                 max(pose_gate_deg, 2.0 * turntable_accuracy_deg) if turntable_placed and turntable_accuracy_deg else
                 pose_gate_deg, restart_share)

@@ -292,7 +292,7 @@ def scan(out: str | os.PathLike, n_views: int = 8, radius_m: float = 1.0, n_fram
          errors: ErrorModel | None = None, seed: int = 0, elevation_deg: float = 30.0,
          force: bool = False, progress: Progress = None,
          sensor: SensorDraw | None = None, poses: Sequence[np.ndarray] | None = None,
-         info: dict | None = None, color=None) -> Path:
+         info: dict | None = None, color=None, mat=None) -> Path:
     """Scan dataset of an object on the ground (paper §5): ``n_views`` views on a circle.
 
     Cameras ``radius_m`` (slant range) from the object centre, ``elevation_deg`` above the
@@ -308,6 +308,8 @@ def scan(out: str | os.PathLike, n_views: int = 8, radius_m: float = 1.0, n_fram
     ``color``: a :class:`~tofmetry.simulate.color.ColourCamera` (``True``: the Kinect v2's, 2 DN
     noise): each view also gets one colour frame, ray cast from the colour camera's own viewpoint
     (:func:`~tofmetry.simulate.color.render_colour`), and its calibration beside the frames.
+    ``mat``: a :class:`~tofmetry.simulate.mat.DotMat` printed sheet under the object (the study's flat
+    targets as a pattern; recorded in ``truth.json``).
     Writes ``out/views/00 ...`` captures (depth + IR [+ colour]), ``out/reference.ply`` (the placed mesh,
     world frame, metres) and ``out/truth.json`` (camera-to-world poses). Returns ``out``.
     """
@@ -321,7 +323,7 @@ def scan(out: str | os.PathLike, n_views: int = 8, radius_m: float = 1.0, n_fram
     if isinstance(mesh, tuple) and len(mesh) == 3:  # (vertices, triangles, albedo per triangle)
         mesh, albedo = mesh[:2], mesh[2]
     v, f = _load_mesh(mesh)
-    scene = textured_scene(v, f, albedo)
+    scene = textured_scene(v, f, albedo, mat)
     vw = scene.info["mesh_vertices_world"]
     target = np.array([0.0, 0.0, (vw[:, 2].max()) / 2])
     if poses is None:
@@ -352,6 +354,8 @@ def scan(out: str | os.PathLike, n_views: int = 8, radius_m: float = 1.0, n_fram
             "radius_m": radius_m, "elevation_deg": elevation_deg, "target_m": target, "views": views}
         if cam is not None:
             truth["color_camera"] = cam.to_dict()
+        if mat is not None:
+            truth["mat"] = mat.to_dict()
         if info:
             truth["info"] = info
         atomic_write_json(tmp / "truth.json", truth)

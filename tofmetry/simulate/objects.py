@@ -405,14 +405,15 @@ def random_object(seed: int, mesh_dir: str | os.PathLike | None = None, names: t
     return make_object(name, seed, mesh_dir=mesh_dir)
 
 
-def textured_scene(vertices: np.ndarray, triangles: np.ndarray, albedo: np.ndarray | None = None):
+def textured_scene(vertices: np.ndarray, triangles: np.ndarray, albedo: np.ndarray | None = None, mat=None):
     """The object on the ground as a :class:`~tofmetry.simulate.surfaces.Scene`: like
-    :func:`tofmetry.simulate.scenes.mesh_on_ground` (placed the same way), with one mesh per albedo
+    :func:`tofmetry.simulate.scenes.mesh_on_ground` (placed the same way, on ``mat``, a
+    :class:`~tofmetry.simulate.mat.DotMat`, when one is given), with one mesh per albedo
     level of ``albedo`` (F,) so that the IR amplitude shows the pattern. Label 1 = object."""
     from tofmetry.simulate.scenes import mesh_on_ground
     from tofmetry.simulate.surfaces import MeshSurface
 
-    sc = mesh_on_ground(vertices, triangles)
+    sc = mesh_on_ground(vertices, triangles, mat=mat)
     if albedo is None:
         return sc
     a = np.asarray(albedo, np.float64).reshape(-1)

@@ -292,7 +292,8 @@ def ground_plane(size_m: float = 6.0, albedo: float = 0.45, label: int = 0) -> P
 
 
 def mesh_on_ground(mesh_vertices: np.ndarray, mesh_triangles: np.ndarray, albedo: float = 0.7,
-                   ground_albedo: float = 0.45, ground_size_m: float = 6.0, place_on_ground: bool = True) -> Scene:
+                   ground_albedo: float = 0.45, ground_size_m: float = 6.0, place_on_ground: bool = True,
+                   mat=None) -> Scene:
     """Any triangle mesh standing on a ground plane (z-up world, ground z = 0).
 
     Parameters
@@ -301,6 +302,7 @@ def mesh_on_ground(mesh_vertices: np.ndarray, mesh_triangles: np.ndarray, albedo
     place_on_ground : translate the mesh so that its lowest point is at z = 0 and its
         bounding-box centre on the z axis. ``Scene.info["mesh_vertices_world"]`` is the mesh
         actually placed (use it as the reference). Labels: 0 = ground, 1 = object.
+    mat : a :class:`~tofmetry.simulate.mat.DotMat` lying on the ground centred on the z axis (None: none)
     """
     v = np.asarray(mesh_vertices, np.float64).reshape(-1, 3)
     f = np.asarray(mesh_triangles, np.int64).reshape(-1, 3)
@@ -311,10 +313,16 @@ def mesh_on_ground(mesh_vertices: np.ndarray, mesh_triangles: np.ndarray, albedo
     if place_on_ground:
         c = (v.min(0) + v.max(0)) / 2
         v = v - np.array([c[0], c[1], v[:, 2].min()])
-    surfs = [ground_plane(ground_size_m, ground_albedo, 0), MeshSurface(v, f, albedo, 1)]
-    return Scene("mesh_on_ground", surfs, {0: "ground", 1: "object"},
-                 {"type": "mesh_on_ground", "albedo": albedo, "ground_albedo": ground_albedo,
-                  "mesh_vertices_world": v, "mesh_triangles": f})
+    ground = ground_plane(ground_size_m, ground_albedo, 0)
+    info = {"type": "mesh_on_ground", "albedo": albedo, "ground_albedo": ground_albedo,
+            "mesh_vertices_world": v, "mesh_triangles": f}
+    if mat is not None:
+        from tofmetry.simulate.mat import dot_mat_texture
+
+        ground.texture = dot_mat_texture(mat, ground_albedo, 0)
+        info["mat"] = mat.to_dict()
+    surfs = [ground, MeshSurface(v, f, albedo, 1)]
+    return Scene("mesh_on_ground", surfs, {0: "ground", 1: "object"}, info)
 
 
 def balustrade(**kwargs) -> Scene:

@@ -1,0 +1,93 @@
+"""Views placed on a printed dot mat: the seen dots matched to the layout give the camera's pose."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tofmetry._shared.dot_mat import DotMat
+from tofmetry._shared.geometry import rotation_angle_deg
+from tofmetry.io import read_json
+from tofmetry.pipelines.reconstruct import ScanDataset
+from tofmetry.reconstruct import ReconstructionConfig
+from tofmetry.reconstruct._mat_locate import albedo_image, locate_on_mat, match_dots, otsu_threshold
+from tofmetry.reconstruct._photometric import log_albedo
+from tofmetry.reconstruct._pipeline import ReconstructionPipeline
+from tofmetry.simulate import datasets
+from tofmetry.simulate.errors import ErrorModel
+from tofmetry.simulate.meshes import balustrade_mesh
+
+
+def test_otsu_splits_two_modes():
+    rng = np.random.default_rng(0)
+    x = np.r_[rng.normal(-2.0, 0.2, 3000), rng.normal(0.0, 0.2, 7000)]
+    assert -1.4 < otsu_threshold(x) < -0.6
+
+
+def test_a_subset_of_the_layout_moved_and_noisy_is_matched_back():
+    mat = DotMat(seed=21)
+    C, R = mat.dots()
+    rng = np.random.default_rng(1)
+    pick = rng.choice(len(C), 25, replace=False)
+    th, t = np.radians(117.0), np.array([0.31, -0.12])
+    Rm = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
+    seen = (C[pick] - t) @ Rm  # seen = Rm^T (mat - t): mat = Rm seen + t
+    seen += rng.normal(0, 0.5e-3, seen.shape)
+    seen_r = R[pick] + rng.normal(0, 0.5e-3, len(pick))
+    junk = rng.uniform(-0.3, 0.3, (6, 2))  # blobs that are no printed dot
+    c = np.r_[seen, junk]
+    r = np.r_[seen_r, rng.uniform(0.008, 0.025, 6)]
+    Rf, tf, matched = match_dots(c, r, mat)
+    np.testing.assert_array_equal(matched[:25], pick)
+    assert (matched[25:] == -1).sum() >= 5  # a random blob may land on a dot of its size by chance
+    assert abs(np.degrees(np.arctan2(Rf[1, 0], Rf[0, 0])) - 117.0) < 0.1  # 0.5 mm noise over ~0.3 m
+    assert np.linalg.norm(tf - t) < 1.5e-3
+
+
+def test_a_scene_with_no_mat_places_no_view():
+    c, r = np.zeros((0, 2)), np.zeros(0)
+    R, t, m = match_dots(c, r, DotMat())
+    assert m.size == 0
+
+
+@pytest.fixture(scope="module")
+def mat_scan(tmp_path_factory):
+    mat = DotMat(seed=5, yaw_deg=30.0)
+    out = datasets.scan(tmp_path_factory.mktemp("mat") / "scan", n_views=3, n_frames=2, radius_m=0.9,
+                        elevation_deg=40.0, errors=ErrorModel.none(), mesh=balustrade_mesh(), mat=mat, seed=3)
+    return out, mat
+
+
+def test_each_view_is_placed_where_it_was(mat_scan):
+    """Perfect depth: the pose comes back to the dots' quantisation (pixels of ~2.5 mm on the mat,
+    20+ dots): well within 0.1 deg and 1 mm at the object."""
+    out, mat = mat_scan
+    pl = ReconstructionPipeline(ScanDataset(out), None, ReconstructionConfig())
+    views, segs, _, intr = pl.load_views()
+    truth = read_json(out / "truth.json")
+    a = np.radians(mat.yaw_deg)
+    world_to_mat = np.eye(4)
+    world_to_mat[:2, :2] = [[np.cos(a), np.sin(a)], [-np.sin(a), np.cos(a)]]
+    for v, s, tv in zip(views, segs, truth["views"]):
+        h = v.points @ s.plane[:3] + s.plane[3]
+        alb = albedo_image(v.index, intr.shape, (np.abs(h) < 0.005) & ~s.object_mask, log_albedo(v, intr))
+        fx = locate_on_mat(alb, intr.ray_table(True), s.plane, mat)
+        assert fx.located, fx.reason
+        assert fx.n_matched >= 10
+        T = world_to_mat @ np.asarray(tv["camera_to_world"])
+        E = fx.camera_to_mat @ np.linalg.inv(T)
+        obj = world_to_mat[:3, :3] @ np.array([0.0, 0.0, 0.1])
+        assert rotation_angle_deg(E) < 0.1
+        assert np.linalg.norm(E[:3, :3] @ obj + E[:3, 3] - obj) < 1e-3
+        assert fx.sigma_deg < 0.1 and fx.rms_mm < 1.5
+
+
+def test_another_mat_is_not_matched(mat_scan):
+    out, _ = mat_scan
+    pl = ReconstructionPipeline(ScanDataset(out), None, ReconstructionConfig())
+    views, segs, _, intr = pl.load_views()
+    v, s = views[0], segs[0]
+    h = v.points @ s.plane[:3] + s.plane[3]
+    alb = albedo_image(v.index, intr.shape, (np.abs(h) < 0.005) & ~s.object_mask, log_albedo(v, intr))
+    fx = locate_on_mat(alb, intr.ray_table(True), s.plane, DotMat(seed=6))
+    assert not fx.located and "match the mat's layout" in fx.reason

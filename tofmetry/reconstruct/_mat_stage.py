@@ -1,0 +1,199 @@
+"""The registration stage of a scan on a dot mat: every view placed on the mat on its own.
+
+With :attr:`~tofmetry.reconstruct.RegistrationConfig.mat` set, the pairwise registrations, their
+loops and their selection are not needed: :func:`~tofmetry.reconstruct._mat_locate.locate_on_mat`
+places each view, so an error in one view stays in that view (nothing is chained), and an object
+the geometry cannot pin (a vase of revolution, a thin plaque) is placed as well as any other. The
+successive pairs are still scored at the placed poses (the object's fitness, its RMSE and the
+conditioning): an object that does not fit where the mat puts the views is reported, and the joint
+fit (:func:`~tofmetry.reconstruct._adjust_stage.joint_adjustment`, its pose prior the mat's) then
+refines the placements on the object's points.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from tofmetry._shared.geometry import rotation_angle_deg
+from tofmetry._shared.dot_mat import DotMat
+from tofmetry.reconstruct._config import RegistrationConfig
+from tofmetry.reconstruct._mat_dense import locate_by_pattern
+from tofmetry.reconstruct._mat_locate import MatFix, albedo_image, locate_on_mat, plane_frame
+from tofmetry.reconstruct._photometric import log_albedo
+from tofmetry.reconstruct._posegraph import PoseGraphResult
+from tofmetry.reconstruct._register import pair_result, register_pair, rejection_reason
+from tofmetry.reconstruct._regview import object_fitness, passes_gates, visibility_violation
+
+#: the method of the edges a mat placed
+MAT_METHOD = "mat"
+#: support points within this of the plane are searched for the mat's pattern [m]
+GROUND_BAND_M = 0.015
+
+
+@dataclass
+class MatPlacement:
+    """The views a mat placed.
+
+    Attributes
+    ----------
+    graph : poses (V_kept, 4, 4) camera to mat frame [m], the successive pairs' edges (method
+        ``"mat"``), no loops
+    fixes : view name -> :class:`MatFix` (every view, placed or not)
+    kept : indices of the placed views; left_out : name -> why a view was not placed
+    """
+
+    graph: PoseGraphResult
+    fixes: dict
+    kept: list
+    left_out: dict = field(default_factory=dict)
+    through: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {name: f.to_dict() | ({"through": self.through[name]} if name in self.through else {})
+                for name, f in self.fixes.items()}
+
+    def view_verdicts(self) -> dict:
+        """name -> {verdict, reason} of every placed view."""
+        out = {}
+        for n, f in self.fixes.items():
+            if f.located:
+                how = {"dots": "", "pattern+dots": "the whole pattern placed it, then ",
+                       "pattern": "the whole pattern placed it (too few dots seen whole to refine it); "}[f.how]
+                out[n] = {"verdict": "placed on the mat",
+                          "reason": how + (f"{f.n_matched} of {f.n_dots} dots seen match the mat's layout, RMS "
+                                           f"{f.rms_mm:.2f} mm " if f.how != "pattern" else "")
+                          + f"(+/- {f.sigma_deg:.3f} deg, {f.sigma_mm:.2f} mm in the plane)"}
+            elif n in self.through:
+                t = self.through[n]
+                two = len(t["via"]) == 2
+                out[n] = {"verdict": "placed through its neighbours" if two else "unverified",
+                          "reason": (f"the mat is not seen well enough ({f.reason}); registered onto "
+                                     + " and ".join(t["via"]) + (f", which agree within {t['agree_deg']:.2f} deg / "
+                                                                  f"{t['agree_mm']:.1f} mm at the object" if two else
+                                                                  " only: nothing checks it"))}
+        return out
+
+    def prior(self, tilt_deg: float, height_mm: float, inflation: float = 2.0, floor_deg: float = 0.03,
+              floor_mm: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+        """The joint fit's pose prior of each kept view along the mat's x, y, z: rotation [deg] and
+        displacement at the object [mm], each (V_kept, 3). A view the mat placed: about the vertical and
+        along the sheet, ``inflation`` times its placement's 1-sigma, at least ``floor_deg`` /
+        ``floor_mm``; its tilt and height, which the support plane gives, ``tilt_deg`` / ``height_mm``.
+        A view placed through its neighbours: ``tilt_deg`` / ``height_mm`` along every axis."""
+        names = list(self.fixes)
+        deg, mm = [], []
+        for k in self.kept:
+            f = self.fixes[names[k]]
+            if f.located:
+                deg.append([tilt_deg, tilt_deg, max(inflation * f.sigma_deg, floor_deg)])
+                s = max(inflation * f.sigma_mm, floor_mm)
+                mm.append([s, s, height_mm])
+            else:
+                deg.append([tilt_deg] * 3)
+                mm.append([height_mm] * 3)
+        return np.array(deg), np.array(mm)
+
+
+def place_views(views, segs, regs, intr, white_map, rc: RegistrationConfig, names: list[str],
+                plane_threshold_m: float) -> MatPlacement:
+    """Place every view on the mat ``rc.mat`` (module docstring).
+
+    Parameters
+    ----------
+    views, segs, regs : the prepared views, their segmentations and registration clouds
+    intr : CameraIntrinsics of the depth images; white_map : (H, W) amplitude reference or None
+    names : the views' names; plane_threshold_m : the support plane's inlier distance [m]
+
+    Returns
+    -------
+    MatPlacement (``kept`` empty when fewer than two views were placed)
+    """
+    mat = DotMat.from_dict(rc.mat, "registration.mat")
+    rays = intr.ray_table(True)
+    fixes, poses = {}, {}
+    for k, (v, s) in enumerate(zip(views, segs)):
+        if s.plane is None or v.ir is None:
+            fixes[names[k]] = MatFix(False, reason="no support plane was found in the view" if s.plane is None else
+                                     "the view has no IR frames (the mat's dots are seen in the IR amplitude)")
+            continue
+        h = v.points @ np.asarray(s.plane[:3]) + float(s.plane[3])
+        # the dark toner reads farther than the paper (amplitude-dependent range error): a wide band
+        ground = (np.abs(h) < max(plane_threshold_m, GROUND_BAND_M)) & ~s.object_mask
+        alb = albedo_image(v.index, intr.shape, ground, log_albedo(v, intr, white_map))
+        fx = locate_on_mat(alb, rays, s.plane, mat, rc.mat_min_dots)
+        if not fx.located and s.object_mask.any():  # too few whole dots: the whole pattern
+            G = plane_frame(s.plane)
+            foot = (v.points[s.object_mask] @ G[:2, :3].T + G[:2, 3]).mean(0)
+            fp = locate_by_pattern(alb, rays, s.plane, foot, mat)
+            fx = fp if fp.located else replace(fx, reason=f"{fx.reason}; {fp.reason}")
+        fixes[names[k]] = fx
+        if fx.located:
+            poses[k] = fx.camera_to_mat
+    through, not_through = {}, {}
+    if len(poses) >= 2:
+        on_mat = dict(poses)  # placed through views the mat placed, not through each other
+        for k in range(len(views)):
+            if k not in on_mat:
+                T, info = _through_neighbours(k, on_mat, regs, rc, names)
+                if T is not None:
+                    poses[k], through[names[k]] = T, info
+                else:
+                    not_through[names[k]] = info
+    kept = sorted(poses)
+    left_out = {names[k]: "not placed on the dot mat: " + fixes[names[k]].reason
+                          + ("; " + not_through[names[k]] if names[k] in not_through else "")
+                for k in range(len(views)) if k not in poses}
+    P = np.array([poses[k] for k in kept]).reshape(-1, 4, 4)
+    r_final = rc.icp_radii_mm[-1] * 1e-3
+    tol = rc.see_through_tol_mm * 1e-3
+    edges = []
+    for a in range(len(kept) - 1 + (len(kept) > 2)):
+        b = (a + 1) % len(kept)
+        i, j = kept[a], kept[b]
+        T = np.linalg.inv(P[b]) @ P[a]
+        fit, rmse = object_fitness(regs[i], regs[j], T, r_final)
+        p = pair_result(regs[i], regs[j], a, b, T, fit, rmse, visibility_violation(regs[i], regs[j], T, tol),
+                        MAT_METHOD, True, r_final)
+        d = p.to_dict([names[k] for k in kept]) | {"kept": True}
+        if not passes_gates(fit, rmse, rc):
+            d["object_disagrees"] = rejection_reason(replace(p, accepted=False), rc)
+        edges.append(d)
+    graph = PoseGraphResult(P, edges, {"reasons": [], "loops": [], "placed_by": "dot mat"})
+    return MatPlacement(graph, fixes, kept, left_out, through)
+
+
+def _through_neighbours(k: int, poses: dict, regs, rc: RegistrationConfig, names: list[str]):
+    """The pose of view ``k`` (which the mat did not place) from its nearest placed views in scan
+    order, one on each side (registered onto each, :func:`register_pair`). With two, they must agree
+    within twice the pose gate at the object; with one, the view is unverified. Returns (pose (4, 4)
+    camera to mat, {"via": names, "agree_deg", "agree_mm"}), or (None, why) when no neighbour
+    registers or two disagree."""
+    n = len(regs)
+    near = []
+    for step in (-1, 1):
+        for d in (1, 2):
+            j = (k + step * d) % n
+            if j in poses and j != k and j not in near:
+                near.append(j)
+                break
+    got = []
+    for j in near:
+        p = register_pair(regs[k], regs[j], k, j, rc)
+        if p.accepted:
+            got.append((j, poses[j] @ p.transform))
+    if not got:
+        return None, (f"nor registered onto its placed neighbour(s) {', '.join(names[j] for j in near)}"
+                      if near else "and no placed view is next to it")
+    info = {"via": [names[j] for j, _ in got]}
+    if len(got) == 2:
+        c = regs[k].obj_points.mean(0) if len(regs[k].obj_points) else np.zeros(3)
+        E = np.linalg.inv(got[0][1]) @ got[1][1]
+        deg = rotation_angle_deg(E)
+        mm = float(np.linalg.norm(E[:3, :3] @ c + E[:3, 3] - c) * 1e3)
+        info |= {"agree_deg": round(deg, 3), "agree_mm": round(mm, 2)}
+        if deg > 2 * rc.pose_gate_deg or mm > 2 * rc.pose_gate_mm:
+            return None, (f"registered onto {names[got[0][0]]} and {names[got[1][0]]}, which place it "
+                          f"{deg:.2f} deg / {mm:.1f} mm apart at the object")
+    return got[0][1], info
