@@ -1,6 +1,6 @@
 """Time an 8-view reconstruction end to end (target: <= 30 s on 2 cores).
 
-``.venv/bin/python -m bench.robustness.timing [--rounds 3] [--frames 10] [--seed 0] [--set STAGE.FIELD=JSON ...]``
+``.venv/bin/python -m bench.robustness.timing [--rounds 3] [--frames 10] [--seed 0] [--mat] [--set STAGE.FIELD=JSON ...]``
 
 The default scan of ``tofmetry simulate scan`` (the balustrade-like object, 8 views at 1 m, 10
 frames per view) and a depth calibration fitted by tofmetry's chain on a 5-station wall dataset
@@ -8,7 +8,8 @@ are made once; then ``tofmetry.pipelines.reconstruct.reconstruct_scan`` (with th
 reference, writing the model folder, as ``tofmetry reconstruct`` does) is timed ``--rounds``
 times, each in a new process so that imports and Open3D's start are counted, pinned to the
 machine's cores as given (``taskset``-free: the machine has the cores it has). Prints the median
-wall time and the stage timings of the median run, and the machine's load average.
+wall time and the stage timings of the median run, and the machine's load average. ``--mat``: the object stands on a printed dot mat and every view is placed
+on it (``tofmetry reconstruct --mat``) instead of registered in a chain.
 """
 
 from __future__ import annotations
@@ -44,13 +45,20 @@ def main(argv=None) -> int:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--frames", type=int, default=10)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--mat", action="store_true", help="the object on a dot mat, the views placed on it (reconstruct --mat)")
     ap.add_argument("--set", action="append", default=[], metavar="STAGE.FIELD=JSON",
                     help="override one field of the reconstruction config (repeatable; for A/B runs)")
     a = ap.parse_args(argv)
     from tofmetry.simulate import datasets
 
     work = Path(tempfile.mkdtemp(prefix="tof-timing-"))
-    scan = datasets.scan(work / "scan", n_views=8, n_frames=a.frames, seed=a.seed)
+    mat = None
+    if a.mat:
+        from tofmetry._shared.dot_mat import DotMat
+
+        mat = DotMat(seed=a.seed, yaw_deg=20.0)
+        a.set.append("registration.mat=" + json.dumps(DotMat(seed=a.seed).to_dict()))
+    scan = datasets.scan(work / "scan", n_views=8, n_frames=a.frames, seed=a.seed, mat=mat)
     wall = datasets.wall_dataset(work / "wall", distances_mm=(800, 1000, 1250, 1500, 2000), n_frames=10, seed=a.seed + 1)
     exe = Path(sys.executable).with_name("tofmetry")
     subprocess.run([str(exe), "calibrate", "depth", str(wall), "--reference-offset-mm", "20", "-o", str(work / "cal.npz")],

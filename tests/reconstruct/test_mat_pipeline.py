@@ -50,6 +50,7 @@ def test_a_plain_vase_on_a_mat_is_placed_and_in_the_mats_frame(tmp_path):
     r = CliRunner().invoke(app, ["reconstruct", str(scan), "--no-calibration", "--mat", str(tmp_path / "mat.json"),
                                  "-o", str(tmp_path / "rec")])
     assert r.exit_code == 0, r.output
+    assert "views placed on the dot mat" in r.output and "the dot mat's" in " ".join(r.output.split())
     doc = read_json(tmp_path / "rec" / "poses.json")
     assert doc["reliable"] is True
     assert all(v["verdict"]["verdict"] == "placed on the mat" for v in doc["views"]), doc["views"]

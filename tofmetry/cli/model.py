@@ -144,6 +144,7 @@ def reconstruct(
     for e in res.edges:
         if not e["accepted"]:
             console.print(f"edge {e['source']}->{e['target']}: {e.get('verdict', 'rejected')}: {e.get('reason', '')}")
+    _print_mat(res.diagnostics.get("mat"), rel.get("views") or {})
     tt = res.diagnostics.get("turntable")
     if tt:
         stepped = [f"{a}->{b} ({how})" for a, b, how in tt["bridged"]]
@@ -225,6 +226,20 @@ def reconstruct(
                       "warns about its own error.")
         if not allow_unreliable:
             raise typer.Exit(3)
+
+
+def _print_mat(fixes: dict | None, verdicts: dict) -> None:
+    """The views' placements on the dot mat (``diagnostics.mat``), as a table."""
+    if not fixes:
+        return
+    t = Table(title="views placed on the dot mat (each on its own; dots seen whole / matched to the layout)")
+    for col in ("view", "how", "dots", "matched", "RMS [mm]", "+- [deg]", "+- [mm]", "verdict"):
+        t.add_column(col, justify="right")
+    for name, f in fixes.items():
+        how = f["how"] or ("via " + " + ".join(f["through"]["via"]) if f.get("through") else "not placed")
+        t.add_row(name, how, str(f["n_dots"]), str(f["n_matched"]), f"{f['rms_mm']:.2f}", f"{f['sigma_deg']:.3f}",
+                  f"{f['sigma_mm']:.2f}", (verdicts.get(name) or {}).get("verdict", ""))
+    console.print(t)
 
 
 def _reconstruct_rig(scan_dir: Path, rig: Path, sensor_calibration: list[str], output: Path, cfg, force: bool,

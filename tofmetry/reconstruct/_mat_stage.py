@@ -197,3 +197,23 @@ def _through_neighbours(k: int, poses: dict, regs, rc: RegistrationConfig, names
             return None, (f"registered onto {names[got[0][0]]} and {names[got[1][0]]}, which place it "
                           f"{deg:.2f} deg / {mm:.1f} mm apart at the object")
     return got[0][1], info
+
+
+def departures(start: np.ndarray, end: np.ndarray, centre_m: np.ndarray, gate_deg: float, gate_mm: float,
+               names: list[str]) -> dict:
+    """The views the joint fit moved beyond the pose gate from where the mat placed them: name ->
+    (rotation [deg], displacement of the object centre ``centre_m`` (3,) [m], world [mm]).
+
+    ``start``, ``end``: (V, 4, 4) camera to mat frame before and after the fit. The mat places each
+    view on its own to about 0.1 deg / 2 mm (measured on the family); a fit that moves one farther has
+    slid along what the object's points leave free (a smooth or symmetric object, or a depth residual
+    the points cannot tell from a pose), and the placement is the better of the two."""
+    out = {}
+    c = np.asarray(centre_m, np.float64)
+    for n, A, B in zip(names, start, end):
+        E = B @ np.linalg.inv(A)
+        deg = rotation_angle_deg(E)
+        mm = float(np.linalg.norm(E[:3, :3] @ c + E[:3, 3] - c) * 1e3)
+        if deg > gate_deg or mm > gate_mm:
+            out[n] = (round(deg, 3), round(mm, 2))
+    return out

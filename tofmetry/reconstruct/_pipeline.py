@@ -28,7 +28,7 @@ from tofmetry.reconstruct._model_build import (
     world_plane,
 )
 from tofmetry.reconstruct._pattern_search import search_by_pattern
-from tofmetry.reconstruct._mat_stage import place_views
+from tofmetry.reconstruct._mat_stage import departures, place_views
 from tofmetry.reconstruct._posegraph import PoseGraphBuilder
 from tofmetry.reconstruct._preprocess import ViewData, prepare_view
 from tofmetry.reconstruct._register import register_pair, rejection_reason
@@ -309,6 +309,13 @@ class ReconstructionPipeline:
                                                    for e in kept_edges),
                           self.tied_starts, None if self.mat is None else self.mat.prior(rc.mat_prior_deg, rc.mat_prior_mm))
         t2 = time.perf_counter()
+        mat_kept = None
+        if self.mat is not None and adj is not None:  # a fit that slides a view off its placement is not kept
+            centre = np.concatenate([v.points[s.object_mask] @ T[:3, :3].T + T[:3, 3]
+                                     for v, s, T in zip(views, segs, start)]).mean(0)
+            mat_kept = departures(start, adj.poses, centre, rc.pose_gate_deg, rc.pose_gate_mm, names)
+            if mat_kept:
+                adj = None
         poses = start if adj is None else adj.poses
         V, F, N, P, PN, fusion_info = self.fuse(views, segs, poses, intr)
         t3 = time.perf_counter()
@@ -349,6 +356,13 @@ class ReconstructionPipeline:
                          turntable_accuracy_deg=rc.turntable_accuracy_deg,
                          turntable_placed=bool(self.turntable), restart_share=rc.restart_share,
                          placed=None if self.mat is None else {"by": "the dot mat", "views": self.mat.view_verdicts()})
+        if mat_kept:
+            verdict["warnings"].append(
+                "the joint fit moved view(s) " + ", ".join(f"{n} by {d:.2f} deg / {m:.1f} mm" for n, (d, m) in
+                                                           mat_kept.items())
+                + f" at the object from where the dot mat placed them (beyond the pose gate, {rc.pose_gate_deg:g} deg "
+                f"/ {rc.pose_gate_mm:g} mm): it slid along what the object's points leave free; the mat's placements "
+                "are kept, unrefined")
         if slab is not None and slab["slab"] and self.mat is None:  # the mat places both faces
             verdict["reasons"].append(slab_reason(slab, names))
             verdict["reliable"] = False
