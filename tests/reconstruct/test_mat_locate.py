@@ -91,3 +91,18 @@ def test_another_mat_is_not_matched(mat_scan):
     alb = albedo_image(v.index, intr.shape, (np.abs(h) < 0.005) & ~s.object_mask, log_albedo(v, intr))
     fx = locate_on_mat(alb, intr.ray_table(True), s.plane, DotMat(seed=6))
     assert not fx.located and "match the mat's layout" in fx.reason
+
+
+def test_a_fit_that_slides_a_view_off_its_placement_is_named():
+    from scipy.spatial.transform import Rotation
+
+    from tofmetry.reconstruct._mat_stage import departures
+
+    start = np.stack([np.eye(4)] * 3)
+    end = start.copy()
+    end[1, :3, :3] = Rotation.from_euler("z", 0.3, degrees=True).as_matrix()  # within the gate
+    end[2, :3, :3] = Rotation.from_euler("z", 0.8, degrees=True).as_matrix()  # beyond it
+    end[0, :3, 3] = [0.0, 0.0, 0.004]  # 4 mm at the object
+    out = departures(start, end, np.array([0.0, 0.0, 0.1]), 0.5, 3.0, ["a", "b", "c"])
+    assert set(out) == {"a", "c"}
+    assert out["c"][0] == pytest.approx(0.8, abs=1e-3) and out["a"][1] == pytest.approx(4.0, abs=1e-3)
