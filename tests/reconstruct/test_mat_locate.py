@@ -10,18 +10,12 @@ from tofmetry._shared.geometry import rotation_angle_deg
 from tofmetry.io import read_json
 from tofmetry.pipelines.reconstruct import ScanDataset
 from tofmetry.reconstruct import ReconstructionConfig
-from tofmetry.reconstruct._mat_locate import albedo_image, locate_on_mat, match_dots, otsu_threshold
+from tofmetry.reconstruct._mat_locate import albedo_image, locate_on_mat, match_dots
 from tofmetry.reconstruct._photometric import log_albedo
 from tofmetry.reconstruct._pipeline import ReconstructionPipeline
 from tofmetry.simulate import datasets
 from tofmetry.simulate.errors import ErrorModel
 from tofmetry.simulate.meshes import balustrade_mesh
-
-
-def test_otsu_splits_two_modes():
-    rng = np.random.default_rng(0)
-    x = np.r_[rng.normal(-2.0, 0.2, 3000), rng.normal(0.0, 0.2, 7000)]
-    assert -1.4 < otsu_threshold(x) < -0.6
 
 
 def test_a_subset_of_the_layout_moved_and_noisy_is_matched_back():

@@ -26,6 +26,13 @@ def rotation_angle_deg(transform: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
 
 
+def displacement_at(transform: np.ndarray, point: np.ndarray) -> float:
+    """How far a rigid ``transform`` (4, 4) moves ``point`` (3,) [m]: ``|R p + t - p|`` [m] (a pose
+    error or a loop closure measured at the object, not at the frame's origin)."""
+    p = np.asarray(point, np.float64)
+    return float(np.linalg.norm(transform[:3, :3] @ p + transform[:3, 3] - p))
+
+
 def principal_axes(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Centroid and principal axes of a point set (eigen-decomposition of the 3 x 3 scatter matrix
     of the centred points: the SVD's axes, at a fraction of its cost for 10^5 points).

@@ -32,7 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tofmetry._shared.geometry import SCALE_OFFSET_MAX_CORRELATION, rotation_angle_deg, similarity_offset_jacobian
+from tofmetry._shared.geometry import (SCALE_OFFSET_MAX_CORRELATION, displacement_at, rotation_angle_deg,
+                                       similarity_offset_jacobian)
 from tofmetry.errors import InputError
 
 
@@ -104,11 +105,10 @@ def pose_errors(poses, true_poses, object_points: np.ndarray, max_points: int = 
     for a, t in zip(A, T):
         E = G @ a
         d = np.linalg.norm(X @ E[:3, :3].T + E[:3, 3] - X, axis=1)
-        c = t[:3, 3]
         rot.append(rotation_angle_deg(E))
         obj.append(float(d.max()) * 1e3)
         obj_rms.append(float(np.sqrt(np.mean(d ** 2))) * 1e3)
-        cam.append(float(np.linalg.norm(E[:3, :3] @ c + E[:3, 3] - c)) * 1e3)
+        cam.append(displacement_at(E, t[:3, 3]) * 1e3)
     return PoseErrors(np.array(rot), np.array(obj), np.array(obj_rms), np.array(cam), G)
 
 

@@ -86,15 +86,15 @@ def _views(regs: list[RegView]) -> list[AdjustView]:
 def joint_adjustment(views, segs, regs: list[RegView], poses: np.ndarray, cfg: ReconstructionConfig, cal,
                      white_map: np.ndarray | None, progress, *, turntable: bool = False,
                      loops: list[dict] | None = None, edges=(), edge_ir=(),
-                     yaw_free: bool = False, tied=(), placed: tuple[float, float] | None = None
-                     ) -> tuple[AdjustResult | None, str | None]:
+                     yaw_free: bool = False, tied=(),
+                     placed: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[AdjustResult | None, str | None]:
     """Global adjustment of the pose-graph poses ``poses`` (V, 4, 4) camera to world [m] (and the
     depth gain); applies the gain to ``views`` (depth and points) in place.
 
     ``turntable``: the poses start on a declared turntable (the pose prior is its accuracy).
     ``placed``: the poses were placed each on its own (on a dot mat, whose frame is the world): the
-    pose prior is this (rotation [deg], displacement at the object [mm]), each (3,) along the world's
-    x, y, z.
+    pose prior is this (rotation [deg], displacement at the object [mm]), each (V, 3): per view, along
+    the world's x, y, z (:meth:`~tofmetry.reconstruct._mat_stage.MatPlacement.prior`).
     ``loops``: the pose graph's loop closures (:func:`loop_closures`); half the worst one widens
     the pose prior (a loop that closes only to X deg leaves up to X / 2 on a view once spread).
     ``edges``: the pose graph's kept pairs (i, j); when the fit moved a view beyond the pose gate

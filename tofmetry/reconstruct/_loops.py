@@ -13,7 +13,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from tofmetry._shared.geometry import rotation_angle_deg
+from tofmetry._shared.geometry import displacement_at, rotation_angle_deg
 from tofmetry.reconstruct._camera_path import closes_once, path_walk
 from tofmetry.reconstruct._register import PairResult
 from tofmetry.reconstruct._view_graph import bridges, connected_components, spanning_tree, undecided_drops
@@ -61,7 +61,7 @@ def loop_closures(n: int, pairs: list[PairResult], names: list[str] | None = Non
              "per_edge_mm": round(c_mm / np.sqrt(m), 3), "members": members}
         if centres is not None:
             c = np.asarray(centres[p.source], np.float64)
-            d["closure_object_mm"] = round(float(np.linalg.norm(E[:3, :3] @ c + E[:3, 3] - c)) * 1e3, 3)
+            d["closure_object_mm"] = round(displacement_at(E, c) * 1e3, 3)
         out.append(d)
     return out
 

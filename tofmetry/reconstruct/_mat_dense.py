@@ -18,8 +18,9 @@ import cv2
 import numpy as np
 from scipy import fft, ndimage
 
-from tofmetry._shared.dot_mat import DotMat
-from tofmetry.reconstruct._mat_locate import MatFix, contrast, fix_from_matches, guided_match, plane_frame, seen_dots
+from tofmetry._shared.dot_mat import DotMat, dot_mask
+from tofmetry.reconstruct._mat_locate import (MatFix, contrast, fix_from_matches, guided_match, plane_frame,
+                                               rotation_2d, seen_dots)
 
 
 def plane_image(alb: np.ndarray, rays: np.ndarray, plane: np.ndarray, centre_xy: np.ndarray, half_m: float,
@@ -55,8 +56,6 @@ def plane_image(alb: np.ndarray, rays: np.ndarray, plane: np.ndarray, centre_xy:
 def mat_image(mat: DotMat, cell_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The printed layout on a grid of ``cell_m`` cells (1 paper, 0 toner; row = v, column = u, from
     the sheet's corner (-w/2, -h/2)): image, mask (ones), and the grid's corner in the sheet frame [m]."""
-    from tofmetry._shared.dot_mat import dot_mask
-
     w, h = mat.size_m
     nu, nv = int(np.ceil(w / cell_m)), int(np.ceil(h / cell_m))
     u = (np.arange(nu) + 0.5) * cell_m - w / 2
@@ -98,7 +97,9 @@ def masked_ncc(fixed: np.ndarray, fmask: np.ndarray, moving: np.ndarray, mmask: 
 
 
 def _search(view, vmask, matimg, matmask, angles_deg, min_overlap):
-    """Best (ncc, angle, dy, dx) over ``angles_deg`` (the view turned about its grid centre)."""
+    """Best (ncc, angle, dy, dx) over ``angles_deg`` (the view turned about its grid centre; view cell
+    (i, j) lands on mat cell (i + dy, j + dx), the shifts unwrapped from :func:`masked_ncc`'s), and
+    each angle's best (ncc, angle)."""
     best = (-2.0, 0.0, 0, 0)
     scores = []
     c = ((view.shape[1] - 1) / 2, (view.shape[0] - 1) / 2)
@@ -109,6 +110,8 @@ def _search(view, vmask, matimg, matmask, angles_deg, min_overlap):
         s = masked_ncc(matimg, matmask, rv * rm, rm, min_overlap)
         k = int(np.argmax(s))
         dy, dx = np.unravel_index(k, s.shape)
+        dy = dy - s.shape[0] if dy > s.shape[0] - view.shape[0] else dy  # negative shifts wrap round
+        dx = dx - s.shape[1] if dx > s.shape[1] - view.shape[1] else dx
         scores.append((float(s.flat[k]), float(a)))
         if s.flat[k] > best[0]:
             best = (float(s.flat[k]), float(a), int(dy), int(dx))
@@ -133,7 +136,6 @@ def locate_dense(alb: np.ndarray, rays: np.ndarray, plane: np.ndarray, footprint
     w, h = mat.size_m
     half = 0.5 * float(np.hypot(w, h)) + 0.05
     out = {"located": False}
-    R, t = np.eye(2), np.zeros(2)
     for cell, angles in ((0.006, np.arange(0.0, 360.0, 3.0)), (0.002, None)):
         view, vmask = plane_image(alb, rays, plane, footprint_xy, half, cell)
         if vmask.sum() < 200:
@@ -145,8 +147,8 @@ def locate_dense(alb: np.ndarray, rays: np.ndarray, plane: np.ndarray, footprint
         if angles is None:
             angles = out["angle_deg"] + np.arange(-3.0, 3.01, 0.5)
         (ncc, ang, dy, dx), scores = _search(view, vmask, mimg, mmask, angles, 0.15 * vmask.sum())
-        far = [s for s, a in scores if abs((a - ang + 180) % 360 - 180) > 10]
         if cell == 0.006:
+            far = [s for s, a in scores if abs((a - ang + 180) % 360 - 180) > 10]
             margin = ncc - max(far, default=-1.0)
             out.update(ncc=round(ncc, 3), margin=round(margin, 3), angle_deg=ang)
             if ncc < min_ncc or margin < min_margin:
@@ -154,14 +156,9 @@ def locate_dense(alb: np.ndarray, rays: np.ndarray, plane: np.ndarray, footprint
                                         f"{margin:.2f} above any other turn)"}
         else:
             out["angle_deg"] = ang
-        # view cell (i, j) turned by ang about the grid centre lands on mat cell (i + dy, j + dx) (wrapped)
-        n = view.shape[0]
-        sy, sx = fft.next_fast_len(mimg.shape[0] + n), fft.next_fast_len(mimg.shape[1] + n)
-        dy = dy - sy if dy > sy - n else dy
-        dx = dx - sx if dx > sx - n else dx
-        th = np.radians(-ang)  # cv2 turns the image counter-clockwise by ang with rows down: -ang in x, y
-        R = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
-        c = n / 2 * cell  # the turn's centre (cv2's, the middle of the grid), in grid metres
+        # view cell (i, j) turned by ang about the grid centre lands on mat cell (i + dy, j + dx)
+        R = rotation_2d(np.radians(-ang))  # cv2 turns the image counter-clockwise by ang with rows down
+        c = view.shape[0] / 2 * cell  # the turn's centre (cv2's, the middle of the grid), in grid metres
         # plane xy -> grid metres (xy - footprint + half) -> turned about c -> + shift -> sheet (+ corner)
         t = R @ (-footprint_xy + half - c) + c + np.array([dx, dy]) * cell + corner
     out.update(located=True, R=R, t=t)

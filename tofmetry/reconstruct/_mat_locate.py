@@ -7,7 +7,8 @@ registrations, whatever the object's shape (a vase of revolution, a thin plaque,
 
 1. **The support plane** (the view's segmentation) gives the camera's tilt and height above the mat.
 2. **The dots**: on the support, the relative log IR albedo (:func:`~tofmetry.reconstruct._photometric.log_albedo`)
-   splits toner from paper (Otsu's threshold); each dark blob wholly surrounded by paper is a dot.
+   splits toner from paper (a pixel darker than the paper around it by half their contrast is toner);
+   each dark blob wholly surrounded by paper is a dot.
    Its pixels' rays are cut with the support plane (not their measured points: a ToF camera reads
    dark toner a few millimetres farther than the paper, which would shift every dot away from the
    camera), and the dot's centre and radius are the centroid and second moments of those cuts
@@ -69,17 +70,10 @@ def contrast(mat: DotMat) -> float:
     return float(np.log(mat.light / max(mat.dark, 1e-3)))
 
 
-def otsu_threshold(values: np.ndarray, bins: int = 128) -> float:
-    """Otsu's threshold of ``values`` (N,) (the split that maximises the between-class variance)."""
-    h, edges = np.histogram(values, bins)
-    c = (edges[:-1] + edges[1:]) / 2
-    w0 = np.cumsum(h)
-    w1 = w0[-1] - w0
-    m0 = np.cumsum(h * c)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        mu0, mu1 = m0 / w0, (m0[-1] - m0) / w1
-        between = w0 * w1 * (mu0 - mu1) ** 2
-    return float(edges[int(np.nanargmax(between[:-1])) + 1])
+def rotation_2d(theta_rad: float) -> np.ndarray:
+    """(2, 2) rotation by ``theta_rad`` (counter-clockwise in x, y)."""
+    c, s = np.cos(theta_rad), np.sin(theta_rad)
+    return np.array([[c, -s], [s, c]])
 
 
 def plane_frame(plane: np.ndarray) -> np.ndarray:
@@ -182,7 +176,7 @@ def _rigid_2d(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     ca, cb = a.mean(0), b.mean(0)
     M = (a - ca).T @ (b - cb)
     th = np.arctan2(M[0, 1] - M[1, 0], M[0, 0] + M[1, 1])
-    R = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
+    R = rotation_2d(th)
     return R, cb - R @ ca
 
 
@@ -246,7 +240,7 @@ def match_dots(seen_c: np.ndarray, seen_r: np.ndarray, mat: DotMat, match_mm: fl
     ok = np.isfinite(d.reshape(len(A), K))
     ok &= np.abs(Rad[np.minimum(j, len(C) - 1)] - seen_r[None]) <= rtol
     best = int(np.argmax(ok.sum(1)))
-    R = np.array([[cs[best], -sn[best]], [sn[best], cs[best]]])
+    R = rotation_2d(th[best])
     tt = t[best]
     matched = np.where(ok[best], j[best], -1)
     for _ in range(2):  # refit on the matches, match again

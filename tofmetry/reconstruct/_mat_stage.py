@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from tofmetry._shared.geometry import rotation_angle_deg
+from tofmetry._shared.geometry import displacement_at, rotation_angle_deg
 from tofmetry._shared.dot_mat import DotMat
 from tofmetry.reconstruct._config import RegistrationConfig
 from tofmetry.reconstruct._mat_dense import locate_by_pattern
@@ -42,6 +42,8 @@ class MatPlacement:
         ``"mat"``), no loops
     fixes : view name -> :class:`MatFix` (every view, placed or not)
     kept : indices of the placed views; left_out : name -> why a view was not placed
+    through : name -> {"via": neighbours' names, "agree_deg", "agree_mm"} of a view the mat did not
+        place, registered onto its placed neighbours instead
     """
 
     graph: PoseGraphResult
@@ -190,8 +192,7 @@ def _through_neighbours(k: int, poses: dict, regs, rc: RegistrationConfig, names
     if len(got) == 2:
         c = regs[k].obj_points.mean(0) if len(regs[k].obj_points) else np.zeros(3)
         E = np.linalg.inv(got[0][1]) @ got[1][1]
-        deg = rotation_angle_deg(E)
-        mm = float(np.linalg.norm(E[:3, :3] @ c + E[:3, 3] - c) * 1e3)
+        deg, mm = rotation_angle_deg(E), displacement_at(E, c) * 1e3
         info |= {"agree_deg": round(deg, 3), "agree_mm": round(mm, 2)}
         if deg > 2 * rc.pose_gate_deg or mm > 2 * rc.pose_gate_mm:
             return None, (f"registered onto {names[got[0][0]]} and {names[got[1][0]]}, which place it "
@@ -209,11 +210,9 @@ def departures(start: np.ndarray, end: np.ndarray, centre_m: np.ndarray, gate_de
     slid along what the object's points leave free (a smooth or symmetric object, or a depth residual
     the points cannot tell from a pose), and the placement is the better of the two."""
     out = {}
-    c = np.asarray(centre_m, np.float64)
     for n, A, B in zip(names, start, end):
         E = B @ np.linalg.inv(A)
-        deg = rotation_angle_deg(E)
-        mm = float(np.linalg.norm(E[:3, :3] @ c + E[:3, 3] - c) * 1e3)
+        deg, mm = rotation_angle_deg(E), displacement_at(E, centre_m) * 1e3
         if deg > gate_deg or mm > gate_mm:
             out[n] = (round(deg, 3), round(mm, 2))
     return out

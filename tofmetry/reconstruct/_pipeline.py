@@ -248,7 +248,8 @@ class ReconstructionPipeline:
 
     def adjust(self, views: list[ViewData], segs: list[Segmentation], regs: list[RegView],
                poses: np.ndarray, loops: list[dict] | None = None, edges=(), edge_ir=(),
-               yaw_free: bool = False, tied=(), placed: tuple[float, float] | None = None) -> AdjustResult | None:
+               yaw_free: bool = False, tied=(),
+               placed: tuple[np.ndarray, np.ndarray] | None = None) -> AdjustResult | None:
         """The joint fit of the poses (:func:`joint_adjustment`; its failure in :attr:`adjust_failure`)."""
         res, self.adjust_failure = joint_adjustment(views, segs, regs, poses, self.cfg, self.cal, self.white_map,
                                                     self.progress, turntable=bool(self.turntable), loops=loops,
