@@ -456,6 +456,12 @@ class FusionConfig(BaseModel):
     trunc_mm: float | None = Field(None, description="TSDF truncation [mm]; None = max(4 sigma_eff, 3 voxels)")
     sigma_eff_1m_mm: float = Field(1.5, gt=0, description="effective depth uncertainty at 1 m after averaging/calibration [mm]")
     block_resolution: int = Field(8, description="voxels per block side")
+    denoise: bool = Field(True, description="smooth each view's depth by an edge-preserving (bilateral) filter "
+                          "before fusion, its range sigma from the view's own measured noise (the frames' spread); "
+                          "a projective TSDF otherwise pulls noisy surfaces into the object (_fusion.denoise_depth)")
+    denoise_window_px: int = Field(3, ge=3, description="window side of that filter [px] (odd)")
+    denoise_range_sigmas: float = Field(3.0, gt=0, description="its range sigma, in the view's median standard "
+                                        "error of a pixel's mean over the fused pixels")
     poisson: bool = Field(False, description="also build a Poisson mesh of the fused cloud (density-trimmed)")
     poisson_depth: int = Field(9, description="Poisson octree depth")
     poisson_trim_quantile: float = Field(0.05, ge=0, lt=1, description="drop Poisson vertices of the lowest density quantile")

@@ -15,7 +15,7 @@ import numpy as np
 from tofmetry.assess import remove_flying_pixels
 from tofmetry.errors import InputError
 from tofmetry.calibrate import DepthCalibration, apply_depth_calibration, count_outside_range
-from tofmetry.pointcloud import depth_to_points, robust_mean_depth
+from tofmetry.pointcloud import depth_to_points, robust_mean_depth, temporal_stats
 from tofmetry.reconstruct._amplitude import amplitude_bias_mm
 from tofmetry.reconstruct._config import PreprocessConfig
 from tofmetry.sensor import CameraIntrinsics
@@ -35,6 +35,9 @@ class ViewData:
     cos_incidence : (N,) float64 cosine of the angle between normal and line of sight
     ir : (H, W) float or None, mean IR amplitude
     stats : dict of counts (valid, flying removed, out of range, grazing)
+    noise_mm : (H, W) float32 [mm] standard error of each pixel's temporal mean (the frames' sample
+        standard deviation / sqrt(frames)); NaN where fewer than two frames were valid; None when
+        not measured
     """
 
     name: str
@@ -45,6 +48,7 @@ class ViewData:
     cos_incidence: np.ndarray
     ir: np.ndarray | None
     stats: dict
+    noise_mm: np.ndarray | None = None
 
 
 def corrected_mean_depth(stack: np.ndarray, calibration: DepthCalibration | None = None, k: float = 3.0,
@@ -137,7 +141,27 @@ def prepare_view(stack: np.ndarray, intr: CameraIntrinsics, calibration=None, co
              "flying_removed": n_flying, "out_of_range": int(out_range.sum()),
              "grazing_removed": int(grazing.sum()), "points": int(keep.sum()),
              "amplitude_bias_median_mm": amp_mean}
-    return ViewData(name, depth, pts[keep], idx[keep], normals[keep], cos_inc[keep], ir, stats)
+    return ViewData(name, depth, pts[keep], idx[keep], normals[keep], cos_inc[keep], ir, stats,
+                    noise_mm=mean_standard_error(stack))
+
+
+def mean_standard_error(stack: np.ndarray) -> np.ndarray:
+    """Standard error of each pixel's temporal mean, from the frames themselves.
+
+    Parameters
+    ----------
+    stack : (T, H, W) uint16 [mm] depth frames of one pose, 0 = invalid
+
+    Returns
+    -------
+    (H, W) float32 [mm]: sample standard deviation (ddof 1) of the valid frames / sqrt(their
+    count); NaN where fewer than two frames are valid. A depth calibration shifts a pixel's frames
+    alike, so the raw frames give the calibrated mean's spread.
+    """
+    st = temporal_stats(stack)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        se = st.std / np.sqrt(st.count)
+    return np.where(st.count >= 2, se, np.nan).astype(np.float32)
 
 
 def image_normals(points: np.ndarray, index: np.ndarray, shape: tuple[int, int], fx: float | None = None,
