@@ -100,3 +100,32 @@ def test_a_fit_that_slides_a_view_off_its_placement_is_named():
     out = departures(start, end, np.array([0.0, 0.0, 0.1]), 0.5, 3.0, ["a", "b", "c"])
     assert set(out) == {"a", "c"}
     assert out["c"][0] == pytest.approx(0.8, abs=1e-3) and out["a"][1] == pytest.approx(4.0, abs=1e-3)
+
+
+def test_the_dots_measure_the_depth_scale(mat_scan):
+    """Perfect depth: the dots come out the printed size, within their own 3 sigma (~0.1 % per view:
+    20+ dots, 2.5 mm pixels on the mat). The same views with a depth gain of +1 % (points and support
+    plane 1 % farther): central projection onto the farther plane is a homothety about the camera's
+    foot, so the dots come out 1 % larger, within 3 sigma, and the mat's check says the depth scale
+    disagrees with a calibration that predicts 0.3 mm."""
+    from tofmetry.reconstruct._mat_stage import pattern_scale, pattern_scale_warning
+
+    out, mat = mat_scan
+    pl = ReconstructionPipeline(ScanDataset(out), None, ReconstructionConfig())
+    views, segs, _, intr = pl.load_views()
+    for gain in (0.0, 0.01):
+        fixes = {}
+        for k, (v, s) in enumerate(zip(views, segs)):
+            plane = s.plane * np.array([1.0, 1.0, 1.0, 1.0 + gain])  # n . (k p) + k d = k (n . p + d)
+            pts = v.points * (1.0 + gain)
+            h = pts @ plane[:3] + plane[3]
+            alb = albedo_image(v.index, intr.shape, (np.abs(h) < 0.005) & ~s.object_mask, log_albedo(v, intr))
+            fx = locate_on_mat(alb, intr.ray_table(True), plane, mat)
+            assert fx.located, fx.reason
+            assert abs(fx.pattern_scale - gain) < 3 * fx.pattern_scale_sigma, (gain, fx.pattern_scale, fx.pattern_scale_sigma)
+            assert fx.pattern_scale_sigma < 0.002
+            fixes[str(k)] = fx
+        check = pattern_scale(fixes, 0.3)
+        assert check["views"] == 3
+        assert check["consistent"] is (gain == 0.0)
+        assert (pattern_scale_warning(check) is None) is (gain == 0.0)

@@ -51,6 +51,8 @@ def test_a_plain_vase_on_a_mat_is_placed_and_in_the_mats_frame(tmp_path):
                                  "-o", str(tmp_path / "rec")])
     assert r.exit_code == 0, r.output
     assert "views placed on the dot mat" in r.output and "the dot mat's" in " ".join(r.output.split())
+    out = " ".join(r.output.split())
+    assert "the dots measure the depth scale" in out and "NOT consistent" not in out  # exact depth: no warning
     doc = read_json(tmp_path / "rec" / "poses.json")
     assert doc["reliable"] is True
     assert all(v["verdict"]["verdict"] == "placed on the mat" for v in doc["views"]), doc["views"]

@@ -144,7 +144,7 @@ def reconstruct(
     for e in res.edges:
         if not e["accepted"]:
             console.print(f"edge {e['source']}->{e['target']}: {e.get('verdict', 'rejected')}: {e.get('reason', '')}")
-    _print_mat(res.diagnostics.get("mat"), rel.get("views") or {})
+    _print_mat(res.diagnostics.get("mat"), rel.get("views") or {}, (res.diagnostics.get("scale") or {}).get("mat_pattern"))
     tt = res.diagnostics.get("turntable")
     if tt:
         stepped = [f"{a}->{b} ({how})" for a, b, how in tt["bridged"]]
@@ -228,18 +228,26 @@ def reconstruct(
             raise typer.Exit(3)
 
 
-def _print_mat(fixes: dict | None, verdicts: dict) -> None:
-    """The views' placements on the dot mat (``diagnostics.mat``), as a table."""
+def _print_mat(fixes: dict | None, verdicts: dict, pattern: dict | None = None) -> None:
+    """The views' placements on the dot mat (``diagnostics.mat``), as a table, and the depth scale the
+    dots measure (``diagnostics.scale.mat_pattern``)."""
     if not fixes:
         return
     t = Table(title="views placed on the dot mat (each on its own; dots seen whole / matched to the layout)")
-    for col in ("view", "how", "dots", "matched", "RMS [mm]", "+- [deg]", "+- [mm]", "verdict"):
+    for col in ("view", "how", "dots", "matched", "RMS [mm]", "+- [deg]", "+- [mm]", "size [%]", "verdict"):
         t.add_column(col, justify="right")
     for name, f in fixes.items():
         how = f["how"] or ("via " + " + ".join(f["through"]["via"]) if f.get("through") else "not placed")
+        size = f.get("pattern_scale_pct", float("nan"))
         t.add_row(name, how, str(f["n_dots"]), str(f["n_matched"]), f"{f['rms_mm']:.2f}", f"{f['sigma_deg']:.3f}",
-                  f"{f['sigma_mm']:.2f}", (verdicts.get(name) or {}).get("verdict", ""))
+                  f"{f['sigma_mm']:.2f}", "" if size != size else f"{size:+.2f} +- {f['pattern_scale_sigma_pct']:.2f}",
+                  (verdicts.get(name) or {}).get("verdict", ""))
     console.print(t)
+    if pattern:
+        console.print(f"the dots measure the depth scale at the mat: {pattern['scale_pct']:+.3f} % +- "
+                      f"{pattern['sigma_pct']:.3f} % against their printed size ({pattern['views']} views; the "
+                      f"calibration's predicted range error and the method allow +-{pattern['allowed_pct']:.2f} %): "
+                      + ("consistent" if pattern["consistent"] else "[bold red]NOT consistent[/]"))
 
 
 def _reconstruct_rig(scan_dir: Path, rig: Path, sensor_calibration: list[str], output: Path, cfg, force: bool,

@@ -46,6 +46,9 @@ class MatFix:
     sigma_deg, sigma_mm : 1-sigma of the in-plane turn [deg] and shift [mm] those residuals imply
     how : "dots" (matched to the layout), "pattern+dots" (the whole pattern placed it and the dots
         seen refined it), "pattern" (the whole pattern alone); "" when not placed
+    pattern_scale, pattern_scale_sigma : the matched dots' size relative to the printed layout, minus
+        1, and its 1-sigma (a similarity fit; NaN without matched dots): the depth camera's scale
+        at the mat (:func:`fix_from_matches`)
     """
 
     located: bool
@@ -57,11 +60,15 @@ class MatFix:
     sigma_mm: float = float("nan")
     reason: str = ""
     how: str = ""
+    pattern_scale: float = float("nan")
+    pattern_scale_sigma: float = float("nan")
 
     def to_dict(self) -> dict:
         return {"located": self.located, "how": self.how, "n_dots": self.n_dots, "n_matched": self.n_matched,
                 "rms_mm": round(self.rms_mm, 3), "sigma_deg": round(self.sigma_deg, 4),
                 "sigma_mm": round(self.sigma_mm, 3), "reason": self.reason,
+                "pattern_scale_pct": round(100 * self.pattern_scale, 4),
+                "pattern_scale_sigma_pct": round(100 * self.pattern_scale_sigma, 4),
                 "camera_to_mat": self.camera_to_mat.tolist() if self.located else None}
 
 
@@ -279,18 +286,31 @@ def locate_on_mat(alb: np.ndarray, rays: np.ndarray, plane: np.ndarray | None, m
 def fix_from_matches(c: np.ndarray, R: np.ndarray, t: np.ndarray, matched: np.ndarray, mat: DotMat,
                      plane: np.ndarray, how: str = "dots") -> MatFix:
     """The :class:`MatFix` of seen dots ``c`` (K, 2) matched (``matched`` (K,), -1: none) by ``sheet =
-    R @ c + t``, with their residuals and the uncertainty they imply."""
+    R @ c + t``, with their residuals and the uncertainty they imply.
+
+    The dots' size against the printed layout (``pattern_scale``: the least-squares scale of the
+    matched centres about their centroid, the rotation held) measures the depth camera's scale on
+    the mat. The dots are the cuts of their rays with the support plane, and central projection
+    onto a plane the depth puts ``(1 + g)`` times too far is a homothety about the camera's foot: a
+    depth gain ``g`` (or a focal length ``g`` too short) makes the pattern ``g`` too large, which
+    is what it does to the object's points. A range offset ``e`` of the ground makes it ``e / H``
+    too large (``H`` the camera's height). Its 1-sigma is the dots' residual per axis over the
+    root of their spread about their centroid."""
     m = matched >= 0
     C = mat.dots()[0][matched[m]]
     res = c[m] @ R.T + t - C
     rms = float(np.sqrt(np.mean(np.sum(res ** 2, 1))))
-    spread = float(np.sum((c[m] - c[m].mean(0)) ** 2))
+    cc = c[m] - c[m].mean(0)
+    spread = float(np.sum(cc ** 2))
     s_axis = rms / np.sqrt(2.0)  # per axis
+    # printed = (1 + k) R seen about the centroids: the seen pattern is 1 / (1 + k) the printed size
+    scale = spread / float(np.sum((C - C.mean(0)) * (cc @ R.T))) - 1.0 if spread > 0 else float("nan")
     S = np.eye(4)
     S[:2, :2], S[:2, 3] = R, t
     T = S @ plane_frame(plane)
     return MatFix(True, T, len(c), int(m.sum()), rms * 1e3, float(np.degrees(s_axis / np.sqrt(max(spread, 1e-12)))),
-                  float(s_axis / np.sqrt(m.sum()) * 1e3), how=how)
+                  float(s_axis / np.sqrt(m.sum()) * 1e3), how=how, pattern_scale=scale,
+                  pattern_scale_sigma=float(s_axis / np.sqrt(spread)) if spread > 0 else float("nan"))
 
 
 def guided_match(c: np.ndarray, r: np.ndarray, R: np.ndarray, t: np.ndarray, mat: DotMat, match_mm: float = 6.0,

@@ -17,7 +17,8 @@ from tofmetry.errors import EstimationError, InputError, SensorMismatchError
 from tofmetry.reconstruct._adjust_circle import off_axis_reason
 from tofmetry.reconstruct._adjust_result import AdjustResult
 from tofmetry.reconstruct._adjust_stage import joint_adjustment, scale_budget_of
-from tofmetry.reconstruct._calibration_support import extrapolated_points, extrapolation_warning, local_prediction
+from tofmetry.reconstruct._calibration_support import (calibration_central_mm, extrapolated_points, extrapolation_warning,
+                                                     local_prediction)
 from tofmetry.reconstruct._colour import colour_model
 from tofmetry.reconstruct._config import ReconstructionConfig
 from tofmetry.reconstruct._model_build import (
@@ -28,7 +29,7 @@ from tofmetry.reconstruct._model_build import (
     world_plane,
 )
 from tofmetry.reconstruct._pattern_search import search_by_pattern
-from tofmetry.reconstruct._mat_stage import departures, place_views
+from tofmetry.reconstruct._mat_stage import departures, pattern_scale, pattern_scale_warning, place_views
 from tofmetry.reconstruct._posegraph import PoseGraphBuilder
 from tofmetry.reconstruct._preprocess import ViewData, prepare_view
 from tofmetry.reconstruct._register import register_pair, rejection_reason
@@ -364,6 +365,9 @@ class ReconstructionPipeline:
                 + f" at the object from where the dot mat placed them (beyond the pose gate, {rc.pose_gate_deg:g} deg "
                 f"/ {rc.pose_gate_mm:g} mm): it slid along what the object's points leave free; the mat's placements "
                 "are kept, unrefined")
+        mat_scale = None if self.mat is None else pattern_scale(self.mat.fixes, calibration_central_mm(pred), rc.mat_scale_floor_pct)
+        if pattern_scale_warning(mat_scale):
+            verdict["warnings"].append(pattern_scale_warning(mat_scale))
         if slab is not None and slab["slab"] and self.mat is None:  # the mat places both faces
             verdict["reasons"].append(slab_reason(slab, names))
             verdict["reliable"] = False
@@ -389,7 +393,7 @@ class ReconstructionPipeline:
                                       scale_budget_of(views, segs, poses_fit, intr, z_obj, self.white_map,
                                                       rc.amplitude_k_sigma_mm, adj),
                                       rc.amplitude_k_sigma_mm if self.white_map is not None else None,
-                                      rc.scale_floor_pct),
+                                      rc.scale_floor_pct) | ({"mat_pattern": mat_scale} if self.mat is not None else {}),
                 "world": world, "slab": slab,
                 "views": {v.name: v.stats for v in views}, "fusion": fusion_info, "timings_s": self.timings,
                 "adjustment": adj_d, "left_out": self.left_out, "color": colour_diag, "turntable": self.turntable,
