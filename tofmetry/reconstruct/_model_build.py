@@ -70,8 +70,8 @@ def fusion_depth(v, seg, cfg: ReconstructionConfig) -> tuple[np.ndarray, float]:
         m = np.zeros(d.size, bool)
         m[v.index[seg.object_mask | seg.ring_mask]] = True
         d = np.where(m.reshape(d.shape), d, 0.0)
-    if not cfg.fusion.denoise:
-        return d, float("nan")
+    if not cfg.fusion.denoise or v.stats.get("denoised_with_standard_error_mm") is not None:
+        return d, float("nan")  # off, or smoothed in preprocessing already
     return denoise_view(d, v.noise_mm, cfg.fusion)
 
 

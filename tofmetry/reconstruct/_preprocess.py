@@ -18,6 +18,7 @@ from tofmetry.calibrate import DepthCalibration, apply_depth_calibration, count_
 from tofmetry.pointcloud import depth_to_points, robust_mean_depth, temporal_stats
 from tofmetry.reconstruct._amplitude import amplitude_bias_mm
 from tofmetry.reconstruct._config import PreprocessConfig
+from tofmetry.reconstruct._fusion import denoise_depth
 from tofmetry.sensor import CameraIntrinsics
 
 
@@ -121,6 +122,13 @@ def prepare_view(stack: np.ndarray, intr: CameraIntrinsics, calibration=None, co
         cleaned = np.asarray(remove_flying_pixels(depth, intr), dtype=np.float64)
         n_flying = int(((depth > 0) & (cleaned <= 0)).sum())
         depth = cleaned
+    noise = mean_standard_error(stack)
+    smoothed = None
+    if cfg.denoise:  # every stage then works on the smoothed depth (fusion does not smooth it again)
+        se = noise[(depth > 0) & np.isfinite(noise)]
+        if len(se) >= 100:
+            smoothed = float(np.median(se))
+            depth = denoise_depth(depth, cfg.denoise_range_sigmas * smoothed, cfg.denoise_window_px).astype(np.float64)
     lo, hi = cfg.min_mm, cfg.max_mm
     if calibration is not None and calibration.support is None:
         # a calibration without a support map (format 1) leaves depth outside its range uncorrected,
@@ -140,9 +148,8 @@ def prepare_view(stack: np.ndarray, intr: CameraIntrinsics, calibration=None, co
     stats = {"valid_after_averaging": n_valid0, "outside_calibration_support": n_outside,
              "flying_removed": n_flying, "out_of_range": int(out_range.sum()),
              "grazing_removed": int(grazing.sum()), "points": int(keep.sum()),
-             "amplitude_bias_median_mm": amp_mean}
-    return ViewData(name, depth, pts[keep], idx[keep], normals[keep], cos_inc[keep], ir, stats,
-                    noise_mm=mean_standard_error(stack))
+             "amplitude_bias_median_mm": amp_mean, "denoised_with_standard_error_mm": smoothed}
+    return ViewData(name, depth, pts[keep], idx[keep], normals[keep], cos_inc[keep], ir, stats, noise_mm=noise)
 
 
 def mean_standard_error(stack: np.ndarray) -> np.ndarray:
