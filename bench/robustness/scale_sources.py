@@ -19,12 +19,13 @@ response to noise on this shape), one that appears in ``fused_true`` the fusion'
 ``--errors`` keeps only some error terms of the sensor (:func:`bench.robustness.drift.keep_errors`); without the
 amplitude bias the amplitude correction is switched off as well.
 
-Measured (2026-12-02, session 30; README): on a plaque of draw 68 (1558612541, 0.22 m, 11 hand-held views
-at 0.68 m) the views' points at the true poses read +1.14 % (the measure's response to 2-3 mm of noise per
-view's mean on a slab, whose scale rests on its faces against its rims), fused at the true poses +0.92 %
-before the fusion smoothed the depth (the faces 0.3 mm inside), the model +1.06 % (+0.75 % after); on an igea
-(412929893) +0.86 / — / +0.64 %, and without the noise +0.29 % at the true poses (0.12 % of it the amplitude
-correction's).
+Measured (2026-12-02, session 30, 5066a02: every stage on smoothed depth; README), two development draws of
+draw 68 on the mat: a plaque (1558612541, 0.22 m, 11 hand-held views at 0.68 m) +0.28 % at the true poses
+(points), +0.35 % fused there, +0.71 % through the chain (the poses put its faces 0.5 mm closer); an igea
+(412929893, 0.19 m, 14 views at 0.76 m) +0.46 / +0.40 / +0.53 %: its scale error is the depth chain's. Before
+the smoothing the plaque's points at the true poses read +1.14 % (the measure's response to 2-3 mm of noise per
+view's mean on a slab) and its model +1.06 %. Without the sensor's noise the igea's points read +0.29 %, 0.12 % of
+it what the amplitude correction leaves (``--errors`` without ``amplitude_bias``).
 """
 
 from __future__ import annotations
@@ -64,7 +65,7 @@ def sources_case(seed: int, work: Path, mat: bool = False, errors: str = "all", 
     from tofmetry.io import ScanDataset, read_json
     from tofmetry.io.mesh import Geometry
     from tofmetry.pipelines.reconstruct import reconstruct_scan
-    from tofmetry.reconstruct import ReconstructionConfig, ReconstructionPipeline
+    from tofmetry.reconstruct import ReconstructionConfig, ReconstructionPipeline, poses_document
     from tofmetry.reconstruct._model_build import fuse_views
     from tofmetry.simulate import datasets
 
@@ -94,7 +95,8 @@ def sources_case(seed: int, work: Path, mat: bool = False, errors: str = "all", 
     row["fused_true"] = _scale(V[near], ref)
     res = reconstruct_scan(scan_dir, cal, None, config=cfg, white_map=white, amplitude_boards=boards)
     model = Geometry(res.mesh_vertices, res.mesh_triangles, source="model")
-    ev = evaluate_model(model, ref, EvaluationConfig(align=True, exclude_normal=(0.0, 0.0, -1.0)))
+    ev = evaluate_model(model, ref, EvaluationConfig(align=True, exclude_normal=(0.0, 0.0, -1.0)),
+                        poses=poses_document(res))  # as the family aligns it
     row["model"] = _scale(ev.points, ref) | {"mean_signed_mm": round(ev.stats_trimmed.mean_signed_mm, 3)}
     row["reliable"] = bool(res.diagnostics.get("reliable"))
     shutil.rmtree(scan_dir, ignore_errors=True)
