@@ -41,8 +41,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from bench.robustness.family import GATE_DEG, GATE_MM, STATION_SETS, board_captures, calibrate_sensor, draw_case, \
-    override
+from bench.robustness.family import GATE_DEG, GATE_MM, STATION_SETS, board_captures, calibrate_sensor, config_with, \
+    draw_case
 
 
 def keep_errors(draw, errors: str):
@@ -170,13 +170,7 @@ def main(argv=None) -> int:
     ap.add_argument("--stations", choices=tuple(STATION_SETS), default="family",
                     help="wall stations of the calibration (bench.robustness.family.STATION_SETS)")
     a = ap.parse_args(argv)
-    config = None
-    if a.set:
-        from tofmetry.reconstruct import ReconstructionConfig
-
-        config = ReconstructionConfig()
-        for item in a.set:
-            config = override(config, item)
+    config = config_with(a.set) if a.set else None
     work = Path(tempfile.mkdtemp(prefix="tof-drift-"))
     rows = []
     try:

@@ -480,6 +480,16 @@ def override(config, item: str):
     return type(config).model_validate(d)
 
 
+def config_with(items: list[str]):
+    """The default reconstruction config with each ``STAGE.FIELD=JSON`` of ``items`` applied (:func:`override`)."""
+    from tofmetry.reconstruct import ReconstructionConfig
+
+    config = ReconstructionConfig()
+    for item in items:
+        config = override(config, item)
+    return config
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=20, help="number of draws (seeds drawn at random)")

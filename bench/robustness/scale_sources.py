@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.robustness.drift import keep_errors
-from bench.robustness.family import board_captures, calibrate_sensor, draw_case, draw_mat, override
+from bench.robustness.family import board_captures, calibrate_sensor, config_with, draw_case, draw_mat
 
 
 @contextmanager
@@ -112,11 +112,7 @@ def main(argv=None) -> int:
                     help="override one field of the reconstruction config (repeatable)")
     ap.add_argument("-o", "--output", type=Path, default=None, help="folder for scale_sources_rows.jsonl")
     a = ap.parse_args(argv)
-    from tofmetry.reconstruct import ReconstructionConfig
-
-    cfg = ReconstructionConfig()
-    for item in a.set:
-        cfg = override(cfg, item)
+    cfg = config_with(a.set)
     work = Path(tempfile.mkdtemp(prefix="tof-scale-"))
     rows = []
     try:
