@@ -34,18 +34,12 @@ import argparse
 import json
 import shutil
 import tempfile
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
 from bench.robustness.drift import keep_errors
 from bench.robustness.family import board_captures, calibrate_sensor, config_with, draw_case, draw_mat
-
-
-@contextmanager
-def _quiet(*_args):
-    yield lambda *_a: None
 
 
 def _scale(points: np.ndarray, ref) -> dict:
@@ -67,6 +61,7 @@ def sources_case(seed: int, work: Path, mat: bool = False, errors: str = "all", 
     from tofmetry.pipelines.reconstruct import reconstruct_scan
     from tofmetry.reconstruct import ReconstructionConfig, ReconstructionPipeline, poses_document
     from tofmetry.reconstruct._model_build import fuse_views
+    from tofmetry.reconstruct._pipeline import _no_progress
     from tofmetry.simulate import datasets
 
     d = keep_errors(draw_case(seed), errors)
@@ -90,7 +85,7 @@ def sources_case(seed: int, work: Path, mat: bool = False, errors: str = "all", 
     row = {"seed": int(seed), "object": d.object.name, "size_m": round(float(d.object.size_m), 4),
            "path": d.path.kind, "n_views": int(d.path.n_views), "mat": mat, "errors": errors,
            "points_true": _scale(pts, ref)}
-    V = fuse_views(views, segs, W, intr, cfg, _quiet)[0]
+    V = fuse_views(views, segs, W, intr, cfg, _no_progress)[0]
     near = np.linalg.norm(V - d.object.vertices.mean(0), axis=1) < 0.75 * float(d.object.size_m)
     row["fused_true"] = _scale(V[near], ref)
     res = reconstruct_scan(scan_dir, cal, None, config=cfg, white_map=white, amplitude_boards=boards)

@@ -5,8 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from tofmetry.reconstruct import TSDFFusion
-from tofmetry.reconstruct._fusion import denoise_depth
-from tofmetry.reconstruct._preprocess import mean_standard_error
+from tofmetry.reconstruct._preprocess import denoise_depth, mean_standard_error
 from tofmetry.sensor import KINECT_V2
 
 INTR = KINECT_V2.depth
@@ -116,5 +115,5 @@ def test_prepare_view_smooths_the_depth_every_stage_uses():
     assert spread[True] < spread[False] / 1.8, spread
     assert abs(smoothed - 4.0 / np.sqrt(5)) < 0.15
     seg = type("Seg", (), {"object_mask": np.ones(len(v.points), bool), "ring_mask": np.zeros(len(v.points), bool)})()
-    d, sigma = fusion_depth(v, seg, ReconstructionConfig())
-    assert np.isnan(sigma) and np.array_equal(d[d > 0], v.depth_mm[d > 0])
+    d = fusion_depth(v, seg, ReconstructionConfig())
+    assert np.array_equal(d[d > 0], v.depth_mm[d > 0])

@@ -28,8 +28,8 @@ class PreprocessConfig(BaseModel):
     max_incidence_deg: float = Field(80.0, gt=0, le=90, description="drop grazing points (incidence angle above this) [deg]")
     denoise: bool = Field(True, description="smooth each view's depth by an edge-preserving (bilateral) filter, "
                           "its range sigma from the view's own measured noise (the frames' spread), before "
-                          "everything else: registration, the joint fit and fusion work on it (fusion does not smooth "
-                          "it again). Measured (README, session 30) on the 20 scans of draw 68 on the mat: model mean "
+                          "everything else: registration, the joint fit and fusion work on it (a projective TSDF "
+                          "otherwise pulls noisy surfaces into the object: _preprocess.denoise_depth). Measured (README, session 30) on the 20 scans of draw 68 on the mat: model mean "
                           "|d| median 0.33 -> 0.28 mm, p90 0.72 -> 0.47 mm, the same verdicts; through the chain on "
                           "draw 67: 5 -> 2 runs truly wrong, 1 -> 0 missed, 2 -> 5 false alarms")
     denoise_window_px: int = Field(3, ge=3, description="window diameter of that filter [px] (odd; 3: the pixel and its 4 neighbours)")
@@ -468,12 +468,6 @@ class FusionConfig(BaseModel):
     trunc_mm: float | None = Field(None, description="TSDF truncation [mm]; None = max(4 sigma_eff, 3 voxels)")
     sigma_eff_1m_mm: float = Field(1.5, gt=0, description="effective depth uncertainty at 1 m after averaging/calibration [mm]")
     block_resolution: int = Field(8, description="voxels per block side")
-    denoise: bool = Field(True, description="smooth each view's depth by an edge-preserving (bilateral) filter "
-                          "before fusion, its range sigma from the view's own measured noise (the frames' spread); "
-                          "a projective TSDF otherwise pulls noisy surfaces into the object (_fusion.denoise_depth)")
-    denoise_window_px: int = Field(3, ge=3, description="window diameter of that filter [px] (odd; 3: the pixel and its 4 neighbours)")
-    denoise_range_sigmas: float = Field(3.0, gt=0, description="its range sigma, in the view's median standard "
-                                        "error of a pixel's mean over the fused pixels")
     poisson: bool = Field(False, description="also build a Poisson mesh of the fused cloud (density-trimmed)")
     poisson_depth: int = Field(9, description="Poisson octree depth")
     poisson_trim_quantile: float = Field(0.05, ge=0, lt=1, description="drop Poisson vertices of the lowest density quantile")

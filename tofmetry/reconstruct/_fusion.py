@@ -20,37 +20,6 @@ from tofmetry.reconstruct._o3d import to_pcd
 from tofmetry.sensor import CameraIntrinsics
 
 
-def denoise_depth(depth_mm: np.ndarray, range_sigma_mm: float, window_px: int = 3) -> np.ndarray:
-    """Edge-preserving smoothing of a depth map before TSDF fusion (a bilateral filter).
-
-    Open3D's projective TSDF skips an observation that puts a voxel more than the truncation
-    behind the measured surface and keeps one in front of it, however far. Where a pixel's noise is
-    not small against the truncation this keeps the voxels inside the surface positive more often
-    than negative, and the zero crossing moves into the object: measured on a simulated slab at
-    0.65 m, 5 frames per view (the standard error of a pixel's mean 1.3-3.1 mm, the truncation
-    3.8 mm), its faces came out 0.3-0.4 mm inside with the true poses, 0.05 with this filter over
-    each pixel and its 4 neighbours (the noise halved).
-    Neighbours farther in depth than a few range sigmas (another surface) get no weight, so
-    silhouettes and depth jumps are kept.
-
-    Parameters
-    ----------
-    depth_mm : (H, W) float [mm] Z, 0 = invalid
-    range_sigma_mm : range (depth-difference) sigma of the filter [mm]
-    window_px : window diameter [px] (odd; OpenCV's window is round: 3 px is the pixel and its 4
-        neighbours); its spatial sigma is half of it
-
-    Returns
-    -------
-    (H, W) float32 [mm], 0 where ``depth_mm`` is 0
-    """
-    d = np.asarray(depth_mm, np.float32)
-    if not range_sigma_mm > 0:
-        return d
-    f = cv2.bilateralFilter(d, int(window_px), float(range_sigma_mm), 0.5 * float(window_px))
-    return np.where(d > 0, f, 0.0).astype(np.float32)
-
-
 def undistort_maps(intr: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray]:
     """Source (distorted) pixel coordinates of each pixel of the undistorted pinhole grid.
 

@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 
 from tofmetry.errors import EstimationError
 from tofmetry.reconstruct._config import ReconstructionConfig
-from tofmetry.reconstruct._fusion import TSDFFusion, crop_mesh, denoise_depth, poisson_mesh
+from tofmetry.reconstruct._fusion import TSDFFusion, crop_mesh, poisson_mesh
 from tofmetry.reconstruct._world import transform_plane
 
 
@@ -48,56 +48,24 @@ def fuse_views(views, segs, poses: np.ndarray, intr, cfg: ReconstructionConfig, 
     voxel = fc.voxel_for(z_med, intr.fx)
     trunc = fc.trunc_for(z_med, voxel)
     tsdf = TSDFFusion(intr, voxel, trunc, depth_max_mm=cfg.preprocess.max_mm, block_resolution=fc.block_resolution)
-    sigmas = []
     with progress("TSDF fusion", len(views)) as adv:
         for v, s, T in zip(views, segs, poses):
-            d, sig = fusion_depth(v, s, cfg)
-            sigmas.append(sig)
-            tsdf.integrate(d, T)
+            tsdf.integrate(fusion_depth(v, s, cfg), T)
             adv()
     V, F, N, P, PN = tsdf.extract(1.0)  # surface seen by a single view is kept (undersides, flanks)
     return V, F, N, P, PN, {"voxel_mm": voxel, "trunc_mm": trunc, "median_object_depth_mm": z_med, "min_views": 1,
-                            "rule": "voxel = 0.6 * z / f; trunc = max(4 * sigma_eff(z), 3 voxels)",
-                            "denoise": denoise_info(sigmas, fc)}
+                            "rule": "voxel = 0.6 * z / f; trunc = max(4 * sigma_eff(z), 3 voxels)"}
 
 
-def fusion_depth(v, seg, cfg: ReconstructionConfig) -> tuple[np.ndarray, float]:
+def fusion_depth(v, seg, cfg: ReconstructionConfig) -> np.ndarray:
     """The depth (H, W) [mm] of view ``v`` that fusion integrates: the object and its ground ring only
-    (everything with ``cfg.segment.keep_all``), smoothed by :func:`denoise_view` when
-    ``cfg.fusion.denoise``. Returns (depth, the view's median standard error [mm] or NaN)."""
+    (everything with ``cfg.segment.keep_all``)."""
     d = v.depth_mm
-    if not cfg.segment.keep_all:
-        m = np.zeros(d.size, bool)
-        m[v.index[seg.object_mask | seg.ring_mask]] = True
-        d = np.where(m.reshape(d.shape), d, 0.0)
-    if not cfg.fusion.denoise or v.stats.get("denoised_with_standard_error_mm") is not None:
-        return d, float("nan")  # off, or smoothed in preprocessing already
-    return denoise_view(d, v.noise_mm, cfg.fusion)
-
-
-def denoise_info(sigmas: list[float], fc) -> dict | None:
-    """What the fusion's smoothing did (for the diagnostics): views smoothed, window, their median
-    standard error of a pixel's mean [mm]."""
-    if not fc.denoise:
-        return None
-    known = [s for s in sigmas if np.isfinite(s)]
-    return {"views": len(known), "window_px": fc.denoise_window_px, "range_sigmas": fc.denoise_range_sigmas,
-            "mean_standard_error_mm": round(float(np.median(known)), 3) if known else None}
-
-
-def denoise_view(depth_mm: np.ndarray, noise_mm: np.ndarray | None, fc) -> tuple[np.ndarray, float]:
-    """A view's depth (H, W) [mm] smoothed for fusion (:func:`~tofmetry.reconstruct._fusion.denoise_depth`)
-    with a range sigma of ``fc.denoise_range_sigmas`` times the median standard error of its fused
-    pixels' means (``noise_mm`` (H, W) [mm]); unchanged where that is unknown (single frames).
-    Returns (depth, that median [mm] or NaN)."""
-    if noise_mm is None:
-        return depth_mm, float("nan")
-    se = noise_mm[depth_mm > 0]
-    se = se[np.isfinite(se)]
-    if len(se) < 100:
-        return depth_mm, float("nan")
-    sigma = float(np.median(se))
-    return denoise_depth(depth_mm, fc.denoise_range_sigmas * sigma, fc.denoise_window_px), sigma
+    if cfg.segment.keep_all:
+        return d
+    m = np.zeros(d.size, bool)
+    m[v.index[seg.object_mask | seg.ring_mask]] = True
+    return np.where(m.reshape(d.shape), d, 0.0)
 
 
 def crop_mask(pts: np.ndarray, world_obj: np.ndarray, plane_w: np.ndarray | None, cfg: ReconstructionConfig) -> np.ndarray:

@@ -18,7 +18,6 @@ from tofmetry.calibrate import DepthCalibration, apply_depth_calibration, count_
 from tofmetry.pointcloud import depth_to_points, robust_mean_depth, temporal_stats
 from tofmetry.reconstruct._amplitude import amplitude_bias_mm
 from tofmetry.reconstruct._config import PreprocessConfig
-from tofmetry.reconstruct._fusion import denoise_depth
 from tofmetry.sensor import CameraIntrinsics
 
 
@@ -36,9 +35,6 @@ class ViewData:
     cos_incidence : (N,) float64 cosine of the angle between normal and line of sight
     ir : (H, W) float or None, mean IR amplitude
     stats : dict of counts (valid, flying removed, out of range, grazing)
-    noise_mm : (H, W) float32 [mm] standard error of each pixel's temporal mean (the frames' sample
-        standard deviation / sqrt(frames)); NaN where fewer than two frames were valid; None when
-        not measured
     """
 
     name: str
@@ -49,7 +45,6 @@ class ViewData:
     cos_incidence: np.ndarray
     ir: np.ndarray | None
     stats: dict
-    noise_mm: np.ndarray | None = None
 
 
 def corrected_mean_depth(stack: np.ndarray, calibration: DepthCalibration | None = None, k: float = 3.0,
@@ -122,11 +117,11 @@ def prepare_view(stack: np.ndarray, intr: CameraIntrinsics, calibration=None, co
         cleaned = np.asarray(remove_flying_pixels(depth, intr), dtype=np.float64)
         n_flying = int(((depth > 0) & (cleaned <= 0)).sum())
         depth = cleaned
-    noise = mean_standard_error(stack)
     smoothed = None
-    if cfg.denoise:  # every stage then works on the smoothed depth (fusion does not smooth it again)
-        se = noise[(depth > 0) & np.isfinite(noise)]
-        if len(se) >= 100:
+    if cfg.denoise:  # every stage then works on the smoothed depth: registration, the joint fit, fusion
+        se = mean_standard_error(stack)
+        se = se[(depth > 0) & np.isfinite(se)]
+        if len(se) >= 100:  # unknown for single frames: left as it is
             smoothed = float(np.median(se))
             depth = denoise_depth(depth, cfg.denoise_range_sigmas * smoothed, cfg.denoise_window_px).astype(np.float64)
     lo, hi = cfg.min_mm, cfg.max_mm
@@ -149,7 +144,38 @@ def prepare_view(stack: np.ndarray, intr: CameraIntrinsics, calibration=None, co
              "flying_removed": n_flying, "out_of_range": int(out_range.sum()),
              "grazing_removed": int(grazing.sum()), "points": int(keep.sum()),
              "amplitude_bias_median_mm": amp_mean, "denoised_with_standard_error_mm": smoothed}
-    return ViewData(name, depth, pts[keep], idx[keep], normals[keep], cos_inc[keep], ir, stats, noise_mm=noise)
+    return ViewData(name, depth, pts[keep], idx[keep], normals[keep], cos_inc[keep], ir, stats)
+
+
+def denoise_depth(depth_mm: np.ndarray, range_sigma_mm: float, window_px: int = 3) -> np.ndarray:
+    """Edge-preserving smoothing of a depth map (a bilateral filter), before registration and fusion.
+
+    Open3D's projective TSDF skips an observation that puts a voxel more than the truncation
+    behind the measured surface and keeps one in front of it, however far. Where a pixel's noise is
+    not small against the truncation this keeps the voxels inside the surface positive more often
+    than negative, and the zero crossing moves into the object: measured on a simulated slab at
+    0.65 m, 5 frames per view (the standard error of a pixel's mean 1.3-3.1 mm, the truncation
+    3.8 mm), its faces came out 0.3-0.4 mm inside with the true poses, 0.05 with this filter over
+    each pixel and its 4 neighbours (the noise halved).
+    Neighbours farther in depth than a few range sigmas (another surface) get no weight, so
+    silhouettes and depth jumps are kept.
+
+    Parameters
+    ----------
+    depth_mm : (H, W) float [mm] Z, 0 = invalid
+    range_sigma_mm : range (depth-difference) sigma of the filter [mm]
+    window_px : window diameter [px] (odd; OpenCV's window is round: 3 px is the pixel and its 4
+        neighbours); its spatial sigma is half of it
+
+    Returns
+    -------
+    (H, W) float32 [mm], 0 where ``depth_mm`` is 0
+    """
+    d = np.asarray(depth_mm, np.float32)
+    if not range_sigma_mm > 0:
+        return d
+    f = cv2.bilateralFilter(d, int(window_px), float(range_sigma_mm), 0.5 * float(window_px))
+    return np.where(d > 0, f, 0.0).astype(np.float32)
 
 
 def mean_standard_error(stack: np.ndarray) -> np.ndarray:

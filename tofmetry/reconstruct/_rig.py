@@ -29,7 +29,7 @@ from scipy.spatial import cKDTree
 from tofmetry.errors import InputError, SensorMismatchError
 from tofmetry.reconstruct._colour import colour_model
 from tofmetry.reconstruct._fusion import TSDFFusion
-from tofmetry.reconstruct._model_build import denoise_info, fusion_depth, median_object_depth_m
+from tofmetry.reconstruct._model_build import fusion_depth, median_object_depth_m
 from tofmetry.reconstruct._pipeline import ReconstructionPipeline, ReconstructionResult
 from tofmetry.reconstruct._world import transform_plane
 
@@ -160,17 +160,13 @@ class RigReconstruction(ReconstructionPipeline):
         trunc = fc.trunc_for(z_med, voxel)
         tsdf = TSDFFusion(self.sensors[0].intrinsics, voxel, trunc, depth_max_mm=self.cfg.preprocess.max_mm,
                           block_resolution=fc.block_resolution)
-        sigmas = []
         with self.progress("TSDF fusion", len(views)) as adv:
             for v, seg, T, s in zip(views, segs, poses, self.sensors):
-                d, sig = fusion_depth(v, seg, self.cfg)
-                sigmas.append(sig)
-                tsdf.integrate(d, T, s.intrinsics)
+                tsdf.integrate(fusion_depth(v, seg, self.cfg), T, s.intrinsics)
                 adv()
         return (*tsdf.extract(1.0), {"voxel_mm": voxel, "trunc_mm": trunc, "median_object_depth_mm": z_med,
                                      "min_views": 1, "rule": "voxel = 0.6 * z / f (mean f of the sensors); "
-                                                             "trunc = max(4 * sigma_eff(z), 3 voxels)",
-                                     "denoise": denoise_info(sigmas, fc)})
+                                                             "trunc = max(4 * sigma_eff(z), 3 voxels)"})
 
     def rig_check(self, views, segs, poses) -> tuple[list, list, list]:
         """Check the rig against the data, pair by pair: the ICP correction of one view's object points
