@@ -102,6 +102,19 @@ def test_a_fit_that_slides_a_view_off_its_placement_is_named():
     assert out["c"][0] == pytest.approx(0.8, abs=1e-3) and out["a"][1] == pytest.approx(4.0, abs=1e-3)
 
 
+def test_a_fit_the_calibration_can_move_beyond_the_gate_is_named():
+    """The joint fit gives way to the placements when the calibration's residual alone can move its
+    poses beyond the gate at p90 (rotation or displacement), not when the views' noise can."""
+    from tofmetry.reconstruct._mat_stage import calibration_beyond_gate
+
+    cp = {"rot_deg": {"p50": 0.2, "p90": 0.3}, "object_mm": {"p50": 1.0, "p90": 2.0},
+          "with_noise": {"rot_deg": {"p90": 1.1}, "object_mm": {"p90": 5.0}}}
+    assert calibration_beyond_gate(cp, 0.5, 3.0) is None
+    assert calibration_beyond_gate({**cp, "object_mm": {"p90": 4.8}}, 0.5, 3.0) == (0.3, 4.8)
+    assert calibration_beyond_gate({**cp, "rot_deg": {"p90": 0.51}}, 0.5, 3.0) == (0.51, 2.0)
+    assert calibration_beyond_gate(None, 0.5, 3.0) is None
+
+
 def test_the_dots_measure_the_depth_scale(mat_scan):
     """Perfect depth: the dots come out the printed size, within their own 3 sigma (~0.1 % per view:
     20+ dots, 2.5 mm pixels on the mat). The same views with a depth gain of +1 % (points and support

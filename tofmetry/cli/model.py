@@ -396,7 +396,7 @@ def plan(
     calibration: Path | None = typer.Option(None, "--calibration", help="Depth calibration (intrinsics, predicted error)."),
     distance: float | None = typer.Option(None, "--distance", help="Distance of the views from the object centre [m]."),
     target: float = typer.Option(0.9, "--target", help="Completeness the scan should reach (0-1); views are proposed "
-                                 "that are predicted to reach it plus 3.3 points, the prediction's p95 over-estimate."),
+                                 "that are predicted to reach it plus 2.8 points, the prediction's p95 over-estimate."),
     frames: int = typer.Option(10, "--frames", help="Frames per view."),
     views: str | None = typer.Option(None, "--views", help="Also predict these views: ring:N:ELEV[:M:ELEV2] (N views at "
                                      "ELEV deg, plus M zenithal views at ELEV2)."),

@@ -139,7 +139,7 @@ def plan_acquisition(*, size: tuple[float, float, float] | None = None, mesh: st
     if cal is not None:
         cal_mm = float(((cal.prediction or {}).get("interpolation") or {}).get("central_abs_mm", {}).get("predicted", 0.5))
     kw = {"n_frames": n_frames, "calibration_mm": cal_mm}
-    aim = aim_for(target)  # the prediction over-estimates by up to 3.3 points (p95): aim that much higher
+    aim = aim_for(target)  # the prediction over-estimates by up to 2.8 points (p95, PREDICTION_ERROR_PTS): aim that much higher
     best, ranked = propose(obj, intr, aim, distance_m, **kw)
     asked = None
     if views is not None:

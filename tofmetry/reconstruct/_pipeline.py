@@ -29,7 +29,7 @@ from tofmetry.reconstruct._model_build import (
     world_plane,
 )
 from tofmetry.reconstruct._pattern_search import search_by_pattern
-from tofmetry.reconstruct._mat_stage import departures, pattern_scale, pattern_scale_warning, place_views
+from tofmetry.reconstruct._mat_stage import calibration_beyond_gate, departures, pattern_scale, pattern_scale_warning, place_views
 from tofmetry.reconstruct._posegraph import PoseGraphBuilder
 from tofmetry.reconstruct._preprocess import ViewData, prepare_view
 from tofmetry.reconstruct._register import register_pair, rejection_reason
@@ -311,12 +311,14 @@ class ReconstructionPipeline:
                                                    for e in kept_edges),
                           self.tied_starts, None if self.mat is None else self.mat.prior(rc.mat_prior_deg, rc.mat_prior_mm))
         t2 = time.perf_counter()
-        mat_kept = None
-        if self.mat is not None and adj is not None:  # a fit that slides a view off its placement is not kept
+        mat_kept, mat_unsure = None, None
+        if self.mat is not None and adj is not None:  # the placements stand unless the fit is surely better
+            mat_unsure = calibration_beyond_gate(adj.calibration_pose, rc.pose_gate_deg, rc.pose_gate_mm)
             centre = np.concatenate([v.points[s.object_mask] @ T[:3, :3].T + T[:3, 3]
                                      for v, s, T in zip(views, segs, start)]).mean(0)
-            mat_kept = departures(start, adj.poses, centre, rc.pose_gate_deg, rc.pose_gate_mm, names)
-            if mat_kept:
+            mat_kept = None if mat_unsure else departures(start, adj.poses, centre, rc.pose_gate_deg, rc.pose_gate_mm,
+                                                          names)
+            if mat_kept or mat_unsure:
                 adj = None
         poses = start if adj is None else adj.poses
         V, F, N, P, PN, fusion_info = self.fuse(views, segs, poses, intr)
@@ -358,6 +360,11 @@ class ReconstructionPipeline:
                          turntable_accuracy_deg=rc.turntable_accuracy_deg,
                          turntable_placed=bool(self.turntable), restart_share=rc.restart_share,
                          placed=None if self.mat is None else {"by": "the dot mat", "views": self.mat.view_verdicts()})
+        if mat_unsure:
+            verdict["warnings"].append(
+                f"the depth calibration's residual could move the joint fit's poses by up to {mat_unsure[0]:g} deg / "
+                f"{mat_unsure[1]:g} mm at the object (p90), beyond the pose gate ({rc.pose_gate_deg:g} deg / "
+                f"{rc.pose_gate_mm:g} mm): the dot mat's placements are kept, unrefined")
         if mat_kept:
             verdict["warnings"].append(
                 "the joint fit moved view(s) " + ", ".join(f"{n} by {d:.2f} deg / {m:.1f} mm" for n, (d, m) in
