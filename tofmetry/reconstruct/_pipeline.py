@@ -304,6 +304,7 @@ class ReconstructionPipeline:
                                                              self.cfg.registration.turntable_step_deg,
                                                              np.array(self.turntable["axis"]),
                                                              self.cfg.registration.turntable_tol_deg)
+        before_fit = [(v.points, v.depth_mm, sg.plane) for v, sg in zip(views, segs)]  # the fit corrects them
         adj = self.adjust(views, segs, regs, start, (graph.consistency or {}).get("loops"),
                           [(idx[e["source"]], idx[e["target"]]) for e in kept_edges],
                           [e.get("ir_corr") for e in kept_edges],
@@ -318,8 +319,10 @@ class ReconstructionPipeline:
                                      for v, s, T in zip(views, segs, start)]).mean(0)
             mat_kept = None if mat_unsure else departures(start, adj.poses, centre, rc.pose_gate_deg, rc.pose_gate_mm,
                                                           names)
-            if mat_kept or mat_unsure:
+            if mat_kept or mat_unsure:  # a fit not kept leaves the views' depth as it found it
                 adj = None
+                for v, sg, (pts, depth, plane) in zip(views, segs, before_fit):
+                    v.points, v.depth_mm, sg.plane = pts, depth, plane
         poses = start if adj is None else adj.poses
         V, F, N, P, PN, fusion_info = self.fuse(views, segs, poses, intr)
         t3 = time.perf_counter()
