@@ -141,7 +141,8 @@ class Prediction:
     n_views : number of views
     completeness_range : (low, high): the share some view sees within the sure incidence (the
         grazing surfaces all lost), and the share some view sees at all up to the last grazing
-        limit (all kept); ``completeness`` lies between
+        limit (all kept); ``completeness`` lies between, or just below the low end where a large
+        share is seen squarely by one view alone (counted whole there, 0.9 in the prediction)
     """
 
     completeness: float
