@@ -94,32 +94,33 @@ class Draw:
 
 
 def draw_case(seed: int, mesh_dir: Path | None = MESH_DIR, reduced: bool = False,
-              complete_to: float | None = None, planned: float | None = None) -> Draw:
+              complete_to: float | None = None, planned: float | None = None, plan_kw: dict | None = None) -> Draw:
     """The object, path and sensor of ``seed`` (``reduced``: 6-8 views, procedural objects up to 0.35 m).
 
     ``complete_to``: the path as drawn, plus the views :func:`tofmetry.plan.complete` adds so that
     the plan predicts that completeness (a user who asks ``tofmetry plan`` what the scan misses,
     with the object's mesh); each added view goes into the loop where its azimuth falls.
     ``planned``: the path :func:`planned_path` gives instead of the drawn one (the same object,
-    sensor, distance and kind)."""
+    sensor, distance and kind). ``plan_kw``: keywords of the plan's prediction for both
+    (:func:`tofmetry.plan.predict`: e.g. ``{"single_view": 1.0}``, the rule before 2026-12-02)."""
     md = mesh_dir if mesh_dir is not None and Path(mesh_dir).is_dir() else None
     obj = random_object(seed, md)
     path = random_path(seed, obj.centre_m, float(obj.extent_m.max()), n_views=(6, 8) if reduced else (6, 16))
     sensor = random_sensor(seed)
     if planned is not None:
-        path = planned_path(obj, path, sensor.intrinsics, planned, seed)
+        path = planned_path(obj, path, sensor.intrinsics, planned, seed, plan_kw)
     if complete_to is not None:
         from tofmetry.plan import PlanObject, complete
 
         poses, added, _ = complete(PlanObject(obj.vertices, obj.triangles, "mesh"), path.poses, sensor.intrinsics,
-                                   target=complete_to)
+                                   target=complete_to, **(plan_kw or {}))
         path = replace(path, kind=path.kind + ("+planned" if added else ""), poses=poses,
                        params={**path.params, "drawn_views": path.n_views, "planned_views": added,
                                "complete_to": complete_to})
     return Draw(int(seed), obj, path, sensor)
 
 
-def planned_path(obj, drawn, intr, target: float, seed: int):
+def planned_path(obj, drawn, intr, target: float, seed: int, plan_kw: dict | None = None):
     """The views ``tofmetry plan --mesh --target TARGET`` proposes for ``obj`` at the drawn path's
     distance (:func:`tofmetry.plan.propose` aiming at :func:`tofmetry.plan.aim_for` of the target, as
     the command does; the best candidate when none reaches it), walked as the
@@ -129,7 +130,8 @@ def planned_path(obj, drawn, intr, target: float, seed: int):
     from tofmetry.plan import PlanObject, aim_for, propose
     from tofmetry.simulate.paths import handheld, two_rings
 
-    best, ranked = propose(PlanObject(obj.vertices, obj.triangles, "mesh"), intr, aim_for(target), drawn.distance_m)
+    best, ranked = propose(PlanObject(obj.vertices, obj.triangles, "mesh"), intr, aim_for(target), drawn.distance_m,
+                           **(plan_kw or {}))
     prop = best or ranked[0]
     pr = prop.params
     start = float(drawn.params.get("start_deg", 0.0))

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import json
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -31,18 +30,10 @@ import numpy as np
 from bench.robustness.family import MESH_DIR, draw_case
 from tofmetry.plan import PlanObject, predict, reconstructed_share, seen_cosines
 from tofmetry.plan._plan import GRAZING_KEEP, SURE_INCIDENCE_DEG
-from tofmetry.plan._plan import reconstructed_share as _share
 
 
-@contextmanager
-def rule_before_2026_12_02():
-    """The plan's prediction with a single-view chance of 1, as the stored rows were planned."""
-    keep = _share.__defaults__
-    _share.__defaults__ = keep[:-1] + (1.0,)
-    try:
-        yield
-    finally:
-        _share.__defaults__ = keep
+#: the plan's prediction as the stored rows were planned: a single-view chance of 1 (before 2026-12-02)
+RULE_BEFORE_2026_12_02 = {"single_view": 1.0}
 
 
 def rebuilt_runs(paths: list[str], planned: bool = True) -> list[dict]:
@@ -58,8 +49,7 @@ def rebuilt_runs(paths: list[str], planned: bool = True) -> list[dict]:
             if "+planned" in kind or ("+plan" in kind and not planned):
                 continue
             target = r["path"].get("plan_target") if "+plan" in kind else None
-            with rule_before_2026_12_02():
-                d = draw_case(r["seed"], MESH_DIR, False, None, target)
+            d = draw_case(r["seed"], MESH_DIR, False, None, target, plan_kw=RULE_BEFORE_2026_12_02)
             obj = PlanObject(d.object.vertices, d.object.triangles, "mesh")
             cos = seen_cosines(obj, d.path.poses, d.sensor.intrinsics, grazing_limit_deg=GRAZING_KEEP[-1][0])
             old = float(reconstructed_share(cos, SURE_INCIDENCE_DEG, GRAZING_KEEP, 1.0).mean())

@@ -9,8 +9,10 @@ against the reference mesh by :func:`tofmetry.evaluate.scale_from_reference` (th
 rigid motion, a scale about the centroid and an offset along the normals):
 
 * ``points_true``: the views' prepared object points placed by the **true** poses (the depth chain alone:
-  calibration, amplitude correction, noise; no registration, no fusion);
-* ``fused_true``: those views fused at the true poses (the depth chain and the fusion);
+  calibration, amplitude correction with the coefficient the boards measure, noise; no registration, no
+  fusion), those more than half the segmentation's minimum height above the ground;
+* ``fused_true``: those views fused at the true poses, cropped to the object as the pipeline crops and judged
+  as the family judges a model (the depth chain and the fusion);
 * ``model``: the reconstruction as ``tofmetry reconstruct`` makes it (registration, joint fit, fusion),
   aligned to the reference as the family aligns it.
 
@@ -19,8 +21,15 @@ response to noise on this shape), one that appears in ``fused_true`` the fusion'
 ``--errors`` keeps only some error terms of the sensor (:func:`bench.robustness.drift.keep_errors`); without the
 amplitude bias the amplitude correction is switched off as well.
 
-Measured (2026-12-02, session 30, 5066a02: every stage on smoothed depth; README), two development draws of
-draw 68 on the mat: a plaque (1558612541, 0.22 m, 11 hand-held views at 0.68 m) +0.28 % at the true poses
+Measured (2026-12-02, session 32, with the stages above): the plaque 1118179638 (draw 72, 6 views at 0.80 m,
+its drawn path) +0.01 % at the true poses, +0.07 % fused there, +0.59 % through the chain: its scale error is the
+poses'. The plaque 1558612541 +0.29 / +0.19 / +0.71 %, the igea 412929893 +0.52 / +0.42 / +0.33 %. Before
+session 32 the first two stages ran without the boards' coefficient (the default one), and ``fused_true`` took
+the fused vertices within 0.75 object sizes of the centre, the ground ring with them: the plaque 1118179638 read
++0.015 % (offset -0.26 mm) and +0.32 %.
+
+Earlier (2026-12-02, session 30, 5066a02: every stage on smoothed depth; the first two stages as they were
+before session 32; README), two development draws of draw 68 on the mat: a plaque (1558612541, 0.22 m, 11 hand-held views at 0.68 m) +0.28 % at the true poses
 (points), +0.35 % fused there, +0.71 % through the chain (the poses put its faces 0.5 mm closer); an igea
 (412929893, 0.19 m, 14 views at 0.76 m) +0.46 / +0.40 / +0.53 %: its scale error is the depth chain's. Before
 the smoothing the plaque's points at the true poses read +1.14 % (the measure's response to 2-3 mm of noise per
@@ -58,9 +67,10 @@ def sources_case(seed: int, work: Path, mat: bool = False, errors: str = "all", 
     from tofmetry.evaluate import EvaluationConfig, evaluate_model
     from tofmetry.io import ScanDataset, read_json
     from tofmetry.io.mesh import Geometry
-    from tofmetry.pipelines.reconstruct import reconstruct_scan
+    from tofmetry.pipelines.amplitude_slope import amplitude_slope_from_boards
+    from tofmetry.pipelines.reconstruct import reconstruct_scan, with_measured_amplitude_slope
     from tofmetry.reconstruct import ReconstructionConfig, ReconstructionPipeline, poses_document
-    from tofmetry.reconstruct._model_build import fuse_views
+    from tofmetry.reconstruct._model_build import crop_model, fuse_views
     from tofmetry.reconstruct._pipeline import _no_progress
     from tofmetry.simulate import datasets
 
@@ -78,16 +88,25 @@ def sources_case(seed: int, work: Path, mat: bool = False, errors: str = "all", 
         cfg.registration.mat = dm.to_dict()
     ref = Geometry(d.object.vertices, d.object.triangles, source="reference")
     ds = ScanDataset(scan_dir)
-    views, segs, _, intr = ReconstructionPipeline(ds, cal, cfg, white_map=white).load_views()
+    # the views' depth as reconstruct_scan prepares it: with the amplitude coefficient the boards measure
+    # (before 2026-12-02 these two stages ran with the default coefficient, and read the bias it leaves)
+    cfg_views = cfg if boards is None else with_measured_amplitude_slope(
+        cfg, amplitude_slope_from_boards(boards, cal))
+    views, segs, _, intr = ReconstructionPipeline(ds, cal, cfg_views, white_map=white).load_views()
     by = {v["name"]: np.asarray(v["camera_to_world"]) for v in read_json(scan_dir / "truth.json")["views"]}
     W = np.array([by[n] for n in ds.names])
     pts = np.concatenate([v.points[s.object_mask] @ T[:3, :3].T + T[:3, 3] for v, s, T in zip(views, segs, W)])
+    above = pts[:, 2] > float(d.object.vertices[:, 2].min()) + 0.5 * cfg.segment.min_height_mm * 1e-3
     row = {"seed": int(seed), "object": d.object.name, "size_m": round(float(d.object.size_m), 4),
            "path": d.path.kind, "n_views": int(d.path.n_views), "mat": mat, "errors": errors,
-           "points_true": _scale(pts, ref)}
-    V = fuse_views(views, segs, W, intr, cfg, _no_progress)[0]
-    near = np.linalg.norm(V - d.object.vertices.mean(0), axis=1) < 0.75 * float(d.object.size_m)
-    row["fused_true"] = _scale(V[near], ref)
+           "points_true": _scale(pts[above], ref)}
+    # fused at the true poses, cropped to the object as the pipeline crops (the true ground is z = 0) and
+    # judged as the family judges a model (aligned, the reference's underside left out)
+    V, F, N, P, PN, _ = fuse_views(views, segs, W, intr, cfg_views, _no_progress)
+    V, F = crop_model(V, F, N, P, PN, pts, np.array([0.0, 0.0, 1.0, 0.0]), cfg_views)[:2]
+    ev_true = evaluate_model(Geometry(V, F, source="fused at the true poses"), ref,
+                             EvaluationConfig(align=True, exclude_normal=(0.0, 0.0, -1.0)))
+    row["fused_true"] = _scale(ev_true.points, ref) | {"mean_signed_mm": round(ev_true.stats_trimmed.mean_signed_mm, 3)}
     res = reconstruct_scan(scan_dir, cal, None, config=cfg, white_map=white, amplitude_boards=boards)
     model = Geometry(res.mesh_vertices, res.mesh_triangles, source="model")
     ev = evaluate_model(model, ref, EvaluationConfig(align=True, exclude_normal=(0.0, 0.0, -1.0)),

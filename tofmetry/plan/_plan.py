@@ -314,12 +314,13 @@ def reconstructed_share(cosines: np.ndarray, max_incidence_deg: float = SURE_INC
 def predict(obj: PlanObject, poses, intr: CameraIntrinsics, *, n_frames: int = 10, max_mm: float = 2500.0,
             min_mm: float = 500.0, max_incidence_deg: float = SURE_INCIDENCE_DEG, grazing: tuple = GRAZING_KEEP,
             spacing_mm: float = 3.0, noise_1m_mm: float = 1.3, calibration_mm: float = 0.5, seed: int = 0,
-            cosines: np.ndarray | None = None) -> Prediction:
+            cosines: np.ndarray | None = None, single_view: float = SINGLE_VIEW_KEEP) -> Prediction:
     """Predicted completeness, successive overlaps and accuracy of ``poses`` (module docstring).
 
     ``cosines``: the views' incidence cosines (V, N) when already computed (:func:`seen_cosines`
     with the same ``min_mm``, ``max_mm``, ``spacing_mm`` and ``seed``, and a grazing limit at least
-    the last of ``grazing``)."""
+    the last of ``grazing``). ``grazing`` and ``single_view``: the chances of
+    :func:`reconstructed_share`."""
     poses = [np.asarray(T, np.float64) for T in poses]
     if len(poses) < 1:
         raise InputError("plan: no views to predict")
@@ -329,7 +330,7 @@ def predict(obj: PlanObject, poses, intr: CameraIntrinsics, *, n_frames: int = 1
                                spacing_mm=spacing_mm, seed=seed)
     S = _within(cosines, max_incidence_deg)
     count = S.sum(0)
-    comp = float(reconstructed_share(cosines, max_incidence_deg, grazing).mean())
+    comp = float(reconstructed_share(cosines, max_incidence_deg, grazing, single_view).mean())
     glimpsed = float(_within(cosines, limit).any(0).mean())
     V = len(poses)
     ov = np.zeros(V)
@@ -461,6 +462,7 @@ def complete(obj: PlanObject, poses, intr: CameraIntrinsics, target: float = 0.9
     geo = {k: kw[k] for k in ("min_mm", "max_mm", "spacing_mm", "seed") if k in kw}
     inc = kw.get("max_incidence_deg", SURE_INCIDENCE_DEG)
     grazing = kw.get("grazing", GRAZING_KEEP)
+    single_view = kw.get("single_view", SINGLE_VIEW_KEEP)
     every = poses + cand  # indexed like the rows of S
     cos = seen_cosines(obj, every, intr, grazing_limit_deg=_grazing_limit(inc, grazing), **geo)
     S = _within(cos, inc)
@@ -470,7 +472,7 @@ def complete(obj: PlanObject, poses, intr: CameraIntrinsics, target: float = 0.9
     order = list(range(n))  # indices into ``every``, in loop order
     have = S[:n].any(0)
     added: list[int] = []
-    while reconstructed_share(cos[order], inc, grazing).mean() < target and len(added) < max_added:
+    while reconstructed_share(cos[order], inc, grazing, single_view).mean() < target and len(added) < max_added:
         best = None
         for j in range(n, len(every)):
             if j in order:
