@@ -245,6 +245,14 @@ def board_captures(draw, seed: int, work: Path, n_frames: int = 10) -> list[Path
                                seed=seed + 11 + k, force=True) for k, z in enumerate(BOARD_DISTANCES_M)]
 
 
+def judging_config():
+    """The evaluation the family judges a model with: aligned to the reference, the reference's
+    underside (the face it stands on) left out."""
+    from tofmetry.evaluate import EvaluationConfig
+
+    return EvaluationConfig(align=True, exclude_normal=(0.0, 0.0, -1.0))
+
+
 def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, mesh_dir: Path | None = MESH_DIR,
              keep: bool = False, config=None, stations_mm=FAMILY_DISTANCES_MM, boards: bool = True,
              complete_to: float | None = None, turntable: float | None = None, turntable_jitter: float = 0.0,
@@ -256,7 +264,7 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
     views turned about the vertical through the object by N(0, jitter) [deg] each, as a manual
     turntable's steps are off); ``mat``: the object stands on a printed dot mat (:func:`draw_mat`);
     returns one JSON-able row."""
-    from tofmetry.evaluate import EvaluationConfig, evaluate_model, pose_errors, scale_from_reference
+    from tofmetry.evaluate import evaluate_model, pose_errors, scale_from_reference
     from tofmetry.io import read_json
     from tofmetry.io.mesh import Geometry
     from tofmetry.pipelines.reconstruct import reconstruct_scan
@@ -338,7 +346,7 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
                slab=res.diagnostics.get("slab"), mat_fixes=res.diagnostics.get("mat"))
     model = Geometry(res.mesh_vertices, res.mesh_triangles, source="model")
     try:
-        ev = evaluate_model(model, ref, EvaluationConfig(align=True, exclude_normal=(0.0, 0.0, -1.0)), poses=doc)
+        ev = evaluate_model(model, ref, judging_config(), poses=doc)
         st = ev.stats_trimmed
         sc = scale_from_reference(ev.points, ref)
         row.update(mean_mm=round(st.mean_abs_mm, 3), std_mm=round(st.std_signed_mm, 3),

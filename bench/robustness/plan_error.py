@@ -52,7 +52,7 @@ def rebuilt_runs(paths: list[str], planned: bool = True) -> list[dict]:
             d = draw_case(r["seed"], MESH_DIR, False, None, target, plan_kw=RULE_BEFORE_2026_12_02)
             obj = PlanObject(d.object.vertices, d.object.triangles, "mesh")
             cos = seen_cosines(obj, d.path.poses, d.sensor.intrinsics, grazing_limit_deg=GRAZING_KEEP[-1][0])
-            old = float(reconstructed_share(cos, SURE_INCIDENCE_DEG, GRAZING_KEEP, 1.0).mean())
+            old = float(reconstructed_share(cos, SURE_INCIDENCE_DEG, GRAZING_KEEP, **RULE_BEFORE_2026_12_02).mean())
             if abs(old - r["plan_completeness"]) > 2e-4:
                 print(f"  {Path(p).name} {r['seed']}: views not rebuilt ({old:.4f} vs {r['plan_completeness']}), left out")
                 continue

@@ -48,7 +48,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.robustness.drift import keep_errors
-from bench.robustness.family import board_captures, calibrate_sensor, config_with, draw_case, draw_mat
+from bench.robustness.family import board_captures, calibrate_sensor, config_with, draw_case, draw_mat, judging_config
 
 
 def _scale(points: np.ndarray, ref) -> dict:
@@ -64,7 +64,7 @@ def _scale(points: np.ndarray, ref) -> dict:
 
 def sources_case(seed: int, work: Path, mat: bool = False, errors: str = "all", config=None, n_frames: int = 5) -> dict:
     """One draw's scale at each stage (module docstring); returns one JSON-able row."""
-    from tofmetry.evaluate import EvaluationConfig, evaluate_model
+    from tofmetry.evaluate import evaluate_model
     from tofmetry.io import ScanDataset, read_json
     from tofmetry.io.mesh import Geometry
     from tofmetry.pipelines.amplitude_slope import amplitude_slope_from_boards
@@ -104,13 +104,11 @@ def sources_case(seed: int, work: Path, mat: bool = False, errors: str = "all", 
     # judged as the family judges a model (aligned, the reference's underside left out)
     V, F, N, P, PN, _ = fuse_views(views, segs, W, intr, cfg_views, _no_progress)
     V, F = crop_model(V, F, N, P, PN, pts, np.array([0.0, 0.0, 1.0, 0.0]), cfg_views)[:2]
-    ev_true = evaluate_model(Geometry(V, F, source="fused at the true poses"), ref,
-                             EvaluationConfig(align=True, exclude_normal=(0.0, 0.0, -1.0)))
+    ev_true = evaluate_model(Geometry(V, F, source="fused at the true poses"), ref, judging_config())
     row["fused_true"] = _scale(ev_true.points, ref) | {"mean_signed_mm": round(ev_true.stats_trimmed.mean_signed_mm, 3)}
-    res = reconstruct_scan(scan_dir, cal, None, config=cfg, white_map=white, amplitude_boards=boards)
+    res = reconstruct_scan(scan_dir, cal, None, config=cfg_views, white_map=white)  # the boards' coefficient, fitted once
     model = Geometry(res.mesh_vertices, res.mesh_triangles, source="model")
-    ev = evaluate_model(model, ref, EvaluationConfig(align=True, exclude_normal=(0.0, 0.0, -1.0)),
-                        poses=poses_document(res))  # as the family aligns it
+    ev = evaluate_model(model, ref, judging_config(), poses=poses_document(res))  # as the family aligns it
     row["model"] = _scale(ev.points, ref) | {"mean_signed_mm": round(ev.stats_trimmed.mean_signed_mm, 3)}
     row["reliable"] = bool(res.diagnostics.get("reliable"))
     shutil.rmtree(scan_dir, ignore_errors=True)

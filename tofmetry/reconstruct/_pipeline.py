@@ -304,7 +304,8 @@ class ReconstructionPipeline:
                                                              self.cfg.registration.turntable_step_deg,
                                                              np.array(self.turntable["axis"]),
                                                              self.cfg.registration.turntable_tol_deg)
-        before_fit = [(v.points, v.depth_mm, sg.plane) for v, sg in zip(views, segs)]  # the fit corrects them
+        # on a mat the placements may overrule the fit, which corrects the views' depth: what it found is kept
+        before_fit = [(v.points, v.depth_mm, sg.plane) for v, sg in zip(views, segs)] if self.mat is not None else []
         adj = self.adjust(views, segs, regs, start, (graph.consistency or {}).get("loops"),
                           [(idx[e["source"]], idx[e["target"]]) for e in kept_edges],
                           [e.get("ir_corr") for e in kept_edges],
