@@ -24,7 +24,8 @@ from scipy.spatial import cKDTree
 from tofmetry.errors import InputError
 
 
-def project_to_local_planes(points: np.ndarray, k: int = 12) -> np.ndarray:
+def project_to_local_planes(points: np.ndarray, k: int = 12, normals: np.ndarray | None = None,
+                            max_normal_deg: float | None = None) -> np.ndarray:
     """Each point moved along its local normal onto the plane fitted to its ``k`` nearest neighbours.
 
     The plane is the least-squares one through the neighbours (their centroid and the smallest
@@ -37,6 +38,10 @@ def project_to_local_planes(points: np.ndarray, k: int = 12) -> np.ndarray:
     ----------
     points : (N, 3) float [m], any frame
     k : neighbours per plane (>= 3; the point itself included)
+    normals, max_normal_deg : (N, 3) unit normals of ``points`` and an angle [deg]: only the neighbours
+        whose normal lies within this angle of the point's own enter its plane (the point always
+        does), so that a point near an edge is projected on its own face and not on a plane that
+        cuts the edge; a point left with fewer than 3 such neighbours is kept as it is
 
     Returns
     -------
@@ -51,8 +56,23 @@ def project_to_local_planes(points: np.ndarray, k: int = 12) -> np.ndarray:
         return p
     _, idx = cKDTree(p).query(p, int(k), workers=-1)
     nb = p[idx]
-    m = nb.mean(1)
-    q = nb - m[:, None]
+    if normals is None or max_normal_deg is None:
+        m = nb.mean(1)
+        q = nb - m[:, None]
+        _, vec = np.linalg.eigh(np.einsum("nki,nkj->nij", q, q))
+        n = vec[:, :, 0]  # smallest principal direction: the local normal
+        return p - n * np.einsum("ij,ij->i", p - m, n)[:, None]
+    nr = np.asarray(normals, np.float64)
+    if nr.shape != p.shape:
+        raise InputError(f"project_to_local_planes: normals must be (N, 3) like the points {p.shape}, found {nr.shape}")
+    w = (np.einsum("nkj,nj->nk", nr[idx], nr) >= np.cos(np.radians(max_normal_deg))).astype(np.float64)
+    w[:, 0] = 1.0  # the point itself
+    cnt = w.sum(1)
+    m = np.einsum("nk,nki->ni", w, nb) / cnt[:, None]
+    q = (nb - m[:, None]) * np.sqrt(w)[:, :, None]
     _, vec = np.linalg.eigh(np.einsum("nki,nkj->nij", q, q))
-    n = vec[:, :, 0]  # smallest principal direction: the local normal
-    return p - n * np.einsum("ij,ij->i", p - m, n)[:, None]
+    n = vec[:, :, 0]
+    out = p - n * np.einsum("ij,ij->i", p - m, n)[:, None]
+    few = cnt < 3
+    out[few] = p[few]
+    return out

@@ -140,7 +140,8 @@ def joint_adjustment(views, segs, regs: list[RegView], poses: np.ndarray, cfg: R
               turntable_path(poses, vertical, rc.turn_axis_detect_mm * 1e-3))
     if rc.adjust_target_smooth_k:  # the targets without their noise (tofmetry.pointcloud._smooth)
         for a in av:
-            a.target = project_to_local_planes(a.target, rc.adjust_target_smooth_k)
+            a.target = project_to_local_planes(a.target, rc.adjust_target_smooth_k, a.target_normals,
+                                               rc.adjust_target_smooth_deg)
     if albedo:  # once for every run of the joint fit below (its restart, the amplitude variant)
         for a in av:
             a.target_ir_gradient = albedo_gradients(a.target, a.target_normals, a.target_ir)

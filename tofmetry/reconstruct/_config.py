@@ -15,6 +15,11 @@ class PreprocessConfig(BaseModel):
     min_mm: float = Field(500.0, description="working range: nearest depth kept [mm] (Kinect v2 spec: 500)")
     max_mm: float = Field(2500.0, description="working range: farthest depth kept [mm]; small-object scans are at ~1 m")
     remove_flying: bool = Field(True, description="remove flying (mixed) pixels with tofmetry.assess.remove_flying_pixels")
+    flying_max_support_between: int = Field(2, ge=0, le=8, description="a pixel between a nearer and a farther "
+                                            "neighbour is flying when at most this many neighbours support it "
+                                            "(tofmetry.assess.FlyingPixelParams.max_support_between). 8 also takes "
+                                            "the steep surfaces (beyond the filter's 60 deg): tried on draw 73 "
+                                            "(bench/robustness/README.md, session 33), mixed, not the default")
     amplitude_k_mm_per_ln: float = Field(AMPLITUDE_BIAS_MM_PER_LN, description="amplitude bias k ln(A_white / A) [mm]; "
                                          "12 mm for 1/6 of the white amplitude (study §3.3.1) -> 12 / ln 6 = 6.70; used "
                                          "with an amplitude reference")
@@ -374,6 +379,10 @@ class RegistrationConfig(BaseModel):
                                         "neighbours; tofmetry.pointcloud.project_to_local_planes): nearest points in "
                                         "two noisy clouds pull the surfaces together (a plaque started at its true "
                                         "poses, noise only: 3.1 -> 1.1 mm at the object). 0: raw targets")
+    adjust_target_smooth_deg: float | None = Field(None, gt=0, le=90, description="with "
+                                                    "adjust_target_smooth_k, only the neighbours whose normal lies "
+                                                    "within this angle [deg] of a point's own enter its plane (a point "
+                                                    "near an edge is projected on its own face); None: all k")
     adjust_symmetric_normals: bool = Field(True, description="the global adjustment's residual along the sum of "
                                            "both points' normals (symmetric point-to-plane) instead of the target's "
                                            "normal (False). From the true poses, every error term, 12 family scans: "

@@ -114,7 +114,8 @@ def prepare_view(stack: np.ndarray, intr: CameraIntrinsics, calibration=None, co
         amp_mean = float(np.median(b[depth > 0])) if (depth > 0).any() else 0.0
     n_flying = 0
     if cfg.remove_flying:
-        cleaned = np.asarray(remove_flying_pixels(depth, intr), dtype=np.float64)
+        cleaned = np.asarray(remove_flying_pixels(depth, intr, max_support_between=cfg.flying_max_support_between),
+                             dtype=np.float64)
         n_flying = int(((depth > 0) & (cleaned <= 0)).sum())
         depth = cleaned
     smoothed = None
