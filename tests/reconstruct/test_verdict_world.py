@@ -447,3 +447,26 @@ def test_a_predicted_pose_error_beyond_the_gate_is_a_warning():
     v = assess(_names(3), [dict(x) for x in e], {"reasons": [], "loops": []},
                adjustment={"moved_deg": {"00": 0.0}, "gain_note": "not asked for"}, calibration_prediction={})
     assert v["reliable"] and not said(v)
+
+
+def test_the_gain_a_calibration_can_leave_is_read_fold_by_fold():
+    """Evenly spaced folds: each fold's |central| over half the spacing, in quadratic mean, is the
+    predicted central error (their quadratic mean) over half the spacing. Stations every 50 mm at
+    0.6-1.2 m (|central| 0.1 mm) and every 250 mm at 1.5-3.5 m (3 mm): the predicted central error
+    (1.9 mm, set by the far folds) over half the median spacing (50 mm) would read 7.7 %; fold by fold
+    the near folds show 0.4 % and the far ones 2.4 % (1.5 % in quadratic mean)."""
+    even = [{"center_mm": 1000.0 + 250 * k, "central_mm": c} for k, c in enumerate([0.2, -0.4, 0.1, 0.3, -0.2])]
+    e = float(np.sqrt(np.mean(np.square([f["central_mm"] for f in even]))))
+    pred = {"interpolation": {"central_abs_mm": {"predicted": e}}, "folds": even}
+    assert np.isclose(calibration_gain_sigma(pred), e / 125)
+    near = [{"center_mm": 600.0 + 50 * k, "central_mm": 0.1} for k in range(13)]
+    far = [{"center_mm": 1500.0 + 250 * k, "central_mm": 3.0} for k in range(9)]
+    folds = near + far
+    e = float(np.sqrt(np.mean(np.square([f["central_mm"] for f in folds]))))
+    pred = {"interpolation": {"central_abs_mm": {"predicted": e}}, "folds": folds}
+    c = np.array([f["center_mm"] for f in folds])
+    g = np.array([abs(f["central_mm"]) for f in folds]) / (np.gradient(c) / 2)
+    assert np.isclose(calibration_gain_sigma(pred), np.sqrt(np.mean(g ** 2)))
+    assert calibration_gain_sigma(pred) < 0.25 * e / 25
+    r = scale_report({"gain_estimated": False}, pred, 900.0)
+    assert np.isclose(r["gain_sigma"], calibration_gain_sigma(pred))

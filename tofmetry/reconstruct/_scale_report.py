@@ -13,6 +13,7 @@ import numpy as np
 
 from tofmetry.reconstruct._calibration_support import (
     calibration_central_mm,
+    calibration_gain_sigma,
     station_spacing_mm,
 )
 
@@ -28,7 +29,9 @@ def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z
     it scales the model by about ``g / 2``. So ``sigma_scale = sqrt((e / z)^2 + (sigma_g / 2)^2)``
     with ``e`` the calibration's predicted central error (quadratic mean over its blocked folds)
     and ``sigma_g`` the self-calibrated gain's standard error when it was estimated, otherwise
-    the gain a calibration with that error can leave between stations, ``e / (spacing / 2)``.
+    the gain a calibration with that error can leave between stations
+    (:func:`~tofmetry.reconstruct._calibration_support.calibration_gain_sigma`: ``e / (spacing / 2)``
+    with evenly spaced stations, fold by fold otherwise).
     Not included: the lens calibration's focal error (it scales the lateral size as well).
 
     A self-calibrated gain trades with the amplitude-bias coefficient ``k`` (both act through the
@@ -80,7 +83,9 @@ def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z
     if not est and e_curve is not None and e_curve > e:  # the views show more residual than predicted
         e_gain = e_curve
         out["curve_residual_mm"] = e_curve
-    sg = float(adj.get("gain_sigma_data", np.nan)) if est else e_gain / (spacing / 2)
+    sg_cal = calibration_gain_sigma(calibration_prediction)
+    sg = (float(adj.get("gain_sigma_data", np.nan)) if est else
+          sg_cal * e_gain / e if e > 0 and sg_cal is not None else e_gain / (spacing / 2))
     slope = (adj.get("amplitude_bias") or {}).get("gain_per_mm_per_ln")
     sg_k = abs(float(slope)) * k_sigma_mm if est and slope is not None and k_sigma_mm is not None else 0.0
     if sg_k > 0:
