@@ -115,6 +115,24 @@ def test_a_fit_the_calibration_can_move_beyond_the_gate_is_named():
     assert calibration_beyond_gate(None, 0.5, 3.0) is None
 
 
+def test_a_view_placed_from_few_dots_is_named_when_its_p90_reaches_beyond_the_gate():
+    """A placement's own 1-sigma times 1.645 (its p90) against the pose gate (0.5 deg, 3 mm): the
+    family's one missed wrong run of draw 74 had a view placed from 4 dots at +/- 0.39 deg (p90
+    0.64 deg) and came out 0.64 deg off; 2272 of the 2275 placed views of the stored mat draws
+    had below 0.2 deg (p90 0.33)."""
+    from tofmetry.reconstruct._mat_locate import MatFix
+    from tofmetry.reconstruct._mat_stage import MatPlacement, loose_reason
+
+    fixes = {"00": MatFix(True, sigma_deg=0.03, sigma_mm=0.14), "01": MatFix(True, sigma_deg=0.391, sigma_mm=0.69),
+             "02": MatFix(True, sigma_deg=0.05, sigma_mm=1.9), "03": MatFix(False, reason="the mat is hidden"),
+             "04": MatFix(True, sigma_deg=0.29, sigma_mm=0.5)}
+    mp = MatPlacement(None, fixes, [0, 1, 2, 4])
+    loose = mp.loose_views(0.5, 3.0)
+    assert set(loose) == {"01", "02"}  # 0.64 deg; 3.1 mm. 04: 0.48 deg, within
+    msg = loose_reason(loose, 0.5, 3.0, "the depth calibration's residual could move it beyond the gate")
+    assert "01 (+/- 0.39 deg, 0.7 mm)" in msg and "0.5 deg / 3 mm" in msg and "more of the mat" in msg
+
+
 def test_the_dots_measure_the_depth_scale(mat_scan):
     """Perfect depth: the dots come out the printed size, within their own 3 sigma (~0.1 % per view:
     20+ dots, 2.5 mm pixels on the mat). The same views with a depth gain of +1 % (points and support

@@ -28,6 +28,8 @@ from tofmetry.reconstruct._regview import object_fitness, passes_gates, visibili
 
 #: the method of the edges a mat placed
 MAT_METHOD = "mat"
+#: a standard normal's 90th percentile of |x|: a placement's 1-sigma times this is its p90
+P90_Z = 1.645
 #: support points within this of the plane are searched for the mat's pattern [m]
 GROUND_BAND_M = 0.015
 
@@ -76,6 +78,13 @@ class MatPlacement:
                                                                   f"{t['agree_mm']:.1f} mm at the object" if two else
                                                                   " only: nothing checks it"))}
         return out
+
+    def loose_views(self, gate_deg: float, gate_mm: float, z: float = P90_Z) -> dict:
+        """name -> (sigma_deg, sigma_mm) of the placed views whose placement's own ``z``-sigma (p90 by
+        default) reaches beyond the pose gate (``gate_deg`` about the vertical, ``gate_mm`` along the
+        sheet): few dots seen, the pose is not vouched for within the gate by the mat alone."""
+        return {n: (f.sigma_deg, f.sigma_mm) for n, f in self.fixes.items()
+                if f.located and (z * f.sigma_deg > gate_deg or z * f.sigma_mm > gate_mm)}
 
     def prior(self, tilt_deg: float, height_mm: float, inflation: float = 2.0, floor_deg: float = 0.03,
               floor_mm: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
@@ -248,6 +257,15 @@ def pattern_scale_warning(check: dict | None) -> str | None:
             f"calibration's predicted range error and the method leave (+/- {check['allowed_pct']:.2f} %): the depth scale at the "
             f"mat (a depth gain or a focal length off) or the print is off, and the model is likely {big} by about as "
             "much; check that the mat was printed at 100 %, then the depth and lens calibrations")
+
+
+def loose_reason(loose: dict, gate_deg: float, gate_mm: float, why: str) -> str:
+    """The verdict's reason for views the mat placed too loosely (:meth:`MatPlacement.loose_views`)
+    whose placements stand unrefined (``why``: what kept the joint fit from refining them)."""
+    views = ", ".join(f"{n} (+/- {d:.2f} deg, {m:.1f} mm)" for n, (d, m) in loose.items())
+    return (f"view(s) {views} were placed by the dot mat alone from few dots: at p90 the placement reaches beyond the "
+            f"pose gate ({gate_deg:g} deg / {gate_mm:g} mm), and the joint fit did not refine it ({why}); "
+            "take the view where more of the mat is seen")
 
 
 def departures(start: np.ndarray, end: np.ndarray, centre_m: np.ndarray, gate_deg: float, gate_mm: float,

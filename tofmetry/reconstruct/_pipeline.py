@@ -29,7 +29,8 @@ from tofmetry.reconstruct._model_build import (
     world_plane,
 )
 from tofmetry.reconstruct._pattern_search import search_by_pattern
-from tofmetry.reconstruct._mat_stage import calibration_beyond_gate, departures, pattern_scale, pattern_scale_warning, place_views
+from tofmetry.reconstruct._mat_stage import (calibration_beyond_gate, departures, loose_reason, pattern_scale,
+                                             pattern_scale_warning, place_views)
 from tofmetry.reconstruct._posegraph import PoseGraphBuilder
 from tofmetry.reconstruct._preprocess import ViewData, prepare_view
 from tofmetry.reconstruct._register import register_pair, rejection_reason
@@ -376,6 +377,13 @@ class ReconstructionPipeline:
                 + f" at the object from where the dot mat placed them (beyond the pose gate, {rc.pose_gate_deg:g} deg "
                 f"/ {rc.pose_gate_mm:g} mm): it slid along what the object's points leave free; the mat's placements "
                 "are kept, unrefined")
+        loose = {} if self.mat is None or not (mat_unsure or mat_kept) else self.mat.loose_views(rc.pose_gate_deg,
+                                                                                              rc.pose_gate_mm)
+        if loose:  # the placements stand unrefined, and the mat alone does not hold these within the gate
+            verdict["reasons"].append(loose_reason(loose, rc.pose_gate_deg, rc.pose_gate_mm,
+                                                   "the depth calibration's residual could move it beyond the gate"
+                                                   if mat_unsure else "it slid along what the object's points leave free"))
+            verdict["reliable"] = False
         mat_scale = None if self.mat is None else pattern_scale(self.mat.fixes, calibration_central_mm(pred), rc.mat_scale_floor_pct)
         if pattern_scale_warning(mat_scale):
             verdict["warnings"].append(pattern_scale_warning(mat_scale))
