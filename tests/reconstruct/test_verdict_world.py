@@ -470,3 +470,6 @@ def test_the_gain_a_calibration_can_leave_is_read_fold_by_fold():
     assert calibration_gain_sigma(pred) < 0.25 * e / 25
     r = scale_report({"gain_estimated": False}, pred, 900.0)
     assert np.isclose(r["gain_sigma"], calibration_gain_sigma(pred))
+    two_at_one = [{"center_mm": 1000.0, "central_mm": 0.2}, {"center_mm": 1000.0, "central_mm": 0.3}]
+    pred = {"interpolation": {"central_abs_mm": {"predicted": 0.25}}, "folds": two_at_one}
+    assert np.isfinite(calibration_gain_sigma(pred))  # no spacing to read: the median spacing's fallback

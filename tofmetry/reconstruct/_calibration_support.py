@@ -167,17 +167,19 @@ def calibration_gain_sigma(calibration_prediction: dict | None) -> float | None:
     folds = sorted(((float(f["center_mm"]), abs(float(f["central_mm"])))
                     for f in calibration_prediction.get("folds", []) if isinstance(f, dict)
                     and np.isfinite(f.get("center_mm", np.nan)) and np.isfinite(f.get("central_mm", np.nan))))
-    if len(folds) < 2:
-        return e / (station_spacing_mm(calibration_prediction) / 2)
     c = np.array([f[0] for f in folds])
-    gap = np.gradient(c)  # the spacing around each fold's station (one-sided at the ends)
+    gap = np.gradient(c) if len(folds) >= 2 else np.zeros(1)  # the spacing around each fold's station
+    if not np.all(gap > 0):  # fewer than two folds, or two at one station
+        return e / (station_spacing_mm(calibration_prediction) / 2)
     g = np.array([f[1] for f in folds]) / (gap / 2)
     return float(np.sqrt(np.mean(g ** 2)))
 
 
 def station_spacing_mm(calibration_prediction: dict) -> float:
     centres = sorted(f["center_mm"] for f in calibration_prediction.get("folds", []) if "center_mm" in f)
-    return float(np.median(np.diff(centres))) if len(centres) > 1 else 250.0
+    steps = np.diff(centres) if len(centres) > 1 else np.zeros(0)
+    steps = steps[steps > 0]  # two folds at one station give no spacing
+    return float(np.median(steps)) if len(steps) else 250.0
 
 
 def depth_field_prior(calibration_prediction: dict | None, depth_span_mm, intr, degree: int = 3,
