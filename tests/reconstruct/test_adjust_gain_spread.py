@@ -70,12 +70,13 @@ def test_the_basis_is_the_gains_displacement():
 
 
 def test_the_calibrations_gain_enters_the_prior_when_asked():
-    """From a calibration's folds: the gain's sigma is its central error over half the station
-    spacing (0.3 mm over 125 mm), only when the adjustment's z_ref is given."""
+    """From a calibration's folds: the gain's sigma is their central error over half the station
+    spacing (0.3 mm over 125 mm, the folds' quadratic mean being the predicted 0.3 mm), only when
+    the adjustment's z_ref is given."""
     from tofmetry.reconstruct._calibration_support import depth_field_prior
     from tofmetry.sensor import CameraIntrinsics
 
-    folds = [{"center_mm": c, "central_mm": 0.1, "rms_systematic_mm": 0.2} for c in (700.0, 950.0, 1200.0)]
+    folds = [{"center_mm": c, "central_mm": 0.3, "rms_systematic_mm": 0.2} for c in (700.0, 950.0, 1200.0)]
     pred = {"folds": folds, "interpolation": {"central_abs_mm": {"predicted": 0.3}}, "tilt_calibrated": True}
     intr = CameraIntrinsics(512, 424, 365.0, 365.0, 256.0, 212.0)
     with_gain = depth_field_prior(pred, (800.0, 1000.0), intr, z_ref_m=0.9)
