@@ -56,23 +56,24 @@ def project_to_local_planes(points: np.ndarray, k: int = 12, normals: np.ndarray
         return p
     _, idx = cKDTree(p).query(p, int(k), workers=-1)
     nb = p[idx]
+    few = None
     if normals is None or max_normal_deg is None:
         m = nb.mean(1)
         q = nb - m[:, None]
-        _, vec = np.linalg.eigh(np.einsum("nki,nkj->nij", q, q))
-        n = vec[:, :, 0]  # smallest principal direction: the local normal
-        return p - n * np.einsum("ij,ij->i", p - m, n)[:, None]
-    nr = np.asarray(normals, np.float64)
-    if nr.shape != p.shape:
-        raise InputError(f"project_to_local_planes: normals must be (N, 3) like the points {p.shape}, found {nr.shape}")
-    w = (np.einsum("nkj,nj->nk", nr[idx], nr) >= np.cos(np.radians(max_normal_deg))).astype(np.float64)
-    w[:, 0] = 1.0  # the point itself
-    cnt = w.sum(1)
-    m = np.einsum("nk,nki->ni", w, nb) / cnt[:, None]
-    q = (nb - m[:, None]) * np.sqrt(w)[:, :, None]
+    else:
+        nr = np.asarray(normals, np.float64)
+        if nr.shape != p.shape:
+            raise InputError(f"project_to_local_planes: normals must be (N, 3) like the points {p.shape}, "
+                             f"found {nr.shape}")
+        w = (np.einsum("nkj,nj->nk", nr[idx], nr) >= np.cos(np.radians(max_normal_deg))).astype(np.float64)
+        w[:, 0] = 1.0  # the point itself
+        cnt = w.sum(1)
+        m = np.einsum("nk,nki->ni", w, nb) / cnt[:, None]
+        q = (nb - m[:, None]) * np.sqrt(w)[:, :, None]
+        few = cnt < 3
     _, vec = np.linalg.eigh(np.einsum("nki,nkj->nij", q, q))
-    n = vec[:, :, 0]
+    n = vec[:, :, 0]  # smallest principal direction: the local normal
     out = p - n * np.einsum("ij,ij->i", p - m, n)[:, None]
-    few = cnt < 3
-    out[few] = p[few]
+    if few is not None:
+        out[few] = p[few]
     return out
