@@ -473,3 +473,21 @@ def test_the_gain_a_calibration_can_leave_is_read_fold_by_fold():
     two_at_one = [{"center_mm": 1000.0, "central_mm": 0.2}, {"center_mm": 1000.0, "central_mm": 0.3}]
     pred = {"interpolation": {"central_abs_mm": {"predicted": 0.25}}, "folds": two_at_one}
     assert np.isfinite(calibration_gain_sigma(pred))  # no spacing to read: the median spacing's fallback
+
+
+def test_with_the_support_curve_removed_the_gain_left_is_its_own_and_the_unseen_linear_part():
+    """Folds every 250 mm with a 2 mm central error leave 1.6 % between stations; once the support's curve
+    is removed what stays is the curve's own uncertainty over the object (0.02 %) and the part a plane cannot
+    show: sqrt(2) e over the support's 1500 mm span (0.19 %)."""
+    folds = [{"center_mm": 750.0 + 250 * k, "central_mm": 2.0} for k in range(6)]
+    pred = {"interpolation": {"central_abs_mm": {"predicted": 2.0}}, "folds": folds}
+    before = scale_report({"gain_estimated": False}, pred, 900.0)
+    assert np.isclose(before["gain_sigma"], 2.0 / 125)
+    support = {"applied": True, "span_mm": [500.0, 2000.0], "object_gain_sigma_pct": 0.02}
+    after = scale_report({"gain_estimated": False}, pred, 900.0, support=support)
+    expect = np.hypot(np.sqrt(2) * 2.0 / 1500.0, 0.0002)
+    assert np.isclose(after["gain_sigma"], expect) and np.isclose(after["gain_sigma_support"], expect)
+    assert after["predicted_scale_sigma_pct"] < before["predicted_scale_sigma_pct"] / 3
+    assert "flat support" in after["source"]
+    not_applied = scale_report({"gain_estimated": False}, pred, 900.0, support={"applied": False, "why": "x"})
+    assert np.isclose(not_applied["gain_sigma"], before["gain_sigma"])

@@ -11,6 +11,8 @@
 * :mod:`._wall` — wall mode: station statistics, plane fit, wall samples
 * :mod:`._tilt` — the depth error linear in the image position, from board poses, for a wall calibration;
   :mod:`._tilt_check` — its view model and the check on views kept out of the fit
+* :mod:`._flat_support` — the range error a flat support shows in a scan's views (what the wall
+  stations left between them), :func:`flat_support_curve`
 * :mod:`._validate` — before/after evaluation, leave-one-station-out cross-validation
 * IR lens calibration (study §4.1): :mod:`._corners` (find the grid, refine and check every
   corner; the X-junction fit in :mod:`._corner_fit`), :mod:`._board_pose` (object points, board
@@ -45,6 +47,7 @@ from tofmetry.calibrate._fit_study import StudyFitConfig, StudyFitResult, fit_st
 from tofmetry.calibrate._range import fit_range_curve
 from tofmetry.calibrate._tilt import TiltFit, fit_depth_tilt, with_depth_tilt
 from tofmetry.calibrate._tilt_check import held_out_check, tilt_contradicted
+from tofmetry.calibrate._flat_support import FlatSupportCurve, flat_support_curve
 from tofmetry.calibrate._surface import SurfaceSpec, fit_surface
 from tofmetry.calibrate._wall import (
     PlaneFit, StationStats, central_patch, fit_plane, station_statistics, wall_reference, wall_sample,
@@ -78,6 +81,7 @@ __all__ = [
     "before_after", "check_prediction", "sample_metrics",
     "StudyFitConfig", "StudyFitResult", "fit_study_model", "fit_range_curve", "SurfaceSpec", "fit_surface",
     "TiltFit", "fit_depth_tilt", "held_out_check", "tilt_contradicted", "with_depth_tilt",
+    "FlatSupportCurve", "flat_support_curve",
     "PlaneFit", "StationStats", "central_patch", "fit_plane", "station_statistics", "wall_reference", "wall_sample",
     "METHODS", "StationReport", "central_fraction_mask", "cross_validate", "evaluate_wall_station", "fit_any",
     "summarize",

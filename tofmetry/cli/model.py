@@ -194,6 +194,7 @@ def reconstruct(
         amp = adj.get("amplitude_bias") or {}
         if amp.get("k_mm_per_ln") is not None:
             console.print(f"amplitude bias: k = {amp['k_mm_per_ln']:.2f} mm per ln unit ({amp['note']})")
+    _print_support_curve(res.diagnostics.get("support_curve"))
     sc = res.diagnostics.get("scale") or {}
     if sc.get("predicted_scale_sigma_pct") is not None:
         console.print(f"scale: predicted uncertainty +-{sc['predicted_scale_sigma_pct']:.2f} % (1 sigma), surface offset "
@@ -209,7 +210,8 @@ def reconstruct(
         console.print(f"plan: {pf.get('summary') or 'not compared: ' + pf.get('skipped', '')}")
     tm = res.diagnostics["timings_s"]
     console.print(f"wrote {output} in {tm['total_s']:.1f} s (views {tm['views_s']:.1f}, registration "
-                  f"{tm['registration_s']:.1f}, adjustment {tm['adjustment_s']:.1f}, fusion {tm['fusion_s']:.1f}, meshing {tm['meshing_s']:.1f}"
+                  f"{tm['registration_s']:.1f}, adjustment {tm['adjustment_s']:.1f}, support curve "
+                  f"{tm.get('support_curve_s', 0.0):.1f}, fusion {tm['fusion_s']:.1f}, meshing {tm['meshing_s']:.1f}"
                   + (f", colour {tm['color_s']:.1f})" if res.diagnostics.get("color") else ")"))
     cons = res.diagnostics.get("consistency") or {}
     if cons.get("cycle_closure_mm") is not None:
@@ -293,6 +295,20 @@ def _reconstruct_rig(scan_dir: Path, rig: Path, sensor_calibration: list[str], o
                       "poses.json): " + "; ".join(res.diagnostics["reliability"]["reasons"]))
         if not allow_unreliable:
             raise typer.Exit(3)
+
+
+def _print_support_curve(sc: dict | None) -> None:
+    """The range curve the flat support showed (``diagnostics.support_curve``), one or two lines."""
+    if not sc:
+        return
+    if not sc.get("applied"):
+        console.print(f"support curve: not applied ({sc.get('why', '')})")
+        return
+    lo, hi = sc["span_mm"]
+    console.print(f"support curve: the support, seen over {lo:.0f}-{hi:.0f} mm in {sc['n_views']} views, is not flat by "
+                  f"up to {sc['max_abs_mm']:.2f} mm ({sc['flatness_before_mm']:.2f} -> {sc['residual_mm']:.2f} mm RMS with "
+                  f"the curve); removed before the fusion, it changed the gain over the object's depths by "
+                  f"{sc['object_gain_pct']:+.3f} % +- {sc['object_gain_sigma_pct']:.3f} %")
 
 
 def _print_amplitude_slope(slope: dict | None) -> None:

@@ -20,6 +20,19 @@ class PreprocessConfig(BaseModel):
                                             "(tofmetry.assess.FlyingPixelParams.max_support_between). 8 also takes "
                                             "the steep surfaces (beyond the filter's 60 deg): tried on draw 73 "
                                             "(bench/robustness/README.md, session 33), mixed, not the default")
+    support_curve: bool = Field(True, description="read the range error the calibration left from the flat support "
+                                "(tofmetry.calibrate.flat_support_curve: the support seen over 0.5-1.5 m is not flat "
+                                "by as much) and subtract it from every view before the fusion, the poses already "
+                                "fixed. Needs a support plane in 3 views spanning 3 knot steps of depth")
+    support_curve_step_mm: float = Field(60.0, gt=0, description="the support curve's knot spacing [mm]: it follows "
+                                         "range wiggles down to about twice this period")
+    support_curve_smooth_mm: float = Field(5.0, gt=0, description="prior 1-sigma of the support curve's second "
+                                           "differences [mm] (holds it where few points fall)")
+    support_curve_band_mm: float = Field(15.0, gt=0, description="a point is on the support within this of the "
+                                         "view's support plane [mm] (wider than the range error to be read)")
+    support_curve_clear_px: float = Field(12.0, ge=0, description="support points within this many pixels of the "
+                                          "object's are left out of the support curve (its foot, flying pixels "
+                                          "and shadow lie at the object's own depths)")
     amplitude_k_mm_per_ln: float = Field(AMPLITUDE_BIAS_MM_PER_LN, description="amplitude bias k ln(A_white / A) [mm]; "
                                          "12 mm for 1/6 of the white amplitude (study §3.3.1) -> 12 / ln 6 = 6.70; used "
                                          "with an amplitude reference")
@@ -379,10 +392,12 @@ class RegistrationConfig(BaseModel):
                                         "neighbours; tofmetry.pointcloud.project_to_local_planes): nearest points in "
                                         "two noisy clouds pull the surfaces together (a plaque started at its true "
                                         "poses, noise only: 3.1 -> 1.1 mm at the object). 0: raw targets")
-    adjust_target_smooth_deg: float | None = Field(None, gt=0, le=90, description="with "
+    adjust_target_smooth_deg: float | None = Field(30.0, gt=0, le=90, description="with "
                                                     "adjust_target_smooth_k, only the neighbours whose normal lies "
                                                     "within this angle [deg] of a point's own enter its plane (a point "
-                                                    "near an edge is projected on its own face); None: all k")
+                                                    "near an edge is projected on its own face); None: all k. 30 since "
+                                                    "session 34: a thin plaque's rim planes spanned both faces and "
+                                                    "read +0.24-0.44 % of scale (draws 73-74; README)")
     adjust_symmetric_normals: bool = Field(True, description="the global adjustment's residual along the sum of "
                                            "both points' normals (symmetric point-to-plane) instead of the target's "
                                            "normal (False). From the true poses, every error term, 12 family scans: "

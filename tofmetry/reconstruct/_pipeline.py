@@ -33,6 +33,7 @@ from tofmetry.reconstruct._mat_stage import (calibration_beyond_gate, departures
                                              pattern_scale_warning, place_views)
 from tofmetry.reconstruct._posegraph import PoseGraphBuilder
 from tofmetry.reconstruct._preprocess import ViewData, prepare_view
+from tofmetry.reconstruct._support_curve import correct_by_support
 from tofmetry.reconstruct._register import register_pair, rejection_reason
 from tofmetry.reconstruct._regview import RegView, leaves_yaw_free, make_reg_view
 from tofmetry.reconstruct._scale_report import scale_report
@@ -259,6 +260,25 @@ class ReconstructionPipeline:
                                                     placed=placed)
         return res
 
+    def correct_by_support(self, views, segs, intr) -> dict:
+        """The range error the flat support shows, subtracted from every view before the fusion
+        (:func:`~tofmetry.reconstruct._support_curve.correct_by_support`); its report."""
+        pc = self.cfg.preprocess
+        if not pc.support_curve:
+            return {"applied": False, "why": "off (preprocess.support_curve)"}
+        with self.progress("range curve from the support", 1) as adv:
+            curve, why = correct_by_support(views, segs, intr, pc.support_curve_band_mm * 1e-3,
+                                            pc.support_curve_clear_px, self.cfg.segment.plane_threshold_mm * 1e-3,
+                                            pc.support_curve_step_mm,
+                                            pc.support_curve_smooth_mm)
+            adv()
+        if curve is None:
+            return {"applied": False, "why": why}
+        z_obj = np.concatenate([v.points[s.object_mask, 2] for v, s in zip(views, segs)]) * 1e3
+        g, sg = curve.mean_gain(z_obj)
+        return {"applied": True, "object_gain_pct": round(100 * g, 4), "object_gain_sigma_pct": round(100 * sg, 4),
+                "object_depth_mm": [round(float(np.percentile(z_obj, q)), 1) for q in (5, 95)]} | curve.to_dict()
+
     def fuse(self, views, segs, poses, intr):
         """TSDF fusion of the views at ``poses`` (:func:`fuse_views`)."""
         return fuse_views(views, segs, poses, intr, self.cfg, self.progress)
@@ -326,6 +346,8 @@ class ReconstructionPipeline:
                 for v, sg, (pts, depth, plane) in zip(views, segs, before_fit):
                     v.points, v.depth_mm, sg.plane = pts, depth, plane
         poses = start if adj is None else adj.poses
+        support = self.correct_by_support(views, segs, intr)
+        t2b = time.perf_counter()
         V, F, N, P, PN, fusion_info = self.fuse(views, segs, poses, intr)
         t3 = time.perf_counter()
         world_obj = np.concatenate([
@@ -349,7 +371,8 @@ class ReconstructionPipeline:
             colours, colour_diag = colour_model(self.ds, self.kept, views, poses, sets, [intr] * len(views),
                                                 self.progress)
         t5 = time.perf_counter()
-        self.timings = {"views_s": t1 - t0, "registration_s": t2a - t1, "adjustment_s": t2 - t2a, "fusion_s": t3 - t2,
+        self.timings = {"views_s": t1 - t0, "registration_s": t2a - t1, "adjustment_s": t2 - t2a,
+                        "support_curve_s": t2b - t2, "fusion_s": t3 - t2b,
                         "meshing_s": t4 - t3, "color_s": t5 - t4, "total_s": t5 - t0}
         adj_d = ({"failed": self.adjust_failure} if self.adjust_failure else None) if adj is None else adj.to_dict(names)
         if adj is not None:  # the coefficient the model was corrected with: the preprocessing's plus dk
@@ -412,8 +435,9 @@ class ReconstructionPipeline:
                                       scale_budget_of(views, segs, poses_fit, intr, z_obj, self.white_map,
                                                       rc.amplitude_k_sigma_mm, adj),
                                       rc.amplitude_k_sigma_mm if self.white_map is not None else None,
-                                      rc.scale_floor_pct) | ({"mat_pattern": mat_scale} if self.mat is not None else {}),
-                "world": world, "slab": slab,
+                                      rc.scale_floor_pct, support)
+                | ({"mat_pattern": mat_scale} if self.mat is not None else {}),
+                "world": world, "slab": slab, "support_curve": support,
                 "views": {v.name: v.stats for v in views}, "fusion": fusion_info, "timings_s": self.timings,
                 "adjustment": adj_d, "left_out": self.left_out, "color": colour_diag, "turntable": self.turntable,
                 "pattern": self.pattern, "mat": None if self.mat is None else self.mat.to_dict(),

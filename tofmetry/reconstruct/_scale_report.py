@@ -19,7 +19,8 @@ from tofmetry.reconstruct._calibration_support import (
 
 
 def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z_ref_mm: float,
-                 budget=None, k_sigma_mm: float | None = None, floor_pct: float = 0.0) -> dict:
+                 budget=None, k_sigma_mm: float | None = None, floor_pct: float = 0.0,
+                 support: dict | None = None) -> dict:
     """The model's predicted scale and surface-offset uncertainty from the depth chain.
 
     A range offset ``e`` left by the calibration moves every point along its ray: the surfaces
@@ -58,6 +59,14 @@ def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z
     -0.60 % against 0.21 %, its curve 1.43 mm RMS where the calibration predicted 0.36 mm); recomputed
     with the curve, 1 run beyond 2 sigma, |error| / sigma p68 0.31 (0.40 before), p90 0.78 (1.32).
 
+    ``support``: the report of the range curve the flat support showed, subtracted from the views
+    before the fusion (:func:`~tofmetry.reconstruct._support_curve.correct_by_support`). Where it was
+    applied, the wiggle between the calibration's stations is gone from the model and the gain left
+    is (a) the curve's own uncertainty over the object's depths (``object_gain_sigma_pct``, from the
+    views' jackknife) and (b) the part of the calibration's residual that is linear in depth over the
+    support's span, which a plane cannot show: ``sqrt(2) e / span`` (the residual ``e`` at both ends
+    of the span, of either sign). On family draw 74 (README, session 34) ... .
+
     ``floor_pct`` [%], the modelling chain's own scale error (registration, fusion, meshing; a
     configured figure, :attr:`RegistrationConfig.scale_floor_pct`), is added in quadrature to the
     prediction (``chain_floor_pct``).
@@ -86,6 +95,12 @@ def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z
     sg_cal = calibration_gain_sigma(calibration_prediction)
     sg = (float(adj.get("gain_sigma_data", np.nan)) if est else
           sg_cal * e_gain / e if e > 0 and sg_cal is not None else e_gain / (spacing / 2))
+    on_support = bool((support or {}).get("applied"))
+    if on_support:
+        span = float(np.diff(support["span_mm"])[0])
+        sg_support = float(np.hypot(np.sqrt(2.0) * e_gain / span, support["object_gain_sigma_pct"] / 100))
+        sg = float(np.hypot(sg, support["object_gain_sigma_pct"] / 100)) if est else sg_support
+        out["gain_sigma_support"] = sg_support
     slope = (adj.get("amplitude_bias") or {}).get("gain_per_mm_per_ln")
     sg_k = abs(float(slope)) * k_sigma_mm if est and slope is not None and k_sigma_mm is not None else 0.0
     if sg_k > 0:
@@ -99,6 +114,10 @@ def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z
                 f"object's depths (more than the calibration's predicted {e:.2f} mm)")
     if sg_k > 0:
         src += f" (with k known to +-{k_sigma_mm:.2f} mm per ln unit)"
+    if on_support and not est:
+        src += (f"; the wiggle between its stations read from the flat support and removed (the gain left: its "
+                f"linear part over the support's {span:.0f} mm of depth, and the support curve's own "
+                f"+-{support['object_gain_sigma_pct']:.3f} %)")
     out |= {"gain_sigma": sg, "predicted_scale_sigma_pct": 100 * s, "rule_scale_sigma_pct": 100 * s,
             "predicted_offset_sigma_mm": float(e), "station_spacing_mm": spacing, "source": src}
     b = budget(e * 1e-3, sg) if budget is not None and np.isfinite(sg) else None

@@ -1,0 +1,106 @@
+"""The range error a flat support shows (tofmetry.calibrate.flat_support_curve): geometry -> render -> recover.
+
+Views of a floor from cameras at several heights and pitches; each pixel's depth Z along the
+optical axis is moved by a range error e(Z) and noise. The curve must come back as e's part that a
+plane cannot absorb (orthogonal to 1, Z and Z^2 over the span); a range error in those must give no curve.
+"""
+
+import numpy as np
+import pytest
+
+from tofmetry.calibrate import flat_support_curve
+from tofmetry.errors import EstimationError, InputError
+
+# a Kinect-v2-like pixel grid of normalised rays (every 4th pixel)
+_X, _Y = np.meshgrid((np.arange(0, 512, 4) - 256) / 365.0, (np.arange(0, 424, 4) - 212) / 365.0)
+RAYS = np.column_stack([_X.ravel(), _Y.ravel()])
+
+
+def floor_depths(height_m: float, pitch_deg: float, roll_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """True Z [mm] of a floor ``height_m`` below a camera pitched down by ``pitch_deg`` and rolled by
+    ``roll_deg``, and the rays that hit it within 0.5-2.5 m."""
+    t, r = np.radians(pitch_deg), np.radians(roll_deg)
+    up = np.array([0.0, -np.cos(t), -np.sin(t)])  # world up in the camera frame (x right, y down, z forward)
+    c, s = np.cos(r), np.sin(r)
+    up = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]) @ up
+    den = -(np.column_stack([RAYS, np.ones(len(RAYS))]) @ up)
+    z = np.where(den > 1e-6, height_m / np.maximum(den, 1e-6), np.inf)
+    keep = (z > 0.5) & (z < 2.5)
+    return z[keep] * 1e3, RAYS[keep]
+
+
+def wiggle_mm(z_mm: np.ndarray) -> np.ndarray:
+    return 2.5 * np.sin(2 * np.pi * z_mm / 470.0 + 0.7) + 1.0 * np.sin(2 * np.pi * z_mm / 900.0 + 2.0)
+
+
+def views_of_floor(error, noise_mm: float, seed: int = 1):
+    rng = np.random.default_rng(seed)
+    Z, XY = [], []
+    for h, p, r in [(0.30, 20, 0), (0.40, 28, 3), (0.50, 35, -2), (0.35, 45, 1), (0.60, 60, 0), (0.45, 25, -4)]:
+        z, xy = floor_depths(h, p, r)
+        Z.append(z + error(z) + rng.normal(0, noise_mm, len(z)))
+        XY.append(xy)
+    return Z, XY
+
+
+def nonlinear_part(error, lo: float, hi: float, z: np.ndarray) -> np.ndarray:
+    """``error`` less its least-squares parabola over [lo, hi] (uniform in Z): what the curve can show,
+    at measured depths ``z`` [mm] (the true depth is ``z - error``, to first order)."""
+    g = np.linspace(lo, hi, 2000)
+    line = np.polyfit(g - 1000.0, error(g), 2)
+    return error(z - error(z)) - np.polyval(line, z - 1000.0)  # at the measured depth z
+
+
+def test_the_wiggle_between_stations_comes_back_from_a_flat_floor():
+    Z, XY = views_of_floor(wiggle_mm, noise_mm=1.0)
+    c = flat_support_curve(Z, XY)
+    lo, hi = c.span_mm
+    z = np.linspace(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), 50)
+    truth = nonlinear_part(wiggle_mm, lo, hi, z)
+    # the spline (60 mm knots) follows a 470 mm sine within ~0.02 mm; 1 mm noise over 10^4 points per knot adds less
+    assert np.max(np.abs(c.error_mm(z) - truth)) < 0.1
+    # the gain it reads where an object would lie: the sine's slope (up to 3.3 %) within 0.1 %
+    zz = np.array([700.0, 800.0, 900.0])
+    slope_true = (nonlinear_part(wiggle_mm, lo, hi, zz + 1) - nonlinear_part(wiggle_mm, lo, hi, zz - 1)) / 2
+    g, s = c.gain(zz)
+    assert np.max(np.abs(g - slope_true)) < 1e-3
+    assert np.all(s < 1e-3)
+    assert c.n_views == 6 and c.flatness_before_mm > 2 * c.residual_mm
+
+
+def test_an_offset_a_gain_and_an_inverse_depth_shift_leave_no_curve():
+    # each maps a plane onto a plane (nearly, the offset): the support cannot show them and must not invent a curve
+    Z, XY = views_of_floor(lambda z: 4.0 + 0.01 * (z - 1000.0) + 2e-6 * z ** 2, noise_mm=1.0)
+    c = flat_support_curve(Z, XY)
+    z = np.linspace(*np.percentile(np.concatenate(Z), [5, 95]), 50)  # the span's ends hold few points
+    assert np.max(np.abs(c.error_mm(z))) < 0.1
+
+
+def test_the_curve_is_held_at_its_ends_beyond_the_span():
+    Z, XY = views_of_floor(wiggle_mm, noise_mm=1.0)
+    c = flat_support_curve(Z, XY)
+    lo, hi = c.span_mm
+    assert c.error_mm(np.array([lo - 300.0]))[0] == pytest.approx(c.error_mm(np.array([lo]))[0])
+    assert c.gain(np.array([hi + 300.0]))[0][0] == 0.0
+
+
+def test_too_few_views_or_a_short_span_say_why():
+    Z, XY = views_of_floor(wiggle_mm, noise_mm=1.0)
+    with pytest.raises(EstimationError, match="3 needed"):
+        flat_support_curve(Z[:2], XY[:2])
+    narrow = [z[(z > 900) & (z < 1000)] for z in Z]
+    with pytest.raises(EstimationError, match="span"):
+        flat_support_curve(narrow, [xy[(z > 900) & (z < 1000)] for z, xy in zip(Z, XY)])
+    with pytest.raises(InputError, match="view 0"):
+        flat_support_curve([Z[0]], [XY[0][:10]])
+
+
+def test_levelled_on_an_objects_depths_keeps_the_slope_and_takes_the_mean():
+    Z, XY = views_of_floor(wiggle_mm, noise_mm=1.0)
+    c = flat_support_curve(Z, XY)
+    z_obj = np.linspace(750.0, 950.0, 101)
+    lv = c.levelled(z_obj)
+    assert abs(np.mean(lv.error_mm(z_obj))) < 1e-9
+    assert lv.level_mm == pytest.approx(np.mean(c.error_mm(z_obj)))
+    np.testing.assert_allclose(lv.gain(z_obj)[0], c.gain(z_obj)[0])
+    assert c.level_mm == 0.0  # the original is left as it was

@@ -1,0 +1,265 @@
+"""The range error a flat support shows: a depth calibration's residual read from the scan itself.
+
+A depth calibration from wall stations about 0.25 m apart cannot see a range error that wiggles
+faster than twice that spacing (a ToF camera's harmonics): between its stations it leaves millimetres,
+and a millimetre over a 100 mm deep object is a 1 % gain, which scales the model by about as much.
+The support the object stands on (a table, a printed mat) is flat, and every view sees it over a
+wide span of depths (0.5-1.5 m from a camera 0.3-0.5 m above it). Measured, it is not flat: each
+point moved along its ray by the range error ``e(Z)`` at its depth. So the support shows ``e``.
+
+Model (one smooth curve shared by every view, one plane per view): a point on view ``j``'s plane
+satisfies ``1 / Z = a_j x + b_j y + c_j`` with ``(x, y)`` its normalised ray; measured at
+``Z' = Z + e(Z)``,
+
+    Z' ~= Z'^2 (a_j x + b_j y + c_j) - e(Z'),
+
+linear in the planes' coefficients and in ``e``, a cubic B-spline in ``Z'`` (knots every
+``step_mm``), weighted to millimetres. A gain (``e = b Z``: the inverse depth scaled) and a shift of
+the inverse depth (``e = c Z^2``) map a plane onto a plane, and an offset (``e = a``) nearly so,
+so the support cannot show the two first and shows the offset only through its ``1 / Z^2`` bend,
+an extrapolation to the camera centre. The fit holds the curve orthogonal to ``Z - Z_mean`` and its
+square over the span (which pins the two lost directions); the curve kept is its part orthogonal
+to ``1``, ``Z`` and ``Z^2`` (uniformly in ``Z`` over the span), which does not depend on that choice:
+its offset, gain and curvature stay the calibration's. (Held at zero in the fit, the offset's bend
+leaked into the curve: 0.27 mm on an exact synthetic floor.) A smoothness prior on the spline's second
+differences holds the curve where few points fall (the span's ends).
+
+Its uncertainty comes from the views themselves: the curve is refitted with each view left out
+(a jackknife), so a view's own errors (a per-pixel deformation it sees on the support, a patch of
+dark print) count, which a formal covariance over 10^5 correlated points would not.
+
+Assumes the support is flat to well under the curve (a table or a floor: tenths of a millimetre
+over the span) and the points on it were segmented (the object and its shadow left out).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.interpolate import BSpline
+from scipy.linalg import null_space
+
+from tofmetry.errors import EstimationError, InputError
+
+#: cubic spline
+_DEGREE = 3
+
+
+@dataclass
+class FlatSupportCurve:
+    """A range-error curve read from a flat support (:func:`flat_support_curve`).
+
+    Attributes
+    ----------
+    span_mm : (lo, hi) the measured depths Z' it was fitted over [mm]; beyond, it is held at its end values
+    knots_mm : (K,) the spline's full knot vector [mm]
+    coef_mm : (B,) the spline's coefficients [mm]
+    coef_cov_mm2 : (B, B) their covariance from the views' jackknife [mm^2]
+    n_views, n_points : views and support points that entered the fit (after the robust rejection)
+    residual_mm : robust RMS of the support points about their planes and the curve [mm]
+    flatness_before_mm : the same without the curve (the planes alone) [mm]
+    step_mm : knot spacing [mm]
+    level_mm : a constant taken off the curve (:meth:`levelled`) [mm]
+    """
+
+    span_mm: tuple[float, float]
+    knots_mm: np.ndarray
+    coef_mm: np.ndarray
+    coef_cov_mm2: np.ndarray
+    n_views: int
+    n_points: int
+    residual_mm: float
+    flatness_before_mm: float
+    step_mm: float
+    notes: list = field(default_factory=list)
+    level_mm: float = 0.0
+
+    def _basis(self, z_mm: np.ndarray, nu: int = 0) -> np.ndarray:
+        z = np.clip(np.asarray(z_mm, np.float64).ravel(), *self.span_mm)
+        if nu == 0:
+            return BSpline.design_matrix(z, self.knots_mm, _DEGREE).toarray()
+        out = np.empty((len(z), len(self.coef_mm)))
+        for k in range(len(self.coef_mm)):  # derivative of each basis function
+            c = np.zeros(len(self.coef_mm))
+            c[k] = 1.0
+            out[:, k] = BSpline(self.knots_mm, c, _DEGREE)(z, nu)
+        return out
+
+    def error_mm(self, z_mm) -> np.ndarray:
+        """The range error ``e`` [mm] at measured depths ``z_mm`` [mm] (any shape; held constant beyond the span):
+        subtract it from the depth."""
+        z = np.asarray(z_mm, np.float64)
+        return (self._basis(z) @ self.coef_mm).reshape(z.shape) - self.level_mm
+
+    def gain(self, z_mm) -> tuple[np.ndarray, np.ndarray]:
+        """The curve's slope ``de/dZ`` (dimensionless) at ``z_mm`` [mm] and its 1-sigma (jackknife); zero
+        beyond the span."""
+        z = np.asarray(z_mm, np.float64).ravel()
+        inside = (z >= self.span_mm[0]) & (z <= self.span_mm[1])
+        D = self._basis(z, 1) * inside[:, None]
+        s = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", D, self.coef_cov_mm2, D), 0.0))
+        return D @ self.coef_mm, s
+
+    def mean_gain(self, z_mm) -> tuple[float, float]:
+        """The curve's mean slope over the depths ``z_mm`` [mm] (a model's points: the gain its size sees
+        from the curve) and its 1-sigma."""
+        z = np.asarray(z_mm, np.float64).ravel()
+        if z.size == 0:
+            return 0.0, 0.0
+        inside = (z >= self.span_mm[0]) & (z <= self.span_mm[1])
+        d = (self._basis(z, 1) * inside[:, None]).mean(0)
+        return float(d @ self.coef_mm), float(np.sqrt(max(d @ self.coef_cov_mm2 @ d, 0.0)))
+
+    def levelled(self, z_mm) -> "FlatSupportCurve":
+        """The curve less its mean over the depths ``z_mm`` [mm] (an object's points): it then changes
+        their depths' slope (the gain their size sees) but not their mean, which the support cannot
+        tell (its offset at any depth depends on the parts it cannot show). ``level_mm`` keeps what was taken."""
+        z = np.asarray(z_mm, np.float64).ravel()
+        if z.size == 0:
+            return self
+        out = dataclasses.replace(self, level_mm=0.0, notes=list(self.notes))
+        out.level_mm = float(np.mean(out.error_mm(z)))
+        return out
+
+    def to_dict(self, every_mm: float = 50.0) -> dict:
+        lo, hi = self.span_mm
+        z = np.arange(np.ceil(lo / every_mm) * every_mm, hi + 1e-9, every_mm)
+        s = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", self._basis(z), self.coef_cov_mm2, self._basis(z)), 0.0))
+        return {"span_mm": [round(lo, 1), round(hi, 1)], "step_mm": self.step_mm, "n_views": self.n_views,
+                "n_points": self.n_points, "residual_mm": round(self.residual_mm, 3),
+                "flatness_before_mm": round(self.flatness_before_mm, 3),
+                "curve_mm": {f"{v:.0f}": [round(float(e), 3), round(float(u), 3)]
+                             for v, e, u in zip(z, self.error_mm(z), s)},
+                "max_abs_mm": round(float(np.max(np.abs(self.error_mm(np.linspace(lo, hi, 200))))), 3),
+                "notes": list(self.notes), "level_mm": round(self.level_mm, 3),
+                "model": "support flat: 1/Z = a x + b y + c per view, measured Z' = Z + e(Z'), e a cubic spline "
+                         "kept orthogonal to 1, Z and Z^2 over the span (those parts stay the calibration's); 1-sigma "
+                         "from the views' jackknife"}
+
+
+def _design(z: np.ndarray, xy: np.ndarray, knots: np.ndarray, span: tuple[float, float]):
+    """Rows of one view: plane part (N, 3) and curve part (N, B), right-hand side (N,), all in mm."""
+    zm = z * 1e-3  # m
+    P = (zm ** 2)[:, None] * np.column_stack([xy[:, 0], xy[:, 1], np.ones(len(z))]) * 1e3  # Z'^2 (x, y, 1) [mm m]
+    B = -BSpline.design_matrix(np.clip(z, *span), knots, _DEGREE).toarray()
+    return P, B, z
+
+
+def _solve(blocks: list, nb: int, prior: np.ndarray, use: list[int]) -> tuple[np.ndarray, list]:
+    """Least squares over the views in ``use``: the normal equations of every plane block eliminated
+    (a Schur complement), so the cost does not grow with the views' count squared."""
+    N = prior.copy()
+    r = np.zeros(nb)
+    elim = []
+    for j in use:
+        P, B, y, w = blocks[j]
+        Pw, Bw = P * w[:, None], B * w[:, None]
+        App, Apb, Abb = Pw.T @ P, Pw.T @ B, Bw.T @ B
+        yp, yb = Pw.T @ y, Bw.T @ y
+        inv = np.linalg.inv(App)
+        N += Abb - Apb.T @ inv @ Apb
+        r += yb - Apb.T @ inv @ yp
+        elim.append((j, inv, Apb, yp))
+    c = np.linalg.solve(N, r)
+    planes = [(j, inv @ (yp - Apb @ c)) for j, inv, Apb, yp in elim]
+    return c, planes
+
+
+def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: float = 60.0,
+                       smooth_mm: float = 5.0, min_views: int = 3, min_points: int = 500,
+                       min_span_steps: float = 3.0, clip_sigmas: float = 3.0,
+                       max_points_per_view: int = 8000, seed: int = 0) -> FlatSupportCurve:
+    """Fit the range-error curve a flat support shows in several views of it.
+
+    Parameters
+    ----------
+    z_mm : per view, (N_j,) measured depth Z' [mm] of points on the support (the object left out)
+    xy : per view, (N_j, 2) their normalised rays ``(x, y)`` (the point is ``Z (x, y, 1)``)
+    step_mm : knot spacing [mm]: the shortest wiggle the curve follows is about twice this
+    smooth_mm : prior 1-sigma of the spline's second differences [mm] (a wiggle of amplitude ``A`` and
+        period ``P`` has ``A (2 pi step / P)^2``: 5 mm passes 6 mm at 0.4 m)
+    min_views : views with at least ``min_points`` support points needed
+    min_span_steps : the support's depths must span at least this many knot steps
+    clip_sigmas : points beyond this many robust sigmas of the fit are left out (dark print the amplitude
+        correction missed, the object's foot, a cable)
+    max_points_per_view : a view's points are subsampled to this many (drawn with ``seed``)
+
+    Returns
+    -------
+    FlatSupportCurve
+
+    Raises
+    ------
+    InputError on mismatched inputs; EstimationError when the support does not show the curve (too
+    few views or points, too short a span), with the reason.
+    """
+    if len(z_mm) != len(xy):
+        raise InputError(f"flat_support_curve: {len(z_mm)} depth arrays for {len(xy)} ray arrays")
+    views = []
+    rng = np.random.default_rng(seed)
+    for j, (z, r) in enumerate(zip(z_mm, xy)):
+        z, r = np.asarray(z, np.float64).ravel(), np.asarray(r, np.float64).reshape(-1, 2)
+        if len(z) != len(r):
+            raise InputError(f"flat_support_curve: view {j} has {len(z)} depths and {len(r)} rays")
+        ok = np.isfinite(z) & (z > 0) & np.all(np.isfinite(r), axis=1)
+        if ok.sum() >= min_points:
+            pick = np.nonzero(ok)[0]
+            if len(pick) > max_points_per_view:
+                pick = np.sort(rng.choice(pick, max_points_per_view, replace=False))
+            views.append((z[pick], r[pick]))
+    if len(views) < min_views:
+        raise EstimationError(f"the support shows no range curve: {len(views)} view(s) see at least {min_points} "
+                              f"points of it, {min_views} needed")
+    zall = np.concatenate([v[0] for v in views])
+    lo, hi = (float(x) for x in np.percentile(zall, [0.5, 99.5]))
+    if hi - lo < min_span_steps * step_mm:
+        raise EstimationError(f"the support shows no range curve: its depths span {hi - lo:.0f} mm, "
+                              f"{min_span_steps * step_mm:.0f} mm needed (knots every {step_mm:g} mm)")
+    n_int = max(1, int(np.ceil((hi - lo) / step_mm)))
+    knots = np.r_[[lo] * _DEGREE, np.linspace(lo, hi, n_int + 1), [hi] * _DEGREE]
+    nb = len(knots) - _DEGREE - 1
+    span = (lo, hi)
+    # the curve's part in span{Z, Z^2} is the calibration's: the coefficients are held in the null space
+    # of its projection, c = Q u
+    zg = np.linspace(lo, hi, 400)
+    Bg = BSpline.design_matrix(zg, knots, _DEGREE).toarray()
+    u = (zg - zg.mean()) / (hi - lo)
+    Q = null_space(np.vstack([u @ Bg, u ** 2 @ Bg]))
+    Pg = np.column_stack([np.ones_like(u), u, u ** 2])
+    keep_part = np.eye(nb) - np.linalg.pinv(Bg) @ Pg @ np.linalg.pinv(Pg) @ Bg  # c -> its part orthogonal to 1, Z, Z^2
+    blocks = []
+    for z, r in views:
+        P, B, y = _design(z, r, knots, span)
+        blocks.append((P, B @ Q, y, np.ones(len(z))))
+    DQ = np.diff(np.eye(nb), 2, axis=0) @ Q
+    nq = Q.shape[1]
+    sigma = 1.0
+    for _ in range(3):  # robust: refit without the points beyond clip_sigmas
+        prior = (sigma / smooth_mm) ** 2 * DQ.T @ DQ
+        c, planes = _solve(blocks, nq, prior, list(range(len(blocks))))
+        res = np.concatenate([P @ p + B @ c - y for (j, p), (P, B, y, _) in zip(planes, blocks)])
+        w_all = np.concatenate([b[3] for b in blocks])
+        sigma = float(1.4826 * np.median(np.abs(res[w_all > 0]))) or 1.0
+        keep = np.abs(res) < clip_sigmas * sigma
+        k0 = 0
+        for i, b in enumerate(blocks):
+            n = len(b[2])
+            blocks[i] = b[:3] + (keep[k0:k0 + n].astype(np.float64),)
+            k0 += n
+    prior = (sigma / smooth_mm) ** 2 * DQ.T @ DQ
+    c, planes = _solve(blocks, nq, prior, list(range(len(blocks))))
+    used = [b[3] > 0 for b in blocks]
+    res = np.concatenate([(P @ p + B @ c - y)[u] for (j, p), (P, B, y, _), u in zip(planes, blocks, used)])
+    flat = []
+    for (P, B, y, w), u in zip(blocks, used):  # the planes alone
+        p = np.linalg.lstsq(P[u], y[u], rcond=None)[0]
+        flat.append((P[u] @ p - y[u]))
+    V = len(blocks)
+    jack = np.array([keep_part @ Q @ _solve(blocks, nq, prior, [i for i in range(V) if i != j])[0]
+                     for j in range(V)])
+    cov = (V - 1) / V * (jack - jack.mean(0)).T @ (jack - jack.mean(0))
+    return FlatSupportCurve((lo, hi), knots, keep_part @ Q @ c, cov, V, int(sum(u.sum() for u in used)),
+                            float(1.4826 * np.median(np.abs(res))),
+                            float(1.4826 * np.median(np.abs(np.concatenate(flat)))), float(step_mm))
