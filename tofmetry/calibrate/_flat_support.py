@@ -77,15 +77,17 @@ class FlatSupportCurve:
     level_mm: float = 0.0
 
     def _basis(self, z_mm: np.ndarray, nu: int = 0) -> np.ndarray:
+        """(N, B) the basis functions (or their ``nu``-th derivative) at ``z_mm`` clipped to the span."""
         z = np.clip(np.asarray(z_mm, np.float64).ravel(), *self.span_mm)
         if nu == 0:
             return BSpline.design_matrix(z, self.knots_mm, _DEGREE).toarray()
-        out = np.empty((len(z), len(self.coef_mm)))
-        for k in range(len(self.coef_mm)):  # derivative of each basis function
-            c = np.zeros(len(self.coef_mm))
-            c[k] = 1.0
-            out[:, k] = BSpline(self.knots_mm, c, _DEGREE)(z, nu)
-        return out
+        return BSpline(self.knots_mm, np.eye(len(self.coef_mm)), _DEGREE)(z, nu)
+
+    def _slope_rows(self, z_mm) -> np.ndarray:
+        """(N, B) the basis functions' slopes at ``z_mm`` [mm], zero beyond the span."""
+        z = np.asarray(z_mm, np.float64).ravel()
+        inside = (z >= self.span_mm[0]) & (z <= self.span_mm[1])
+        return self._basis(z, 1) * inside[:, None]
 
     def error_mm(self, z_mm) -> np.ndarray:
         """The range error ``e`` [mm] at measured depths ``z_mm`` [mm] (any shape; held constant beyond the span):
@@ -96,20 +98,16 @@ class FlatSupportCurve:
     def gain(self, z_mm) -> tuple[np.ndarray, np.ndarray]:
         """The curve's slope ``de/dZ`` (dimensionless) at ``z_mm`` [mm] and its 1-sigma (jackknife); zero
         beyond the span."""
-        z = np.asarray(z_mm, np.float64).ravel()
-        inside = (z >= self.span_mm[0]) & (z <= self.span_mm[1])
-        D = self._basis(z, 1) * inside[:, None]
+        D = self._slope_rows(z_mm)
         s = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", D, self.coef_cov_mm2, D), 0.0))
         return D @ self.coef_mm, s
 
     def mean_gain(self, z_mm) -> tuple[float, float]:
         """The curve's mean slope over the depths ``z_mm`` [mm] (a model's points: the gain its size sees
         from the curve) and its 1-sigma."""
-        z = np.asarray(z_mm, np.float64).ravel()
-        if z.size == 0:
+        if np.size(z_mm) == 0:
             return 0.0, 0.0
-        inside = (z >= self.span_mm[0]) & (z <= self.span_mm[1])
-        d = (self._basis(z, 1) * inside[:, None]).mean(0)
+        d = self._slope_rows(z_mm).mean(0)
         return float(d @ self.coef_mm), float(np.sqrt(max(d @ self.coef_cov_mm2 @ d, 0.0)))
 
     def levelled(self, z_mm) -> "FlatSupportCurve":
@@ -126,7 +124,8 @@ class FlatSupportCurve:
     def to_dict(self, every_mm: float = 50.0) -> dict:
         lo, hi = self.span_mm
         z = np.arange(np.ceil(lo / every_mm) * every_mm, hi + 1e-9, every_mm)
-        s = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", self._basis(z), self.coef_cov_mm2, self._basis(z)), 0.0))
+        Bz = self._basis(z)
+        s = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", Bz, self.coef_cov_mm2, Bz), 0.0))
         return {"span_mm": [round(lo, 1), round(hi, 1)], "step_mm": self.step_mm, "n_views": self.n_views,
                 "n_points": self.n_points, "residual_mm": round(self.residual_mm, 3),
                 "flatness_before_mm": round(self.flatness_before_mm, 3),
@@ -239,7 +238,7 @@ def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: fl
     for _ in range(3):  # robust: refit without the points beyond clip_sigmas
         prior = (sigma / smooth_mm) ** 2 * DQ.T @ DQ
         c, planes = _solve(blocks, nq, prior, list(range(len(blocks))))
-        res = np.concatenate([P @ p + B @ c - y for (j, p), (P, B, y, _) in zip(planes, blocks)])
+        res = np.concatenate([P @ p + B @ c - y for (_, p), (P, B, y, _) in zip(planes, blocks)])
         w_all = np.concatenate([b[3] for b in blocks])
         sigma = float(1.4826 * np.median(np.abs(res[w_all > 0]))) or 1.0
         keep = np.abs(res) < clip_sigmas * sigma
@@ -251,15 +250,15 @@ def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: fl
     prior = (sigma / smooth_mm) ** 2 * DQ.T @ DQ
     c, planes = _solve(blocks, nq, prior, list(range(len(blocks))))
     used = [b[3] > 0 for b in blocks]
-    res = np.concatenate([(P @ p + B @ c - y)[u] for (j, p), (P, B, y, _), u in zip(planes, blocks, used)])
+    res = np.concatenate([(P @ p + B @ c - y)[m] for (_, p), (P, B, y, _), m in zip(planes, blocks, used)])
     flat = []
-    for (P, B, y, w), u in zip(blocks, used):  # the planes alone
-        p = np.linalg.lstsq(P[u], y[u], rcond=None)[0]
-        flat.append((P[u] @ p - y[u]))
+    for (P, _, y, _), m in zip(blocks, used):  # the planes alone
+        p = np.linalg.lstsq(P[m], y[m], rcond=None)[0]
+        flat.append((P[m] @ p - y[m]))
     V = len(blocks)
     jack = np.array([keep_part @ Q @ _solve(blocks, nq, prior, [i for i in range(V) if i != j])[0]
                      for j in range(V)])
     cov = (V - 1) / V * (jack - jack.mean(0)).T @ (jack - jack.mean(0))
-    return FlatSupportCurve((lo, hi), knots, keep_part @ Q @ c, cov, V, int(sum(u.sum() for u in used)),
+    return FlatSupportCurve((lo, hi), knots, keep_part @ Q @ c, cov, V, int(sum(m.sum() for m in used)),
                             float(1.4826 * np.median(np.abs(res))),
                             float(1.4826 * np.median(np.abs(np.concatenate(flat)))), float(step_mm))

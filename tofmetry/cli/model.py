@@ -211,7 +211,7 @@ def reconstruct(
     tm = res.diagnostics["timings_s"]
     console.print(f"wrote {output} in {tm['total_s']:.1f} s (views {tm['views_s']:.1f}, registration "
                   f"{tm['registration_s']:.1f}, adjustment {tm['adjustment_s']:.1f}, support curve "
-                  f"{tm.get('support_curve_s', 0.0):.1f}, fusion {tm['fusion_s']:.1f}, meshing {tm['meshing_s']:.1f}"
+                  f"{tm['support_curve_s']:.1f}, fusion {tm['fusion_s']:.1f}, meshing {tm['meshing_s']:.1f}"
                   + (f", colour {tm['color_s']:.1f})" if res.diagnostics.get("color") else ")"))
     cons = res.diagnostics.get("consistency") or {}
     if cons.get("cycle_closure_mm") is not None:

@@ -267,17 +267,11 @@ class ReconstructionPipeline:
         if not pc.support_curve:
             return {"applied": False, "why": "off (preprocess.support_curve)"}
         with self.progress("range curve from the support", 1) as adv:
-            curve, why = correct_by_support(views, segs, intr, pc.support_curve_band_mm * 1e-3,
-                                            pc.support_curve_clear_px, self.cfg.segment.plane_threshold_mm * 1e-3,
-                                            pc.support_curve_step_mm,
-                                            pc.support_curve_smooth_mm)
+            report = correct_by_support(views, segs, intr, pc.support_curve_band_mm * 1e-3, pc.support_curve_clear_px,
+                                        self.cfg.segment.plane_threshold_mm * 1e-3, pc.support_curve_step_mm,
+                                        pc.support_curve_smooth_mm)
             adv()
-        if curve is None:
-            return {"applied": False, "why": why}
-        z_obj = np.concatenate([v.points[s.object_mask, 2] for v, s in zip(views, segs)]) * 1e3
-        g, sg = curve.mean_gain(z_obj)
-        return {"applied": True, "object_gain_pct": round(100 * g, 4), "object_gain_sigma_pct": round(100 * sg, 4),
-                "object_depth_mm": [round(float(np.percentile(z_obj, q)), 1) for q in (5, 95)]} | curve.to_dict()
+        return report
 
     def fuse(self, views, segs, poses, intr):
         """TSDF fusion of the views at ``poses`` (:func:`fuse_views`)."""

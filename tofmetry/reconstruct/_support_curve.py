@@ -19,7 +19,7 @@ import numpy as np
 from scipy import ndimage
 
 from tofmetry._shared.geometry import fit_plane_svd
-from tofmetry.calibrate import FlatSupportCurve, flat_support_curve
+from tofmetry.calibrate import flat_support_curve
 from tofmetry.errors import EstimationError
 from tofmetry.reconstruct._preprocess import ViewData
 from tofmetry.reconstruct._segment import Segmentation
@@ -64,7 +64,7 @@ def support_samples(views: list[ViewData], segs: list[Segmentation], intr: Camer
 
 def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: CameraIntrinsics,
                        band_m: float, clear_px: float, plane_threshold_m: float, step_mm: float,
-                       smooth_mm: float) -> tuple[FlatSupportCurve | None, str]:
+                       smooth_mm: float) -> dict:
     """Fit the support's range curve, levelled on the object's depths, and subtract it from every
     view's depth, in place.
 
@@ -73,17 +73,21 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
 
     Returns
     -------
-    (curve, "") when applied; (None, why) when the support does not show it
+    The report (``diagnostics.support_curve``): ``applied`` False with ``why`` when the support does not
+    show the curve; otherwise the curve's :meth:`~tofmetry.calibrate.FlatSupportCurve.to_dict`, the gain it
+    changed over the object's measured depths (``object_gain_pct``, its jackknife ``object_gain_sigma_pct``)
+    and those depths' 5-95 % span (``object_depth_mm``)
     """
     z_mm, xy = support_samples(views, segs, intr, band_m, clear_px)
     try:
         curve = flat_support_curve(z_mm, xy, step_mm=step_mm, smooth_mm=smooth_mm)
     except EstimationError as exc:
-        return None, str(exc)
+        return {"applied": False, "why": str(exc)}
     # the object's own mean depth stays as the calibration left it: the support shows the curve's shape,
-    # not its level there (measured on a bar, held-out draw 74: applied unlevelled, the curve moved its
-    # views 0.4-0.9 mm toward their cameras and the model's mean distance went 0.22 -> 0.39 mm)
-    curve = curve.levelled(np.concatenate([v.points[s.object_mask, 2] for v, s in zip(views, segs)]) * 1e3)
+    # not its level there (measured on a bar of draw 74: applied unlevelled, the curve moved its views
+    # 0.4-0.9 mm toward their cameras and the model's mean distance went 0.22 -> 0.39 mm)
+    z_obj = np.concatenate([v.points[s.object_mask, 2] for v, s in zip(views, segs)]) * 1e3
+    curve = curve.levelled(z_obj)
     for v, s in zip(views, segs):
         on = None if s.plane is None else np.abs(v.points @ s.plane[:3] + s.plane[3]) < plane_threshold_m
         d = v.depth_mm
@@ -95,4 +99,6 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
         v.depth_mm = new
         if on is not None and on.sum() >= 3:
             s.plane = fit_plane_svd(v.points[on], orient=s.plane[:3])
-    return curve, ""
+    g, sg = curve.mean_gain(z_obj)
+    return {"applied": True, "object_gain_pct": round(100 * g, 4), "object_gain_sigma_pct": round(100 * sg, 4),
+            "object_depth_mm": [round(float(np.percentile(z_obj, q)), 1) for q in (5, 95)]} | curve.to_dict()
