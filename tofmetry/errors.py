@@ -34,3 +34,13 @@ class ImplausibleResultError(EstimationError):
     def __init__(self, message: str, findings: list[str] | None = None):
         super().__init__(message)
         self.findings = list(findings or [])
+
+
+class DegenerateFitError(EstimationError):
+    """A fit converged to values that describe no physical camera or sensor (a principal point far
+    outside the image, a negative focal length ...): ``reason`` says which, ``rms`` is the fit's
+    residual in its own unit, so that a caller can report both as plausibility findings."""
+
+    def __init__(self, message: str, reason: str, rms: float):
+        super().__init__(message)
+        self.reason, self.rms = reason, float(rms)

@@ -95,3 +95,34 @@ def test_simulated_default_set_meets_the_intrinsics_target(tmp_path):
     assert rep["corner_regions"]["uncovered"] == res.uncovered_corners
     assert rep["covariance"]["diagonal_matches_opencv_std"] and len(rep["covariance"]["matrix"]) == 9
     assert (tmp_path / "rep" / "coverage.png").stat().st_size > 20_000
+
+
+def test_a_fit_that_converges_to_no_camera_is_refused_with_its_residual(tmp_path, monkeypatch):
+    """A wrong board size can drive OpenCV's fit to a principal point hundreds of pixels outside the
+    image (seen once in CI: cy = -220 px at 5.3 px RMS). That is no camera: the core says so with
+    the residual, and the pipeline refuses it as implausible, naming both, even when implausible
+    results are accepted, since no such camera can be written."""
+    from tofmetry.calibrate import _lens_fit
+    from tofmetry.errors import DegenerateFitError, ImplausibleResultError
+    from tofmetry.pipelines import intrinsics_from_images
+    from tofmetry.simulate import datasets
+
+    real = _lens_fit._calib
+
+    def off_the_image(*args):
+        rms, vals, *rest = real(*args)
+        vals = vals.copy()
+        vals[3] = -220.0
+        return (5.3, vals, *rest)
+
+    monkeypatch.setattr(_lens_fit, "_calib", off_the_image)
+    with pytest.raises(DegenerateFitError) as err:
+        calibrate_intrinsics(_views(8, 1), None, BOARD, SQ, (INTR.width, INTR.height), leave_one_out=False)
+    assert "cy=-220" in err.value.reason and err.value.rms == 5.3
+    imgs = datasets.checkerboard_images(tmp_path / "cb", n_images=4, seed=2)
+    for accept in (False, True):
+        with pytest.raises(ImplausibleResultError) as err:
+            intrinsics_from_images(imgs, BOARD, SQ, leave_one_out=False, accept_implausible=accept)
+        msg = str(err.value)
+        assert "reprojection RMS 5.30 px" in msg and "cy=-220" in msg and "--accept-implausible" in msg
+        assert len(err.value.findings) == 2

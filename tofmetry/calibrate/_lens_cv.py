@@ -11,7 +11,7 @@ import numpy as np
 
 from tofmetry.calibrate._board_pose import reprojection_rms_with
 from tofmetry.calibrate._lens_fit import calibrate_intrinsics, opencv_refused
-from tofmetry.errors import EstimationError
+from tofmetry.errors import DegenerateFitError, EstimationError
 from tofmetry.sensor import CameraIntrinsics
 
 
@@ -72,7 +72,7 @@ def cross_validate_intrinsics(corners: list[np.ndarray], board: tuple[int, int],
             fit = calibrate_intrinsics(train, None, board, square_mm, image_size, leave_one_out=False,
                                        fix_k3=fix_k3, min_coverage=0.0, reject_px=None, object_points=train_o)
         except EstimationError as exc:
-            if not opencv_refused(exc):
+            if not (opencv_refused(exc) or isinstance(exc, DegenerateFitError)):
                 raise
             held[test] = np.inf  # the lens fitted without these views fails: they are not predicted at all
             failed += [keep[i] for i in test]

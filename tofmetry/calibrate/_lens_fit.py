@@ -27,7 +27,7 @@ from tofmetry.calibrate._ray_error import (
     CORNER_FRAC, PARAMS, RayError, predicted_ray_error_px,
 )
 from tofmetry._shared.opencv_threads import one_opencv_thread
-from tofmetry.errors import EstimationError, InputError
+from tofmetry.errors import DegenerateFitError, EstimationError, InputError
 from tofmetry.sensor import CameraIntrinsics
 
 # ----------------------------------------------------------------------------- calibration
@@ -279,6 +279,9 @@ def calibrate_intrinsics(corners: list[np.ndarray], names: list[str] | None, boa
     ------
     EstimationError
         Fewer than 3 usable images.
+    DegenerateFitError
+        The fit converged to values no camera has (a principal point far outside the image ...),
+        as a wrong board size can make it; ``reason`` and ``rms`` (the reprojection RMS [px]) say so.
     """
     if len(corners) < 3:
         raise EstimationError(f"intrinsic calibration needs at least 3 images with a detected board, found {len(corners)}")
@@ -299,7 +302,12 @@ def calibrate_intrinsics(corners: list[np.ndarray], names: list[str] | None, boa
             objs = [objs[j] for j in keep]
             rms, vals, std, per_view, K, dist, rv, tv = _calib(objs, imgs, size, flags)
     w, h = size
-    intr = CameraIntrinsics(w, h, vals[0], vals[1], vals[2], vals[3], tuple(vals[4:]))
+    try:
+        intr = CameraIntrinsics(w, h, vals[0], vals[1], vals[2], vals[3], tuple(vals[4:]))
+    except InputError as e:
+        reason = str(e).removeprefix("intrinsics: ")
+        raise DegenerateFitError(f"the lens fit converged to no camera ({reason}; reprojection RMS {rms:.2f} px)",
+                                 reason, rms) from None
     res = IntrinsicsResult(
         intrinsics=intr, rms_px=rms, std=dict(zip(PARAMS, std.tolist())),
         per_image_rms_px=dict(zip(names, per_view.tolist())), used=list(names),

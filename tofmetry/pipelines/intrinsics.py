@@ -12,12 +12,12 @@ from tofmetry.calibrate import figures as F
 from tofmetry.calibrate import (
     CharucoBoard, IntrinsicsResult, calibrate_intrinsics, cross_validate_intrinsics, detect_board, detect_charuco,
 )
-from tofmetry.errors import InputError
+from tofmetry.errors import DegenerateFitError, InputError
 from tofmetry.io import atomic_write_json
 from tofmetry.io.images import GRAY_IMAGE_SUFFIXES, read_gray_image
 from tofmetry._shared.figures import save_png
 from tofmetry.pipelines._common import _adv
-from tofmetry.pipelines.plausibility import check_intrinsics, enforce
+from tofmetry.pipelines.plausibility import check_intrinsics, enforce, refuse_degenerate
 from tofmetry.sensor import CameraIntrinsics
 
 
@@ -120,7 +120,8 @@ def intrinsics_from_images(images_dir: Path, board: tuple[int, int], square_mm: 
     EstimationError
         Fewer than 3 images with a board.
     ImplausibleResultError
-        The result fails the plausibility gate (unless ``accept_implausible``).
+        The result fails the plausibility gate (unless ``accept_implausible``), or the fit converged
+        to values no camera has (always: nothing could be written).
     """
     t0 = time.perf_counter()
     images_dir = Path(images_dir)
@@ -174,10 +175,13 @@ def intrinsics_from_images(images_dir: Path, board: tuple[int, int], square_mm: 
                                   else float("nan"), "dtype": str(img.dtype)}
         adv()
     obj_arg = objs if charuco is not None else None
-    res = calibrate_intrinsics(corners, names, (cols, rows), square_mm, size, leave_one_out=leave_one_out,
-                               fix_k3=fix_k3, advance=adv, object_points=obj_arg)
-    gate = enforce(check_intrinsics(res.intrinsics, res.rms_px), f"the intrinsic calibration of {images_dir} "
-                   f"(board {cols}x{rows}, {square_mm:g} mm squares)", accept_implausible)
+    what = f"the intrinsic calibration of {images_dir} (board {cols}x{rows}, {square_mm:g} mm squares)"
+    try:
+        res = calibrate_intrinsics(corners, names, (cols, rows), square_mm, size, leave_one_out=leave_one_out,
+                                   fix_k3=fix_k3, advance=adv, object_points=obj_arg)
+    except DegenerateFitError as e:
+        raise refuse_degenerate(e, what) from None
+    gate = enforce(check_intrinsics(res.intrinsics, res.rms_px), what, accept_implausible)
     excl = [names.index(n) for n in res.rejected_views]
     cv = cross_validate_intrinsics(corners, (cols, rows), square_mm, size, k=k_folds, fix_k3=fix_k3, exclude=excl,
                                    object_points=obj_arg) if len(corners) - len(excl) >= 4 else {}

@@ -48,7 +48,7 @@ import math
 
 import numpy as np
 
-from tofmetry.errors import ImplausibleResultError
+from tofmetry.errors import DegenerateFitError, ImplausibleResultError
 from tofmetry.sensor import CameraIntrinsics
 from tofmetry.sensor.profiles import PROFILES
 
@@ -82,6 +82,15 @@ def correction_budget_mm(distance_mm: float) -> float:
     return central_budget_mm(distance_mm) + DEFORMATION_BUDGET_MM
 
 
+def refuse_degenerate(err: DegenerateFitError, what: str) -> ImplausibleResultError:
+    """The :class:`ImplausibleResultError` for a fit whose values describe no camera at all: its
+    findings (the residual, then what is impossible) as :func:`enforce` words them, but nothing a
+    user could accept, since no such camera can be written."""
+    findings = check_reprojection(err.rms) + [f"the fitted {err.reason}"]
+    return ImplausibleResultError(f"{what} is implausible: " + "; ".join(findings) + ". It cannot be written, even "
+                                  "with --accept-implausible: check the board size and the images", findings)
+
+
 def enforce(findings: list[str], what: str, accept: bool = False) -> dict:
     """Raise :class:`ImplausibleResultError` for ``findings`` unless ``accept``.
 
@@ -109,6 +118,15 @@ def _profile_for(intr: CameraIntrinsics):
     return None, None
 
 
+def check_reprojection(rms_px: float | None) -> list[str]:
+    """Finding when an intrinsic fit's RMS reprojection error ``rms_px`` [px] exceeds
+    :data:`MAX_REPROJECTION_RMS_PX` (None: not checked)."""
+    if rms_px is not None and not (math.isfinite(rms_px) and rms_px <= MAX_REPROJECTION_RMS_PX):
+        return [f"reprojection RMS {rms_px:.2f} px exceeds {MAX_REPROJECTION_RMS_PX:g} px (corners of a sharp board "
+                "are found to about 0.1 px: a wrong --board size or square, or images of another board?)"]
+    return []
+
+
 def check_intrinsics(intr: CameraIntrinsics, rms_px: float | None = None, sensor: str | None = None) -> list[str]:
     """Findings on a fitted lens: reprojection RMS, focal length vs profile, field of view, aspect, centre.
 
@@ -119,10 +137,7 @@ def check_intrinsics(intr: CameraIntrinsics, rms_px: float | None = None, sensor
     sensor : profile name to compare with (default: the profile whose depth or colour camera has
         the same image size, if any)
     """
-    out = []
-    if rms_px is not None and not (math.isfinite(rms_px) and rms_px <= MAX_REPROJECTION_RMS_PX):
-        out.append(f"reprojection RMS {rms_px:.2f} px exceeds {MAX_REPROJECTION_RMS_PX:g} px (corners of a sharp board "
-                   "are found to about 0.1 px: a wrong --board size or square, or images of another board?)")
+    out = check_reprojection(rms_px)
     name, cam = (sensor, PROFILES[sensor].depth) if sensor in PROFILES else _profile_for(intr)
     if cam is not None and (cam.width, cam.height) == (intr.width, intr.height):
         for key in ("fx", "fy"):
