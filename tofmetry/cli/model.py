@@ -396,7 +396,14 @@ def evaluate(
         console.print(f"observed-surface completeness at 5 mm {res.completeness_observed['5']['completeness']:.1%} "
                       f"({res.observed['observed_share']:.1%} of the reference surface seen by a registered camera)")
     if res.alignment is not None:
-        console.print(f"alignment: fitness {res.alignment.fitness:.3f}, inlier RMSE {res.alignment.inlier_rmse_mm:.2f} mm")
+        a = res.alignment
+        console.print(f"alignment: fitness {a.fitness:.3f}, inlier RMSE {a.inlier_rmse_mm:.2f} mm, mean misfit "
+                      f"{a.misfit_mm:.2f} mm")
+        if a.ambiguous:
+            console.print(f"[yellow]warning: the alignment is ambiguous: {a.runner_up['deg']:.1f} deg / "
+                          f"{a.runner_up['mm']:.0f} mm away the model fits about as well (mean misfit "
+                          f"{a.runner_up['misfit_mm']:.2f} mm); the deviations above may be the alignment's. "
+                          "Give --poses (the support plane then fixes the up axis) or --init-transform[/yellow]")
     if run.plan is not None:
         console.print(f"plan: {run.plan['summary']}")
     console.print(f"wrote {output}")
