@@ -104,3 +104,43 @@ def test_levelled_on_an_objects_depths_keeps_the_slope_and_takes_the_mean():
     assert lv.level_mm == pytest.approx(np.mean(c.error_mm(z_obj)))
     np.testing.assert_allclose(lv.gain(z_obj)[0], c.gain(z_obj)[0])
     assert c.level_mm == 0.0  # the original is left as it was
+
+
+def _floor_anchor(h: float, p: float, r: float, sigma_rel: float, rng) -> tuple[np.ndarray, np.ndarray]:
+    """The floor's true ``(a, b, c)`` (``1 / Z = a x + b y + c`` [1/m]) with a relative error drawn at
+    ``sigma_rel`` of its distance, and that covariance: what a printed pattern's perspective fit gives."""
+    t, q = np.radians(p), np.radians(r)
+    up = np.array([0.0, -np.cos(t), -np.sin(t)])
+    c, s = np.cos(q), np.sin(q)
+    up = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]) @ up
+    abc = -up / h  # n . p + h = 0 with n = up: 1 / Z = -(n . ray) / h
+    # its distance off by sigma_rel (the pattern's scale), its tilt by 0.02 deg
+    cov = sigma_rel ** 2 * np.outer(abc, abc) + (np.radians(0.02) / h) ** 2 * np.diag([1.0, 1.0, 0.0])
+    return rng.multivariate_normal(abc, cov), cov
+
+
+def test_anchored_planes_give_the_whole_curve_offset_gain_and_curvature_included():
+    """With each view's floor known without the depth, its distance to 0.1 % and its tilt to 0.02 deg
+    (a dot mat's perspective fit, 40-55 dots), an offset + gain + curvature that a plane alone cannot
+    show comes back with the wiggle over the depths an object stands at."""
+    def error(z):
+        return wiggle_mm(z) + 1.5 + 0.004 * (z - 1000.0) - 3e-6 * (z - 1000.0) ** 2
+
+    rng = np.random.default_rng(4)
+    Z, XY = views_of_floor(error, noise_mm=1.0)
+    poses = [(0.30, 20, 0), (0.40, 28, 3), (0.50, 35, -2), (0.35, 45, 1), (0.60, 60, 0), (0.45, 25, -4)]
+    anchors = [_floor_anchor(h, p, r, 1e-3, rng) for h, p, r in poses]
+    c = flat_support_curve(Z, XY, anchors=anchors)
+    assert c.anchored and c.n_anchors == 6
+    z = np.linspace(600.0, 1400.0, 50)
+    truth = error(z - error(z))
+    # a plane's distance off by 0.1 % moves its depths by 0.1 % (0.6-1.4 mm here); six views: about
+    # 0.04 % of Z, 0.25-0.6 mm; twice that, and the jackknife's 1-sigma covers it
+    diff = c.error_mm(z) - truth
+    assert np.all(np.abs(diff) < 1e-3 * z)
+    _, sig = c.mean_gain(z)
+    g_err = np.polyfit(z, diff, 1)[0]
+    assert abs(g_err) < 3 * sig + 2e-4
+    # unanchored, the same views give the curve's part orthogonal to 1, Z and Z^2 only
+    u = flat_support_curve(Z, XY)
+    assert not u.anchored and np.max(np.abs(u.error_mm(z) - truth)) > 1.0

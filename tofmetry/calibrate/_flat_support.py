@@ -62,6 +62,9 @@ class FlatSupportCurve:
     flatness_before_mm : the same without the curve (the planes alone) [mm]
     step_mm : knot spacing [mm]
     level_mm : a constant taken off the curve (:meth:`levelled`) [mm]
+    anchored : its offset, gain and curvature measured too, from planes known without the depth
+        (``anchors``); otherwise its part orthogonal to ``1``, ``Z`` and ``Z^2`` only
+    n_anchors : the anchored views that gave them
     """
 
     span_mm: tuple[float, float]
@@ -75,6 +78,8 @@ class FlatSupportCurve:
     step_mm: float
     notes: list = field(default_factory=list)
     level_mm: float = 0.0
+    anchored: bool = False
+    n_anchors: int = 0
 
     def _basis(self, z_mm: np.ndarray, nu: int = 0) -> np.ndarray:
         """(N, B) the basis functions (or their ``nu``-th derivative) at ``z_mm`` clipped to the span."""
@@ -110,6 +115,13 @@ class FlatSupportCurve:
         d = self._slope_rows(z_mm).mean(0)
         return float(d @ self.coef_mm), float(np.sqrt(max(d @ self.coef_cov_mm2 @ d, 0.0)))
 
+    def mean_error(self, z_mm) -> tuple[float, float]:
+        """The curve's mean over the depths ``z_mm`` [mm] (a model's points) and its 1-sigma [mm]."""
+        if np.size(z_mm) == 0:
+            return 0.0, 0.0
+        b = self._basis(z_mm).mean(0)
+        return float(b @ self.coef_mm - self.level_mm), float(np.sqrt(max(b @ self.coef_cov_mm2 @ b, 0.0)))
+
     def levelled(self, z_mm) -> "FlatSupportCurve":
         """The curve less its mean over the depths ``z_mm`` [mm] (an object's points): it then changes
         their depths' slope (the gain their size sees) but not their mean, which the support cannot
@@ -132,10 +144,14 @@ class FlatSupportCurve:
                 "curve_mm": {f"{v:.0f}": [round(float(e), 3), round(float(u), 3)]
                              for v, e, u in zip(z, self.error_mm(z), s)},
                 "max_abs_mm": round(float(np.max(np.abs(self.error_mm(np.linspace(lo, hi, 200))))), 3),
-                "notes": list(self.notes), "level_mm": round(self.level_mm, 3),
+                "notes": list(self.notes), "level_mm": round(self.level_mm, 3), "anchored": self.anchored,
+                "n_anchors": self.n_anchors,
                 "model": "support flat: 1/Z = a x + b y + c per view, measured Z' = Z + e(Z'), e a cubic spline "
-                         "kept orthogonal to 1, Z and Z^2 over the span (those parts stay the calibration's); 1-sigma "
-                         "from the views' jackknife"}
+                         + (f"whole: its part orthogonal to 1, Z and Z^2 from the support, those from {self.n_anchors} "
+                            "views' planes measured without the depth (the printed pattern's perspective)"
+                            if self.anchored else
+                            "kept orthogonal to 1, Z and Z^2 over the span (those parts stay the calibration's)")
+                         + "; 1-sigma from the views' jackknife"}
 
 
 def _design(z: np.ndarray, xy: np.ndarray, knots: np.ndarray, span: tuple[float, float]):
@@ -169,7 +185,8 @@ def _solve(blocks: list, nb: int, prior: np.ndarray, use: list[int]) -> tuple[np
 def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: float = 60.0,
                        smooth_mm: float = 5.0, min_views: int = 3, min_points: int = 500,
                        min_span_steps: float = 3.0, clip_sigmas: float = 3.0,
-                       max_points_per_view: int = 8000, seed: int = 0) -> FlatSupportCurve:
+                       max_points_per_view: int = 8000, seed: int = 0,
+                       anchors: list | None = None) -> FlatSupportCurve:
     """Fit the range-error curve a flat support shows in several views of it.
 
     Parameters
@@ -184,6 +201,10 @@ def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: fl
     clip_sigmas : points beyond this many robust sigmas of the fit are left out (dark print the amplitude
         correction missed, the object's foot, a cable)
     max_points_per_view : a view's points are subsampled to this many (drawn with ``seed``)
+    anchors : optional, per view, None or ``(p, cov)``: the view's support plane measured without the
+        depth (a printed pattern's perspective fit), ``p`` (3,) its ``(a, b, c)`` [1/m] and ``cov``
+        (3, 3) their covariance. With at least ``min_views`` anchored views the curve's offset, gain
+        and curvature come from them (:func:`_anchored_part`) and the curve is whole (``anchored``)
 
     Returns
     -------
@@ -196,8 +217,10 @@ def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: fl
     """
     if len(z_mm) != len(xy):
         raise InputError(f"flat_support_curve: {len(z_mm)} depth arrays for {len(xy)} ray arrays")
-    views = []
+    views, held = [], []
     rng = np.random.default_rng(seed)
+    if anchors is not None and len(anchors) != len(z_mm):
+        raise InputError(f"flat_support_curve: {len(anchors)} anchors for {len(z_mm)} views")
     for j, (z, r) in enumerate(zip(z_mm, xy)):
         z, r = np.asarray(z, np.float64).ravel(), np.asarray(r, np.float64).reshape(-1, 2)
         if len(z) != len(r):
@@ -208,6 +231,7 @@ def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: fl
             if len(pick) > max_points_per_view:
                 pick = np.sort(rng.choice(pick, max_points_per_view, replace=False))
             views.append((z[pick], r[pick]))
+            held.append(None if anchors is None else anchors[j])
     if len(views) < min_views:
         raise EstimationError(f"the support shows no range curve: {len(views)} view(s) see at least {min_points} "
                               f"points of it, {min_views} needed")
@@ -256,9 +280,52 @@ def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: fl
         p = np.linalg.lstsq(P[m], y[m], rcond=None)[0]
         flat.append((P[m] @ p - y[m]))
     V = len(blocks)
-    jack = np.array([keep_part @ Q @ _solve(blocks, nq, prior, [i for i in range(V) if i != j])[0]
+    anchored = [j for j in range(V) if held[j] is not None]
+    whole = len(anchored) >= min_views
+    part = np.eye(nb) if whole else keep_part  # anchored: the fitted curve whole, the planes' share added
+    jack = np.array([part @ Q @ _solve(blocks, nq, prior, [i for i in range(V) if i != j])[0]
                      for j in range(V)])
+    coef = part @ Q @ c
+    if whole:  # what the planes took up (the parts the support cannot show), from the anchors
+        samples = [_anchor_samples(views[j][1][used[j]], dict(planes)[j], *held[j]) for j in anchored]
+        to_coef = np.linalg.pinv(Bg) @ Pg  # (1, u, u^2) -> spline coefficients
+        poly = lambda use: _anchored_part([samples[i] for i in use], zg.mean(), hi - lo)  # noqa: E731
+        coef = coef + to_coef @ poly(range(len(anchored)))
+        for i, j in enumerate(anchored):
+            jack[j] = jack[j] + to_coef @ poly([k for k in range(len(anchored)) if k != i])
+        for j in set(range(V)) - set(anchored):
+            jack[j] = jack[j] + to_coef @ poly(range(len(anchored)))
     cov = (V - 1) / V * (jack - jack.mean(0)).T @ (jack - jack.mean(0))
-    return FlatSupportCurve((lo, hi), knots, keep_part @ Q @ c, cov, V, int(sum(m.sum() for m in used)),
+    return FlatSupportCurve((lo, hi), knots, coef, cov, V, int(sum(m.sum() for m in used)),
                             float(1.4826 * np.median(np.abs(res))),
-                            float(1.4826 * np.median(np.abs(np.concatenate(flat)))), float(step_mm))
+                            float(1.4826 * np.median(np.abs(np.concatenate(flat)))), float(step_mm),
+                            anchored=whole, n_anchors=len(anchored) if whole else 0)
+
+
+def _anchor_samples(xy: np.ndarray, p: np.ndarray, anchor: np.ndarray, anchor_cov: np.ndarray,
+                    n: int = 40) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One anchored view's evidence on the curve's parts a plane absorbs: at ``n`` of its support rays
+    ``xy`` (sorted by depth, evenly), the depth its fitted plane ``p`` gives less the depth its anchor
+    gives [mm] (the plane took up what the fitted curve left of the range error; the anchor did not), the
+    anchor's depth [mm] and that difference's covariance from the anchor's (n, n) [mm^2]."""
+    R = np.column_stack([xy, np.ones(len(xy))])
+    za = 1e3 / (R @ np.asarray(anchor, np.float64))
+    pick = np.argsort(za)[np.linspace(0, len(za) - 1, n).astype(int)]
+    R, za = R[pick], za[pick]
+    delta = 1e3 / (R @ p) - za
+    G = -(za[:, None] ** 2) * 1e-3 * R  # d(1e3 / (R . a)) / da [mm m]
+    return delta, za, G @ anchor_cov @ G.T
+
+
+def _anchored_part(samples: list, z0: float, span: float) -> np.ndarray:
+    """``(k0, k1, k2)`` of ``k0 + k1 u + k2 u^2`` (``u = (Z - z0) / span``, [mm]) fitted to the anchored
+    views' plane-minus-anchor depths (:func:`_anchor_samples`), each view weighed by its anchor's
+    covariance (a generalised least squares: an anchor's error is one error over its whole view)."""
+    N, r = np.zeros((3, 3)), np.zeros(3)
+    for delta, za, C in samples:
+        u = (za - z0) / span
+        A = np.column_stack([np.ones_like(u), u, u ** 2])
+        W = np.linalg.pinv(C + 1e-4 * np.eye(len(za)))  # 0.01 mm: the planes' own rounding
+        N += A.T @ W @ A
+        r += A.T @ W @ delta
+    return np.linalg.lstsq(N, r, rcond=None)[0]

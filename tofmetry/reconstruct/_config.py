@@ -33,6 +33,10 @@ class PreprocessConfig(BaseModel):
     support_curve_clear_px: float = Field(12.0, ge=0, description="support points within this many pixels of the "
                                           "object's are left out of the support curve (its foot, flying pixels "
                                           "and shadow lie at the object's own depths)")
+    support_anchor: bool = Field(True, description="on a dot mat, the planes its dots give each view (without "
+                                 "the depth) measure the support curve's offset, gain and curvature too; the whole "
+                                 "curve is then subtracted before the views are placed (tofmetry.reconstruct."
+                                 "_mat_plane)")
     amplitude_k_mm_per_ln: float = Field(AMPLITUDE_BIAS_MM_PER_LN, description="amplitude bias k ln(A_white / A) [mm]; "
                                          "12 mm for 1/6 of the white amplitude (study §3.3.1) -> 12 / ln 6 = 6.70; used "
                                          "with an amplitude reference")

@@ -118,7 +118,7 @@ def albedo_image(index: np.ndarray, shape: tuple[int, int], ground: np.ndarray, 
 
 
 def seen_dots(alb: np.ndarray, rays: np.ndarray, plane: np.ndarray, contrast: float, min_pixels: int = 6,
-              max_elongation: float = 1.4, paper_window: int = 31) -> tuple[np.ndarray, np.ndarray]:
+              max_elongation: float = 1.4, paper_window: int = 31, with_rays: bool = False) -> tuple:
     """The printed dots one view sees on its support (module docstring, step 2).
 
     Parameters
@@ -131,23 +131,27 @@ def seen_dots(alb: np.ndarray, rays: np.ndarray, plane: np.ndarray, contrast: fl
     min_pixels, max_elongation : a dot covers at least this many pixels, and its second moments in the
         plane differ by at most this ratio of axes (dots printed over each other are left out)
 
+    with_rays : also return each dot's pixels' rays
+
     Returns
     -------
-    centres : (K, 2) in :func:`plane_frame`'s x, y [m]; radii : (K,) [m]
+    centres : (K, 2) in :func:`plane_frame`'s x, y [m]; radii : (K,) [m]; with ``with_rays``, then
+    per dot (M, 3) its pixels' rays ``(x, y, 1)``
     """
     H, W = alb.shape
     known = np.isfinite(alb)
+    empty = (np.zeros((0, 2)), np.zeros(0)) + (([],) if with_rays else ())
     if known.sum() < 100:
-        return np.zeros((0, 2)), np.zeros(0)
+        return empty
     paper = ndimage.maximum_filter(np.where(known, alb, -np.inf), size=paper_window, mode="nearest")
     dark = known & (alb < paper - contrast / 2)
     bright = known & ~dark
     lab, n = ndimage.label(dark)
     if n == 0:
-        return np.zeros((0, 2)), np.zeros(0)
+        return empty
     nrm = np.asarray(plane[:3], np.float64)
     G = plane_frame(plane)
-    centres, radii = [], []
+    centres, radii, kept = [], [], []
     for k, sl in enumerate(ndimage.find_objects(lab), start=1):
         if sl is None:
             continue
@@ -175,7 +179,8 @@ def seen_dots(alb: np.ndarray, rays: np.ndarray, plane: np.ndarray, contrast: fl
             continue
         centres.append(c)
         radii.append(np.sqrt(2.0 * lam.sum()))
-    return (np.array(centres).reshape(-1, 2), np.array(radii))
+        kept.append(ray)
+    return (np.array(centres).reshape(-1, 2), np.array(radii)) + ((kept,) if with_rays else ())
 
 
 def _rigid_2d(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -21,6 +21,7 @@ from tofmetry._shared.dot_mat import DotMat
 from tofmetry.reconstruct._config import RegistrationConfig
 from tofmetry.reconstruct._mat_dense import locate_by_pattern
 from tofmetry.reconstruct._mat_locate import MatFix, albedo_image, locate_on_mat, plane_frame
+from tofmetry.reconstruct._mat_plane import view_dot_plane
 from tofmetry.reconstruct._photometric import log_albedo
 from tofmetry.reconstruct._posegraph import PoseGraphResult
 from tofmetry.reconstruct._register import pair_result, register_pair, rejection_reason
@@ -44,6 +45,8 @@ class MatPlacement:
         ``"mat"``), no loops
     fixes : view name -> :class:`MatFix` (every view, placed or not)
     kept : indices of the placed views; left_out : name -> why a view was not placed
+    dot_planes : view name -> :class:`~tofmetry.reconstruct._mat_plane.DotPlane`, the mat's plane its
+        dots alone give (views placed by their dots, with enough of them matched)
     through : name -> {"via": neighbours' names, "agree_deg", "agree_mm"} of a view the mat did not
         place, registered onto its placed neighbours instead
     """
@@ -53,6 +56,7 @@ class MatPlacement:
     kept: list
     left_out: dict = field(default_factory=dict)
     through: dict = field(default_factory=dict)
+    dot_planes: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return {name: f.to_dict() | ({"through": self.through[name]} if name in self.through else {})
@@ -123,7 +127,7 @@ def place_views(views, segs, regs, intr, white_map, rc: RegistrationConfig, name
     """
     mat = DotMat.from_dict(rc.mat, "registration.mat")
     rays = intr.ray_table(True)
-    fixes, poses = {}, {}
+    fixes, poses, dot_planes = {}, {}, {}
     for k, (v, s) in enumerate(zip(views, segs)):
         if s.plane is None or v.ir is None:
             fixes[names[k]] = MatFix(False, reason="no support plane was found in the view" if s.plane is None else
@@ -142,6 +146,9 @@ def place_views(views, segs, regs, intr, white_map, rc: RegistrationConfig, name
         fixes[names[k]] = fx
         if fx.located:
             poses[k] = fx.camera_to_mat
+            dp = view_dot_plane(alb, rays, s.plane, fx, mat) if "dots" in fx.how else None
+            if dp is not None:
+                dot_planes[names[k]] = dp
     through, not_through = {}, {}
     if len(poses) >= 2:
         on_mat = dict(poses)  # placed through views the mat placed, not through each other
@@ -172,7 +179,7 @@ def place_views(views, segs, regs, intr, white_map, rc: RegistrationConfig, name
             d["object_disagrees"] = rejection_reason(replace(p, accepted=False), rc)
         edges.append(d)
     graph = PoseGraphResult(P, edges, {"reasons": [], "loops": [], "placed_by": "dot mat"})
-    return MatPlacement(graph, fixes, kept, left_out, through)
+    return MatPlacement(graph, fixes, kept, left_out, through, dot_planes)
 
 
 def _through_neighbours(k: int, poses: dict, regs, rc: RegistrationConfig, names: list[str]):

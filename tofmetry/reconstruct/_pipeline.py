@@ -260,17 +260,36 @@ class ReconstructionPipeline:
                                                     placed=placed)
         return res
 
-    def correct_by_support(self, views, segs, intr) -> dict:
+    def correct_by_support(self, views, segs, intr, anchors: list | None = None) -> dict:
         """The range error the flat support shows, subtracted from every view before the fusion
-        (:func:`~tofmetry.reconstruct._support_curve.correct_by_support`); its report."""
+        (:func:`~tofmetry.reconstruct._support_curve.correct_by_support`, ``anchors`` the dot mat's
+        planes); its report."""
         pc = self.cfg.preprocess
         if not pc.support_curve:
             return {"applied": False, "why": "off (preprocess.support_curve)"}
         with self.progress("range curve from the support", 1) as adv:
             report = correct_by_support(views, segs, intr, pc.support_curve_band_mm * 1e-3, pc.support_curve_clear_px,
                                         self.cfg.segment.plane_threshold_mm * 1e-3, pc.support_curve_step_mm,
-                                        pc.support_curve_smooth_mm)
+                                        pc.support_curve_smooth_mm, anchors)
             adv()
+        return report
+
+    def anchored_support(self, views, segs, regs, intr, rc) -> dict | None:
+        """On a dot mat whose dots gave at least three views their plane (:attr:`mat`'s ``dot_planes``),
+        the support curve with those planes as anchors, subtracted now, whole, and the views placed
+        again on the corrected depth (their registration clouds rebuilt, ``regs`` in place); its report,
+        or None (the curve then comes after the poses, levelled)."""
+        dp = self.mat.dot_planes
+        if not (self.cfg.preprocess.support_curve and self.cfg.preprocess.support_anchor) or len(dp) < 3:
+            return None
+        anchors = [(dp[n].inverse_depth, dp[n].inverse_depth_cov) if n in dp else None for n in self.ds.names]
+        report = self.correct_by_support(views, segs, intr, anchors)
+        if report.get("applied"):
+            regs[:] = [make_reg_view(v, s, rc, intr, self.white_map) for v, s in zip(views, segs)]
+            with self.progress("placing the views on the mat again", 1) as adv:
+                self.mat = place_views(views, segs, regs, intr, self.white_map, rc, list(self.ds.names),
+                                       self.cfg.segment.plane_threshold_mm * 1e-3)
+                adv()
         return report
 
     def fuse(self, views, segs, poses, intr):
@@ -301,12 +320,13 @@ class ReconstructionPipeline:
                 self.mat = place_views(views, segs, regs, intr, self.white_map, rc, list(self.ds.names),
                                        self.cfg.segment.plane_threshold_mm * 1e-3)
                 adv()
+            support = self.anchored_support(views, segs, regs, intr, rc)
             if len(self.mat.kept) < 2:
                 raise EstimationError("fewer than two views were placed on the dot mat: " + "; ".join(
                     f"{n}: {f.reason}" for n, f in self.mat.fixes.items() if not f.located))
             self.kept, self.left_out, graph = self.mat.kept, dict(self.mat.left_out), self.mat.graph
         else:
-            graph = self.register(regs)
+            graph, support = self.register(regs), None
         if len(self.kept) < len(views):  # views no registration links to the others are left out
             views, segs, regs = ([x[k] for k in self.kept] for x in (views, segs, regs))
         names = [self.ds.names[k] for k in self.kept]
@@ -340,7 +360,8 @@ class ReconstructionPipeline:
                 for v, sg, (pts, depth, plane) in zip(views, segs, before_fit):
                     v.points, v.depth_mm, sg.plane = pts, depth, plane
         poses = start if adj is None else adj.poses
-        support = self.correct_by_support(views, segs, intr)
+        if support is None:
+            support = self.correct_by_support(views, segs, intr)
         t2b = time.perf_counter()
         V, F, N, P, PN, fusion_info = self.fuse(views, segs, poses, intr)
         t3 = time.perf_counter()

@@ -64,12 +64,17 @@ def support_samples(views: list[ViewData], segs: list[Segmentation], intr: Camer
 
 def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: CameraIntrinsics,
                        band_m: float, clear_px: float, plane_threshold_m: float, step_mm: float,
-                       smooth_mm: float) -> dict:
+                       smooth_mm: float, anchors: list | None = None) -> dict:
     """Fit the support's range curve, levelled on the object's depths, and subtract it from every
     view's depth, in place.
 
     Each point moves along its ray (``Z -> Z - e(Z)``), the depth maps with them; each support plane
     is refitted on the points that lay on it (within ``plane_threshold_m``) before.
+
+    ``anchors``: per view None or ``(p, cov)``, its support plane known without the depth (the dot
+    mat's, :class:`~tofmetry.reconstruct._mat_plane.DotPlane`); with enough of them the curve is whole
+    (:func:`~tofmetry.calibrate.flat_support_curve`) and subtracted unlevelled: its level at the object
+    is then measured too.
 
     Returns
     -------
@@ -80,14 +85,15 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
     """
     z_mm, xy = support_samples(views, segs, intr, band_m, clear_px)
     try:
-        curve = flat_support_curve(z_mm, xy, step_mm=step_mm, smooth_mm=smooth_mm)
+        curve = flat_support_curve(z_mm, xy, step_mm=step_mm, smooth_mm=smooth_mm, anchors=anchors)
     except EstimationError as exc:
         return {"applied": False, "why": str(exc)}
     # the object's own mean depth stays as the calibration left it: the support shows the curve's shape,
     # not its level there (measured on a bar of draw 74: applied unlevelled, the curve moved its views
     # 0.4-0.9 mm toward their cameras and the model's mean distance went 0.22 -> 0.39 mm)
     z_obj = np.concatenate([v.points[s.object_mask, 2] for v, s in zip(views, segs)]) * 1e3
-    curve = curve.levelled(z_obj)
+    if not curve.anchored:
+        curve = curve.levelled(z_obj)
     for v, s in zip(views, segs):
         on = None if s.plane is None else np.abs(v.points @ s.plane[:3] + s.plane[3]) < plane_threshold_m
         d = v.depth_mm
@@ -100,5 +106,9 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
         if on is not None and on.sum() >= 3:
             s.plane = fit_plane_svd(v.points[on], orient=s.plane[:3])
     g, sg = curve.mean_gain(z_obj)
-    return {"applied": True, "object_gain_pct": round(100 * g, 4), "object_gain_sigma_pct": round(100 * sg, 4),
-            "object_depth_mm": [round(float(np.percentile(z_obj, q)), 1) for q in (5, 95)]} | curve.to_dict()
+    out = {"applied": True, "object_gain_pct": round(100 * g, 4), "object_gain_sigma_pct": round(100 * sg, 4),
+           "object_depth_mm": [round(float(np.percentile(z_obj, q)), 1) for q in (5, 95)]}
+    if curve.anchored:  # the level it moved the object by, and that level's 1-sigma
+        lv, slv = curve.mean_error(z_obj)
+        out |= {"object_offset_mm": round(lv, 3), "object_offset_sigma_mm": round(slv, 3)}
+    return out | curve.to_dict()
