@@ -491,3 +491,22 @@ def test_with_the_support_curve_removed_the_gain_left_is_its_own_and_the_unseen_
     assert "flat support" in after["source"]
     not_applied = scale_report({"gain_estimated": False}, pred, 900.0, support={"applied": False, "why": "x"})
     assert np.isclose(not_applied["gain_sigma"], before["gain_sigma"])
+
+
+def test_a_support_curve_anchored_on_the_mats_planes_leaves_its_own_gain_and_the_offset_as_measured():
+    """Anchored on the dot mat's planes, the curve's gain is measured whole: only its jackknife sigma is
+    left (not the sqrt(2) e / span a plane cannot show). Levelled on the object ('gain'), the offset stays
+    the calibration's e; applied whole, it is the curve's own sigma at the object and 0.6 mm for the
+    object's own offset from the support."""
+    from tofmetry.reconstruct._scale_report import OBJECT_SUPPORT_OFFSET_MM
+
+    folds = [{"center_mm": 750.0 + 250 * k, "central_mm": 2.0} for k in range(6)]
+    pred = {"interpolation": {"central_abs_mm": {"predicted": 2.0}}, "folds": folds}
+    base = {"applied": True, "span_mm": [500.0, 2000.0], "object_gain_sigma_pct": 0.05, "anchored": True,
+            "n_anchors": 8, "object_offset_sigma_mm": 0.2}
+    gain = scale_report({"gain_estimated": False}, pred, 900.0, support=base | {"levelled": True})
+    assert np.isclose(gain["gain_sigma"], 0.0005) and gain["predicted_offset_sigma_mm"] == 2.0
+    assert "anchored on 8 views" in gain["source"]
+    whole = scale_report({"gain_estimated": False}, pred, 900.0, support=base | {"levelled": False})
+    assert np.isclose(whole["predicted_offset_sigma_mm"], np.hypot(0.2, OBJECT_SUPPORT_OFFSET_MM))
+    assert whole["predicted_scale_sigma_pct"] < gain["predicted_scale_sigma_pct"]

@@ -305,10 +305,19 @@ def _print_support_curve(sc: dict | None) -> None:
         console.print(f"support curve: not applied ({sc.get('why', '')})")
         return
     lo, hi = sc["span_mm"]
+    if sc.get("anchored") and not sc.get("levelled", True):
+        console.print(f"support curve: the mat, seen over {lo:.0f}-{hi:.0f} mm in {sc['n_views']} views and placed by its "
+                      f"dots alone in {sc['n_anchors']}, shows a range error of up to {sc['max_abs_mm']:.2f} mm; removed "
+                      f"before the views were placed, it moved the object's depths by {sc['object_offset_mm']:+.2f} mm "
+                      f"+- {sc['object_offset_sigma_mm']:.2f} mm and their gain by {sc['object_gain_pct']:+.3f} % "
+                      f"+- {sc['object_gain_sigma_pct']:.3f} %")
+        return
     console.print(f"support curve: the support, seen over {lo:.0f}-{hi:.0f} mm in {sc['n_views']} views, is not flat by "
                   f"up to {sc['max_abs_mm']:.2f} mm ({sc['flatness_before_mm']:.2f} -> {sc['residual_mm']:.2f} mm RMS with "
                   f"the curve); removed before the fusion, it changed the gain over the object's depths by "
-                  f"{sc['object_gain_pct']:+.3f} % +- {sc['object_gain_sigma_pct']:.3f} %")
+                  f"{sc['object_gain_pct']:+.3f} % +- {sc['object_gain_sigma_pct']:.3f} %"
+                  + (f" (its gain and curvature from the planes the mat's dots gave {sc['n_anchors']} views)"
+                     if sc.get("anchored") else ""))
 
 
 def _print_amplitude_slope(slope: dict | None) -> None:

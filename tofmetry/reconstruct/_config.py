@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import BaseModel, Field
 
 from tofmetry._shared.study_constants import AMPLITUDE_BIAS_MM_PER_LN
@@ -33,10 +35,12 @@ class PreprocessConfig(BaseModel):
     support_curve_clear_px: float = Field(12.0, ge=0, description="support points within this many pixels of the "
                                           "object's are left out of the support curve (its foot, flying pixels "
                                           "and shadow lie at the object's own depths)")
-    support_anchor: bool = Field(True, description="on a dot mat, the planes its dots give each view (without "
-                                 "the depth) measure the support curve's offset, gain and curvature too; the whole "
-                                 "curve is then subtracted before the views are placed (tofmetry.reconstruct."
-                                 "_mat_plane)")
+    support_anchor: Literal["none", "gain", "whole"] = Field(
+        "none", description="on a dot mat, the planes its dots give each view without the depth (tofmetry.reconstruct."
+        "_mat_plane) measure the support curve's gain and curvature too: 'gain' levels that curve on the object's "
+        "depths and subtracts it after the poses (the offset stays the calibration's); 'whole' subtracts it unlevelled "
+        "before the views are placed, and places them again; 'none': the support alone (its part orthogonal to 1, Z "
+        "and Z^2)")
     amplitude_k_mm_per_ln: float = Field(AMPLITUDE_BIAS_MM_PER_LN, description="amplitude bias k ln(A_white / A) [mm]; "
                                          "12 mm for 1/6 of the white amplitude (study §3.3.1) -> 12 / ln 6 = 6.70; used "
                                          "with an amplitude reference")

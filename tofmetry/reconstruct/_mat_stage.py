@@ -112,7 +112,7 @@ class MatPlacement:
 
 
 def place_views(views, segs, regs, intr, white_map, rc: RegistrationConfig, names: list[str],
-                plane_threshold_m: float) -> MatPlacement:
+                plane_threshold_m: float, dot_planes: bool = False) -> MatPlacement:
     """Place every view on the mat ``rc.mat`` (module docstring).
 
     Parameters
@@ -120,6 +120,7 @@ def place_views(views, segs, regs, intr, white_map, rc: RegistrationConfig, name
     views, segs, regs : the prepared views, their segmentations and registration clouds
     intr : CameraIntrinsics of the depth images; white_map : (H, W) amplitude reference or None
     names : the views' names; plane_threshold_m : the support plane's inlier distance [m]
+    dot_planes : also fit each view's plane from its dots alone (``MatPlacement.dot_planes``)
 
     Returns
     -------
@@ -127,7 +128,7 @@ def place_views(views, segs, regs, intr, white_map, rc: RegistrationConfig, name
     """
     mat = DotMat.from_dict(rc.mat, "registration.mat")
     rays = intr.ray_table(True)
-    fixes, poses, dot_planes = {}, {}, {}
+    fixes, poses, planes = {}, {}, {}
     for k, (v, s) in enumerate(zip(views, segs)):
         if s.plane is None or v.ir is None:
             fixes[names[k]] = MatFix(False, reason="no support plane was found in the view" if s.plane is None else
@@ -146,9 +147,9 @@ def place_views(views, segs, regs, intr, white_map, rc: RegistrationConfig, name
         fixes[names[k]] = fx
         if fx.located:
             poses[k] = fx.camera_to_mat
-            dp = view_dot_plane(alb, rays, s.plane, fx, mat) if "dots" in fx.how else None
+            dp = view_dot_plane(alb, rays, s.plane, fx, mat) if dot_planes and "dots" in fx.how else None
             if dp is not None:
-                dot_planes[names[k]] = dp
+                planes[names[k]] = dp
     through, not_through = {}, {}
     if len(poses) >= 2:
         on_mat = dict(poses)  # placed through views the mat placed, not through each other
@@ -179,7 +180,7 @@ def place_views(views, segs, regs, intr, white_map, rc: RegistrationConfig, name
             d["object_disagrees"] = rejection_reason(replace(p, accepted=False), rc)
         edges.append(d)
     graph = PoseGraphResult(P, edges, {"reasons": [], "loops": [], "placed_by": "dot mat"})
-    return MatPlacement(graph, fixes, kept, left_out, through, dot_planes)
+    return MatPlacement(graph, fixes, kept, left_out, through, planes)
 
 
 def _through_neighbours(k: int, poses: dict, regs, rc: RegistrationConfig, names: list[str]):

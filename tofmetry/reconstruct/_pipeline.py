@@ -260,7 +260,7 @@ class ReconstructionPipeline:
                                                     placed=placed)
         return res
 
-    def correct_by_support(self, views, segs, intr, anchors: list | None = None) -> dict:
+    def correct_by_support(self, views, segs, intr, anchors: list | None = None, level: bool = True) -> dict:
         """The range error the flat support shows, subtracted from every view before the fusion
         (:func:`~tofmetry.reconstruct._support_curve.correct_by_support`, ``anchors`` the dot mat's
         planes); its report."""
@@ -270,7 +270,7 @@ class ReconstructionPipeline:
         with self.progress("range curve from the support", 1) as adv:
             report = correct_by_support(views, segs, intr, pc.support_curve_band_mm * 1e-3, pc.support_curve_clear_px,
                                         self.cfg.segment.plane_threshold_mm * 1e-3, pc.support_curve_step_mm,
-                                        pc.support_curve_smooth_mm, anchors)
+                                        pc.support_curve_smooth_mm, anchors, level)
             adv()
         return report
 
@@ -279,18 +279,28 @@ class ReconstructionPipeline:
         the support curve with those planes as anchors, subtracted now, whole, and the views placed
         again on the corrected depth (their registration clouds rebuilt, ``regs`` in place); its report,
         or None (the curve then comes after the poses, levelled)."""
-        dp = self.mat.dot_planes
-        if not (self.cfg.preprocess.support_curve and self.cfg.preprocess.support_anchor) or len(dp) < 3:
+        if not (self.cfg.preprocess.support_curve and self.cfg.preprocess.support_anchor == "whole"):
             return None
-        anchors = [(dp[n].inverse_depth, dp[n].inverse_depth_cov) if n in dp else None for n in self.ds.names]
-        report = self.correct_by_support(views, segs, intr, anchors)
+        anchors = self.mat_anchors(self.ds.names)
+        if anchors is None:
+            return None
+        report = self.correct_by_support(views, segs, intr, anchors, level=False)
         if report.get("applied"):
             regs[:] = [make_reg_view(v, s, rc, intr, self.white_map) for v, s in zip(views, segs)]
             with self.progress("placing the views on the mat again", 1) as adv:
                 self.mat = place_views(views, segs, regs, intr, self.white_map, rc, list(self.ds.names),
-                                       self.cfg.segment.plane_threshold_mm * 1e-3)
+                                       self.cfg.segment.plane_threshold_mm * 1e-3,
+                                       self.cfg.preprocess.support_anchor != "none")
                 adv()
         return report
+
+    def mat_anchors(self, names: list[str]) -> list | None:
+        """Per view of ``names``, ``(a, b, c)`` and their covariance of the plane the mat's dots alone gave
+        it (None for a view without), or None when fewer than three views have one (or no mat)."""
+        dp = {} if self.mat is None else self.mat.dot_planes
+        if len(dp) < 3:
+            return None
+        return [(dp[n].inverse_depth, dp[n].inverse_depth_cov) if n in dp else None for n in names]
 
     def fuse(self, views, segs, poses, intr):
         """TSDF fusion of the views at ``poses`` (:func:`fuse_views`)."""
@@ -318,7 +328,8 @@ class ReconstructionPipeline:
         if rc.mat is not None:  # each view placed on the dot mat on its own
             with self.progress("placing the views on the mat", 1) as adv:
                 self.mat = place_views(views, segs, regs, intr, self.white_map, rc, list(self.ds.names),
-                                       self.cfg.segment.plane_threshold_mm * 1e-3)
+                                       self.cfg.segment.plane_threshold_mm * 1e-3,
+                                       self.cfg.preprocess.support_anchor != "none")
                 adv()
             support = self.anchored_support(views, segs, regs, intr, rc)
             if len(self.mat.kept) < 2:
@@ -360,8 +371,9 @@ class ReconstructionPipeline:
                 for v, sg, (pts, depth, plane) in zip(views, segs, before_fit):
                     v.points, v.depth_mm, sg.plane = pts, depth, plane
         poses = start if adj is None else adj.poses
-        if support is None:
-            support = self.correct_by_support(views, segs, intr)
+        if support is None:  # the curve after the poses, levelled on the object; on a mat, its gain anchored
+            gain = self.cfg.preprocess.support_anchor == "gain"
+            support = self.correct_by_support(views, segs, intr, self.mat_anchors(names) if gain else None)
         t2b = time.perf_counter()
         V, F, N, P, PN, fusion_info = self.fuse(views, segs, poses, intr)
         t3 = time.perf_counter()

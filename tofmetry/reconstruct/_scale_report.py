@@ -106,6 +106,7 @@ def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z
           sg_cal * e_gain / e if e > 0 and sg_cal is not None else e_gain / (spacing / 2))
     on_support = bool((support or {}).get("applied"))
     anchored = on_support and bool(support.get("anchored"))
+    whole = anchored and not support.get("levelled", True)  # its level at the object measured and applied too
     if on_support:
         span = float(np.diff(support["span_mm"])[0])
         # anchored, the curve is whole (its gain measured too): only its own jackknife sigma is left
@@ -113,7 +114,7 @@ def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z
                                     support["object_gain_sigma_pct"] / 100))
         sg = float(np.hypot(sg, support["object_gain_sigma_pct"] / 100)) if est else sg_support
         out["gain_sigma_support"] = sg_support
-    if anchored:  # the offset at the object measured by the mat's planes: its 1-sigma replaces the calibration's,
+    if whole:  # the offset at the object measured by the mat's planes: its 1-sigma replaces the calibration's,
         # with what the support cannot show of the object's own (OBJECT_SUPPORT_OFFSET_MM)
         e = float(np.hypot(support["object_offset_sigma_mm"], OBJECT_SUPPORT_OFFSET_MM))
     slope = (adj.get("amplitude_bias") or {}).get("gain_per_mm_per_ln")
@@ -129,7 +130,12 @@ def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z
                 f"object's depths (more than the calibration's predicted {e:.2f} mm)")
     if sg_k > 0:
         src += f" (with k known to +-{k_sigma_mm:.2f} mm per ln unit)"
-    if anchored:
+    if anchored and not whole:
+        src += (f"; the range error's gain and curvature at the object read from the dot mat's support (anchored on "
+                f"{support['n_anchors']} views' planes the printed dots give) and removed, +-"
+                f"{support['object_gain_sigma_pct']:.3f} % left (the views' jackknife; the lens's focal length error is "
+                "not in it)")
+    elif whole:
         src = (f"the range error at the object read from the dot mat's support and removed, its offset, gain and "
                f"curvature from {support['n_anchors']} views' planes the printed dots give (+-"
                f"{support['object_offset_sigma_mm']:.2f} mm and +-{support['object_gain_sigma_pct']:.3f} % there, "

@@ -64,7 +64,7 @@ def support_samples(views: list[ViewData], segs: list[Segmentation], intr: Camer
 
 def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: CameraIntrinsics,
                        band_m: float, clear_px: float, plane_threshold_m: float, step_mm: float,
-                       smooth_mm: float, anchors: list | None = None) -> dict:
+                       smooth_mm: float, anchors: list | None = None, level: bool = True) -> dict:
     """Fit the support's range curve, levelled on the object's depths, and subtract it from every
     view's depth, in place.
 
@@ -73,8 +73,9 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
 
     ``anchors``: per view None or ``(p, cov)``, its support plane known without the depth (the dot
     mat's, :class:`~tofmetry.reconstruct._mat_plane.DotPlane`); with enough of them the curve is whole
-    (:func:`~tofmetry.calibrate.flat_support_curve`) and subtracted unlevelled: its level at the object
-    is then measured too.
+    (:func:`~tofmetry.calibrate.flat_support_curve`), its gain and curvature included. ``level``: the
+    curve levelled on the object's depths (always when it is not anchored); an anchored curve not
+    levelled moves the object by its level there (``object_offset_mm``).
 
     Returns
     -------
@@ -92,7 +93,9 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
     # not its level there (measured on a bar of draw 74: applied unlevelled, the curve moved its views
     # 0.4-0.9 mm toward their cameras and the model's mean distance went 0.22 -> 0.39 mm)
     z_obj = np.concatenate([v.points[s.object_mask, 2] for v, s in zip(views, segs)]) * 1e3
-    if not curve.anchored:
+    levelled = level or not curve.anchored
+    lv, slv = curve.mean_error(z_obj)
+    if levelled:
         curve = curve.levelled(z_obj)
     for v, s in zip(views, segs):
         on = None if s.plane is None else np.abs(v.points @ s.plane[:3] + s.plane[3]) < plane_threshold_m
@@ -108,7 +111,7 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
     g, sg = curve.mean_gain(z_obj)
     out = {"applied": True, "object_gain_pct": round(100 * g, 4), "object_gain_sigma_pct": round(100 * sg, 4),
            "object_depth_mm": [round(float(np.percentile(z_obj, q)), 1) for q in (5, 95)]}
-    if curve.anchored:  # the level it moved the object by, and that level's 1-sigma
-        lv, slv = curve.mean_error(z_obj)
-        out |= {"object_offset_mm": round(lv, 3), "object_offset_sigma_mm": round(slv, 3)}
+    if curve.anchored:  # the level at the object's depths: taken off (levelled), or what moved the object
+        out |= {"levelled": levelled, "object_offset_mm": 0.0 if levelled else round(lv, 3),
+                "anchored_level_mm": round(lv, 3), "object_offset_sigma_mm": round(slv, 3)}
     return out | curve.to_dict()
