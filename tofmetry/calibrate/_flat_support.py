@@ -28,6 +28,14 @@ Its uncertainty comes from the views themselves: the curve is refitted with each
 (a jackknife), so a view's own errors (a per-pixel deformation it sees on the support, a patch of
 dark print) count, which a formal covariance over 10^5 correlated points would not.
 
+With ``anchors`` (each view's plane measured without the depth, e.g. from a printed pattern's
+perspective, :mod:`tofmetry.reconstruct._mat_plane`) the parts a plane absorbs are measured too: each
+anchored view's fitted plane, against its anchor over its support's depths, is what the fitted curve left
+of the range error there, and those differences, each view weighted by its anchor's covariance, give the
+curve's ``1``, ``Z`` and ``Z^2`` (:func:`_anchored_part`); the curve is then whole (``anchored``). (A
+joint fit with the anchors as priors on the planes was tried first: the linearisation's ``e^2 / Z`` in
+directions the support hardly sees pulled the planes millimetres off, even with exact anchors.)
+
 Assumes the support is flat to well under the curve (a table or a floor: tenths of a millimetre
 over the span) and the points on it were segmented (the object and its shadow left out).
 """
