@@ -78,3 +78,12 @@ def test_the_sheet_comes_back_from_its_dots_where_the_depth_put_it_1_percent_off
     assert abs(dp.plane[3] / true[3] - 1) < 3e-3
     assert np.degrees(np.arccos(np.clip(dp.plane[:3] @ true[:3], -1, 1))) < 0.1
     assert dp.rms_mm < 1.0
+
+
+def test_a_dot_planes_record_gives_the_distance_and_its_sigma():
+    from tofmetry.reconstruct._mat_plane import DotPlane
+
+    abc = np.array([0.0, -2.0, -1.0])
+    dp = DotPlane(np.r_[0.0, -0.8944, -0.4472, 0.4472], abc, np.diag([0.0, 0.0, 1e-6]), 12, 0.5)
+    d = dp.to_dict()
+    assert d["distance_mm"] == 447.2 and d["distance_sigma_mm"] == 0.447 and d["n_dots"] == 12

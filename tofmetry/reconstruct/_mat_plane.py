@@ -57,10 +57,10 @@ class DotPlane:
     rms_mm: float
 
     def to_dict(self) -> dict:
-        s = np.sqrt(np.diag(self.inverse_depth_cov))
-        return {"distance_mm": round(-1e3 * float(self.plane[3]), 3) if self.plane[3] < 0 else
-                round(1e3 * float(self.plane[3]), 3), "distance_sigma_mm": round(1e3 * float(
-                    abs(self.plane[3]) * s[2] / max(abs(self.inverse_depth[2]), 1e-12)), 3),
+        """The camera's distance from the sheet [mm], its 1-sigma, the dots and their residual RMS."""
+        d = abs(float(self.plane[3]))
+        rel = float(np.sqrt(self.inverse_depth_cov[2, 2])) / max(abs(float(self.inverse_depth[2])), 1e-12)
+        return {"distance_mm": round(1e3 * d, 3), "distance_sigma_mm": round(1e3 * d * rel, 3),
                 "n_dots": self.n_dots, "rms_mm": round(self.rms_mm, 3)}
 
 

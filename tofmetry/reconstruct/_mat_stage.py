@@ -60,6 +60,7 @@ class MatPlacement:
 
     def to_dict(self) -> dict:
         return {name: f.to_dict() | ({"through": self.through[name]} if name in self.through else {})
+                | ({"dot_plane": self.dot_planes[name].to_dict()} if name in self.dot_planes else {})
                 for name, f in self.fixes.items()}
 
     def view_verdicts(self) -> dict:
