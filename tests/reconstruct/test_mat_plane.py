@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from tofmetry.reconstruct._mat_locate import plane_frame
-from tofmetry.reconstruct._mat_plane import dot_centre, plane_from_dots
+from tofmetry.reconstruct._mat_plane import dot_centres, plane_from_dots
 from tofmetry.sensor import KINECT_V2, CameraIntrinsics
 
 _K = KINECT_V2.depth
@@ -67,7 +67,7 @@ def test_the_sheet_comes_back_from_its_dots_where_the_depth_put_it_1_percent_off
     tilt = np.radians(1.0)
     n_off = true[:3] + tilt * np.cross(true[:3], [1.0, 0.0, 0.0])
     start = np.r_[n_off / np.linalg.norm(n_off), true[3] * 1.01]
-    c0 = np.array([dot_centre(blobs[k], start) for k in keep])
+    c0 = dot_centres([blobs[k] for k in keep], start)
     # the in-plane motion from the start's centres (as the mat's matching gives it)
     A, B = c0 - c0.mean(0), printed - printed.mean(0)
     U, _, Vt = np.linalg.svd(A.T @ B)

@@ -295,14 +295,17 @@ def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: fl
                      for j in range(V)])
     coef = part @ Q @ c
     if whole:  # what the planes took up (the parts the support cannot show), from the anchors
-        samples = [_anchor_samples(views[j][1][used[j]], dict(planes)[j], *held[j]) for j in anchored]
+        plane_of = dict(planes)
+        samples = [_anchor_samples(views[j][1][used[j]], plane_of[j], *held[j]) for j in anchored]
         to_coef = np.linalg.pinv(Bg) @ Pg  # (1, u, u^2) -> spline coefficients
-        poly = lambda use: _anchored_part([samples[i] for i in use], zg.mean(), hi - lo)  # noqa: E731
-        coef = coef + to_coef @ poly(range(len(anchored)))
-        for i, j in enumerate(anchored):
-            jack[j] = jack[j] + to_coef @ poly([k for k in range(len(anchored)) if k != i])
-        for j in set(range(V)) - set(anchored):
-            jack[j] = jack[j] + to_coef @ poly(range(len(anchored)))
+
+        def share(drop: int | None = None) -> np.ndarray:  # the planes' share, without anchor ``drop``
+            return to_coef @ _anchored_part([x for i, x in enumerate(samples) if i != drop], zg.mean(), hi - lo)
+
+        full = share()
+        coef = coef + full
+        for j in range(V):  # a view without an anchor leaves the planes' share as it is
+            jack[j] = jack[j] + (share(anchored.index(j)) if j in anchored else full)
     cov = (V - 1) / V * (jack - jack.mean(0)).T @ (jack - jack.mean(0))
     return FlatSupportCurve((lo, hi), knots, coef, cov, V, int(sum(m.sum() for m in used)),
                             float(1.4826 * np.median(np.abs(res))),

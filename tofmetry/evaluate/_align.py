@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from tofmetry._shared.geometry import rotation_angle_deg, transform_points
+from tofmetry._shared.geometry import displacement_at, rotation_angle_deg, transform_points
 from tofmetry.errors import EstimationError
 from tofmetry.reconstruct import estimate_normals, global_register, icp, voxel_down
 
@@ -135,6 +135,11 @@ def align_to_reference(model_pts: np.ndarray, ref_pts: np.ndarray, ref_nrm: np.n
         candidates.append(np.eye(4) if init is None else np.asarray(init, np.float64))
     if coarse:
         candidates += [np.asarray(T, np.float64) for T in extra_candidates]
+    cap = float(max(icp_radii_mm))  # the misfit's cap: the widest ICP radius
+
+    def passes(T) -> bool:
+        return accept is None or bool(accept(T))
+
     screened = len(candidates) > screen_keep
     if screened:  # cheap screening of many hypotheses
         m_scr, _ = voxel_down(model_pts, None, 0.005)
@@ -150,14 +155,12 @@ def align_to_reference(model_pts: np.ndarray, ref_pts: np.ndarray, ref_nrm: np.n
 
         def score(T):
             T = screen(T).transform
-            return (accept is None or bool(accept(T)),
-                    -capped_misfit_mm(m_scr, scr_tree, r_scr, r_scr_n, T, float(max(icp_radii_mm))))
+            return (passes(T), -capped_misfit_mm(m_scr, scr_tree, r_scr, r_scr_n, T, cap))
 
         scored = [(score(T), k) for k, T in enumerate(candidates)]
         scored.sort(key=lambda sk: sk[0], reverse=True)
         candidates = [candidates[k] for _, k in scored[:screen_keep]]
     tree = cKDTree(r_fine)
-    cap = float(max(icp_radii_mm))
     done = []
     for T0 in candidates:  # every remaining candidate through all the stages, ranked at the end
         T, st = T0, []
@@ -166,7 +169,7 @@ def align_to_reference(model_pts: np.ndarray, ref_pts: np.ndarray, ref_nrm: np.n
             T = m.transform
             st.append({"max_dist_mm": r, "fitness": m.fitness, "inlier_rmse_mm": m.inlier_rmse_m * 1e3})
         mis = capped_misfit_mm(m_fine, tree, r_fine, r_nrm, T, cap)
-        done.append(((accept is None or bool(accept(T)), -mis), m, T0, st, mis))
+        done.append(((passes(T), -mis), m, T0, st, mis))
     done.sort(key=lambda c: c[0], reverse=True)
     _, m, T_init, stages, mis = done[0]
     T = m.transform
@@ -178,7 +181,7 @@ def align_to_reference(model_pts: np.ndarray, ref_pts: np.ndarray, ref_nrm: np.n
         if key[0] != done[0][0][0]:
             break
         E = m2.transform @ np.linalg.inv(T)
-        deg, mm = rotation_angle_deg(E), float(np.linalg.norm(transform_points(centre[None], E)[0] - centre)) * 1e3
+        deg, mm = rotation_angle_deg(E), displacement_at(E, centre) * 1e3
         if deg > 1.0 or mm > 5.0:
             res.runner_up = {"misfit_mm": round(mis2, 3), "deg": round(deg, 2), "mm": round(mm, 1)}
             res.ambiguous = bool(mis2 <= AMBIGUOUS_RATIO * mis)

@@ -117,6 +117,18 @@ def albedo_image(index: np.ndarray, shape: tuple[int, int], ground: np.ndarray, 
     return med
 
 
+def dot_moments(ray: np.ndarray, nrm: np.ndarray, d: float, G: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A dot's centre (2,) and second moments (2, 2) on the plane ``nrm . p + d = 0`` [m], in its frame
+    ``G`` (:func:`plane_frame`): its pixels' rays ``ray`` (M, 3) cut with the plane, each pixel weighing
+    its footprint there (far pixels cover more: ``Z^3 / (n . ray)``)."""
+    q = ray * (-d / (ray @ nrm))[:, None]  # the rays cut with the plane
+    xy = q @ G[:2, :3].T + G[:2, 3]
+    w = q[:, 2] ** 2 / np.abs(ray @ nrm) * q[:, 2]
+    w = w / w.sum()
+    c = w @ xy
+    return c, (xy - c).T @ ((xy - c) * w[:, None])
+
+
 def seen_dots(alb: np.ndarray, rays: np.ndarray, plane: np.ndarray, contrast: float, min_pixels: int = 6,
               max_elongation: float = 1.4, paper_window: int = 31, with_rays: bool = False) -> tuple:
     """The printed dots one view sees on its support (module docstring, step 2).
@@ -167,13 +179,7 @@ def seen_dots(alb: np.ndarray, rays: np.ndarray, plane: np.ndarray, contrast: fl
             continue  # not wholly on paper: the object, a hole or the sheet's edge next to it
         rr, cc = np.nonzero(blob)
         ray = np.column_stack([rays[rr + r0, cc + c0], np.ones(len(rr))])
-        q = ray * (-float(plane[3]) / (ray @ nrm))[:, None]  # the rays cut with the plane
-        xy = q @ G[:2, :3].T + G[:2, 3]
-        # each pixel weighs its footprint on the plane (far pixels cover more): Z^3 / (n . ray)
-        w = q[:, 2] ** 2 / np.abs(ray @ nrm) * q[:, 2]
-        w = w / w.sum()
-        c = w @ xy
-        cov = (xy - c).T @ ((xy - c) * w[:, None])
+        c, cov = dot_moments(ray, nrm, float(plane[3]), G)
         lam = np.linalg.eigvalsh(cov)
         if lam[0] <= 0 or np.sqrt(lam[1] / lam[0]) > max_elongation:
             continue

@@ -4,7 +4,7 @@ A view places itself on the dot mat (:mod:`~tofmetry.reconstruct._mat_locate`) b
 rays with the support plane the depth shows. That plane carries the depth's own range error: a
 millimetre of offset at the mat moves it a millimetre, and nothing in the depth can tell. The dots
 can: their layout is printed at a known size, so the plane that makes their centres (the cuts of
-their pixels' rays, :func:`dot_centre`) match the layout is the sheet's, up to the lens calibration
+their pixels' rays, :func:`dot_centres`) match the layout is the sheet's, up to the lens calibration
 (a focal length off by ``f`` puts it ``f`` too far, as a depth gain would). This is a perspective-n-point
 fit on dots, with the dots' own pixels as the measurements:
 
@@ -28,7 +28,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from tofmetry._shared.dot_mat import DotMat
-from tofmetry.reconstruct._mat_locate import MatFix, contrast, guided_match, plane_frame, seen_dots
+from tofmetry.reconstruct._mat_locate import MatFix, contrast, dot_moments, guided_match, plane_frame, seen_dots
 
 
 #: relative 1-sigma added to a dot plane's distance: the pixels a dot's rim cuts bias its centre,
@@ -64,16 +64,12 @@ class DotPlane:
                 "n_dots": self.n_dots, "rms_mm": round(self.rms_mm, 3)}
 
 
-def dot_centre(ray: np.ndarray, plane: np.ndarray) -> np.ndarray:
-    """The centre of one dot on ``plane`` (4,): the centroid of its pixels' rays ``ray`` (M, 3) cut with
-    the plane, each weighted by its footprint there, in :func:`~tofmetry.reconstruct._mat_locate.plane_frame`'s
-    x, y [m] (as :func:`~tofmetry.reconstruct._mat_locate.seen_dots` computes it)."""
-    n = np.asarray(plane[:3], np.float64)
-    G = plane_frame(plane)
-    q = ray * (-float(plane[3]) / (ray @ n))[:, None]
-    xy = q @ G[:2, :3].T + G[:2, 3]
-    w = q[:, 2] ** 3 / np.abs(ray @ n)
-    return (w / w.sum()) @ xy
+def dot_centres(dot_rays: list[np.ndarray], plane: np.ndarray) -> np.ndarray:
+    """The centres (K, 2) of dots on ``plane`` (4,), from each dot's pixels' rays (M, 3), in
+    :func:`~tofmetry.reconstruct._mat_locate.plane_frame`'s x, y [m], as
+    :func:`~tofmetry.reconstruct._mat_locate.seen_dots` computes them (:func:`~tofmetry.reconstruct._mat_locate.dot_moments`)."""
+    n, G = np.asarray(plane[:3], np.float64), plane_frame(plane)
+    return np.array([dot_moments(r, n, float(plane[3]), G)[0] for r in dot_rays]).reshape(-1, 2)
 
 
 def _tilted(n0: np.ndarray, a: float, b: float) -> np.ndarray:
@@ -110,8 +106,7 @@ def plane_from_dots(dot_rays: list[np.ndarray], printed_xy: np.ndarray, plane0: 
         return np.r_[_tilted(n0, p[0], p[1]), d0 * np.exp(p[2])]
 
     def resid(p):
-        pl = plane_of(p)
-        c = np.array([dot_centre(r, pl) for r in dot_rays])
+        c = dot_centres(dot_rays, plane_of(p))
         th = p[3]
         Rt = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
         return ((c @ Rt.T + p[4:6]) - C).ravel() * 1e3
