@@ -28,20 +28,17 @@ from tofmetry.reconstruct._model_build import (
     object_depth_span_mm,
     world_plane,
 )
-from tofmetry.reconstruct._pattern_search import search_by_pattern
 from tofmetry.reconstruct._mat_stage import (calibration_beyond_gate, departures, loose_reason, pattern_scale,
                                              pattern_scale_warning, place_views)
-from tofmetry.reconstruct._posegraph import PoseGraphBuilder
 from tofmetry.reconstruct._preprocess import ViewData, prepare_view
 from tofmetry.reconstruct._support_curve import correct_by_support
-from tofmetry.reconstruct._register import register_pair, rejection_reason
+from tofmetry.reconstruct._register_stage import register_views
 from tofmetry.reconstruct._regview import RegView, leaves_yaw_free, make_reg_view
 from tofmetry.reconstruct._scale_report import scale_report
 from tofmetry.reconstruct._segment import Segmentation, segment_object
-from tofmetry.reconstruct._select_stage import select_with_implied
 from tofmetry.reconstruct._thin_slab import slab_reason, thin_slab_check
 from tofmetry.reconstruct._turntable import turntable_poses
-from tofmetry.reconstruct._turntable_bridge import UNCONFIRMED_REASON, no_turn_error, turntable_bridges
+from tofmetry.reconstruct._turntable_bridge import UNCONFIRMED_REASON
 from tofmetry.reconstruct._verdict import assess
 from tofmetry.reconstruct._world import support_plane_frame, transform_plane
 
@@ -172,82 +169,13 @@ class ReconstructionPipeline:
         return views, segs, regs, intr0
 
     def register(self, regs: list[RegView]):
-        """Successive pairs (and last -> first) with the global search; a failed successive pair is
-        bridged by a global search to the view after next; with ``all_pairs`` every other pair is a
-        loop-closure candidate seeded by the chained poses (ICP only, bounded jump; off by default:
-        :meth:`adjust` matches all overlapping views jointly afterwards). Global search between
-        distant views is never used: a nearly symmetric object seen from opposite sides matches
-        itself rotated by 180 degrees.
-
-        Views that no accepted registration links to the largest group of views are left out of
-        the model (:attr:`left_out`, with the reason); the run stops only when no two views register.
-        Sets :attr:`kept` (indices of the views kept) and :attr:`other_edges` (the pairs of views
-        left out, as dicts)."""
-        rc = self.cfg.registration
-        n = len(regs)
-        names = list(self.ds.names)
-        pg = PoseGraphBuilder(n, names)
-        pg.centres = np.array([r.obj_points.mean(0) if len(r.obj_points) else np.zeros(3) for r in regs])
-        pg.ups = np.array([np.full(3, np.nan) if r.plane is None else np.asarray(r.plane[:3], np.float64) for r in regs])
-        succ = [(i, i + 1) for i in range(n - 1)] + ([(0, n - 1)] if n > 2 else [])
-        done = set()
-        with self.progress("registering successive views", len(succ)) as adv:
-            for i, j in succ:
-                p = register_pair(regs[i], regs[j], i, j, rc)
-                pg.add(p)
-                done.add((i, j))
-                if not p.accepted and j == i + 1:
-                    for a, b in ((i - 1, j), (i, j + 1)):
-                        if 0 <= a < b < n and (a, b) not in done:
-                            pg.add(register_pair(regs[a], regs[b], a, b, rc))
-                            done.add((a, b))
-                adv()
-        if rc.pattern_search and rc.turntable_step_deg is None:  # a declared turntable's turns place the views
-            with self.progress("edges the IR pattern contradicts", 1) as adv:
-                pg.pairs, self.pattern = search_by_pattern(pg.pairs, regs, rc, names)
-                adv()
-        if rc.turntable_step_deg is not None:
-            bridges, self.turntable = turntable_bridges(regs, pg.pairs, succ, rc)
-            if self.turntable:
-                self.turntable["bridged"] = [[names[i], names[j], how] for i, j, how in self.turntable["bridged"]]
-            new = {(b.source, b.target) for b in bridges}
-            pg.pairs = [p for p in pg.pairs if (p.source, p.target) not in new] + bridges
-        if rc.all_pairs:
-            chain = pg.chain_poses()
-            rest = [(i, j) for i in range(n) for j in range(i + 1, n) if (i, j) not in done]
-            with self.progress("loop closures (all pairs)", len(rest)) as adv:
-                for i, j in rest:
-                    if np.isfinite(chain[i]).all() and np.isfinite(chain[j]).all():
-                        init = np.linalg.inv(chain[j]) @ chain[i]
-                        pg.add(register_pair(regs[i], regs[j], i, j, rc, init=init, global_search=False))
-                    adv()
-        select_with_implied(pg, regs, rc)
-        keep = pg.components()[0]
-        if len(keep) < 2 and rc.turntable_step_deg is not None:
-            raise no_turn_error(rc.turntable_step_deg, rc.turntable_tol_deg, len(self.ds.names))
-        if len(keep) < 2:
-            pg.check_connected()  # raises, naming the groups of views and the rejected pairs
-        self.kept, self.left_out, self.other_edges = keep, {}, []
-        if len(keep) < n:
-            for k in range(n):
-                if k not in keep:
-                    tried = [p for p in pg.pairs if k in (p.source, p.target)]
-                    why = "; ".join(f"{names[p.source]}->{names[p.target]} {rejection_reason(p, rc)}" for p in tried)
-                    self.left_out[names[k]] = ("no accepted registration links it to the other views: "
-                                               + (why or "no pair tried"))
-            self.other_edges = [p.to_dict(names) | {"kept": False, "verdict": "left out with its view",
-                                                    "reason": rejection_reason(p, rc)}
-                                for p in pg.pairs if not (p.source in keep and p.target in keep)]
-            pg = pg.subgraph(keep)
-        res = pg.optimize(rc.icp_radii_mm[-1] * 1e-3, rc.edge_prune, rc.gate_max_deg, rc.gate_max_mm)
-        # the choices tied with the chosen one, for the joint fit to decide between (all views kept only;
-        # a declared turntable places the views itself)
-        self.tied_starts = ([] if len(keep) < n or self.turntable else
-                            pg.tied_poses(rc.icp_radii_mm[-1] * 1e-3, rc.edge_prune))
-        for d, p in zip(res.edges, pg.pairs):  # why a pair failed, with its figures and the gates
-            if not p.accepted:
-                d["reason"] = rejection_reason(p, rc)
-        return res
+        """The views registered into an optimised pose graph (:func:`register_views`); sets :attr:`kept`,
+        :attr:`left_out`, :attr:`other_edges`, :attr:`tied_starts`, :attr:`pattern` and :attr:`turntable`,
+        and returns the graph."""
+        r = register_views(regs, list(self.ds.names), self.cfg.registration, self.progress)
+        self.kept, self.left_out, self.other_edges = r.kept, r.left_out, r.other_edges
+        self.tied_starts, self.pattern, self.turntable = r.tied_starts, r.pattern, r.turntable
+        return r.graph
 
     def adjust(self, views: list[ViewData], segs: list[Segmentation], regs: list[RegView],
                poses: np.ndarray, loops: list[dict] | None = None, edges=(), edge_ir=(),
