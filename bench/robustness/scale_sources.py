@@ -1,6 +1,6 @@
 """Where a model's scale error comes from: the same views judged at each stage of the chain.
 
-``PYTHONPATH=$PWD .venv/bin/python -m bench.robustness.scale_sources --seeds S1,S2 [--mat] [--errors TERMS]
+``PYTHONPATH=$PWD .venv/bin/python -m bench.robustness.scale_sources --seeds S1,S2 [--mat] [--planned T] [--errors TERMS]
 [--set STAGE.FIELD=JSON ...] [-o DIR]``
 
 A family draw (:mod:`bench.robustness.family`: object, path, sensor, calibrated by tofmetry's own chain; with
@@ -62,7 +62,8 @@ def _scale(points: np.ndarray, ref) -> dict:
             "sigma_pct": round(100 * sc["sigma"], 4)}
 
 
-def sources_case(seed: int, work: Path, mat: bool = False, errors: str = "all", config=None, n_frames: int = 5) -> dict:
+def sources_case(seed: int, work: Path, mat: bool = False, errors: str = "all", config=None, n_frames: int = 5,
+                 planned: float | None = None) -> dict:
     """One draw's scale at each stage (module docstring); returns one JSON-able row."""
     from tofmetry.evaluate import evaluate_model
     from tofmetry.io import ScanDataset, read_json
@@ -74,7 +75,7 @@ def sources_case(seed: int, work: Path, mat: bool = False, errors: str = "all", 
     from tofmetry.reconstruct._pipeline import _no_progress
     from tofmetry.simulate import datasets
 
-    d = keep_errors(draw_case(seed), errors)
+    d = keep_errors(draw_case(seed, planned=planned), errors)
     cal, white, _ = calibrate_sensor(d.sensor, seed, tilt_work=work)
     if errors != "all" and "amplitude_bias" not in d.sensor.errors.enabled:
         white = None
@@ -119,6 +120,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", required=True, help="comma-separated family seeds")
     ap.add_argument("--mat", action="store_true", help="each object stands on its dot mat (family --mat)")
+    ap.add_argument("--planned", type=float, default=None, metavar="TARGET",
+                    help="the views the plan proposes for this completeness (family --planned)")
     ap.add_argument("--errors", default="all", help="error terms of the sensor kept (drift.keep_errors)")
     ap.add_argument("--set", action="append", default=[], metavar="STAGE.FIELD=JSON",
                     help="override one field of the reconstruction config (repeatable)")
@@ -129,7 +132,7 @@ def main(argv=None) -> int:
     rows = []
     try:
         for s in [int(x) for x in a.seeds.split(",") if x.strip()]:
-            r = sources_case(s, work, a.mat, a.errors, cfg.model_copy(deep=True))
+            r = sources_case(s, work, a.mat, a.errors, cfg.model_copy(deep=True), planned=a.planned)
             rows.append(r)
             print(json.dumps(r), flush=True)
     finally:
