@@ -510,3 +510,27 @@ def test_a_support_curve_anchored_on_the_mats_planes_leaves_its_own_gain_and_the
     whole = scale_report({"gain_estimated": False}, pred, 900.0, support=base | {"levelled": False})
     assert np.isclose(whole["predicted_offset_sigma_mm"], np.hypot(0.2, OBJECT_SUPPORT_OFFSET_MM))
     assert whole["predicted_scale_sigma_pct"] < gain["predicted_scale_sigma_pct"]
+
+
+def test_with_stations_close_together_the_gain_left_is_levered_by_the_objects_depth_span():
+    """A residual within +-|central| over an object's depth span L tilts it by at most 3 |central| / L:
+    stations every 50 mm whose folds read the residual itself must not divide it by 25 mm. For wiggles of
+    any wavelength and phase (the folds' centrals the residual at their stations), the RMS least-squares
+    slope over the span stays within the figure; the figure is 6 x (L / 3 over 25 mm) below the spacing's."""
+    z = np.arange(600.0, 1601.0, 50.0)
+    lo, hi = 900.0, 1100.0  # L = 200 mm
+    zs = np.linspace(lo, hi, 201)
+    for lam in (100.0, 200.0, 400.0, 800.0, 1600.0):
+        phases = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+        slopes = [np.polyfit(zs, 0.3 * np.sin(2 * np.pi * zs / lam + ph), 1)[0] for ph in phases]
+        sig = [calibration_gain_sigma({"interpolation": {"central_abs_mm": {"predicted": 0.3}},
+                                       "folds": [{"center_mm": c, "central_mm": 0.3 * np.sin(2 * np.pi * c / lam + ph)}
+                                                 for c in z]}, (lo, hi)) for ph in phases]
+        assert np.sqrt(np.mean(np.square(slopes))) <= np.sqrt(np.mean(np.square(sig))), lam
+    folds = [{"center_mm": c, "central_mm": 0.3} for c in z]
+    pred = {"interpolation": {"central_abs_mm": {"predicted": 0.3}}, "folds": folds}
+    assert np.isclose(calibration_gain_sigma(pred, (lo, hi)), 0.3 / (200 / 3))
+    assert np.isclose(calibration_gain_sigma(pred), 0.3 / 25)
+    sparse = {"interpolation": {"central_abs_mm": {"predicted": 0.3}},
+              "folds": [{"center_mm": 1000.0 + 250 * k, "central_mm": 0.3} for k in range(5)]}
+    assert np.isclose(calibration_gain_sigma(sparse, (lo, hi)), calibration_gain_sigma(sparse))  # 125 > 67 mm

@@ -125,7 +125,8 @@ def joint_adjustment(views, segs, regs: list[RegView], poses: np.ndarray, cfg: R
         prior_deg = max(prior_deg, max(lp["closure_deg"] for lp in loops) / 2)
         prior_mm = max(prior_mm, max(lp.get("closure_object_mm", lp["closure_mm"]) for lp in loops) / 2)
     z_ref = median_object_depth_m(views, segs)
-    sg_cal = None if cal is None else calibration_gain_sigma(cal.prediction or {})
+    span = object_depth_span_mm(views, segs)
+    sg_cal = None if cal is None else calibration_gain_sigma(cal.prediction or {}, span)
     e_sys = rc.gain_systematic_mm
     if e_sys is None:  # opt-in: the calibration's predicted central error
         e_sys = (calibration_central_mm(cal.prediction or {}) if cal is not None else None) or 0.0
@@ -149,7 +150,7 @@ def joint_adjustment(views, segs, regs: list[RegView], poses: np.ndarray, cfg: R
     degree, degree_why = curve_degree_for(view_distance_spread(regs, poses), cfg)
     if placed is not None and not rc.mat_range_curve:  # views placed on a mat: no range curve to slide them along
         degree, degree_why = 0, ""
-    field = None if cal is None else depth_field_prior(cal.prediction or {}, object_depth_span_mm(views, segs),
+    field = None if cal is None else depth_field_prior(cal.prediction or {}, span,
                                                        regs[0].intr, tilt_sigma_mm=rc.uncalibrated_tilt_mm,
                                                        z_ref_m=z_ref if rc.predict_gain_pose else None)
     tilt_prior = None if rc.image_tilt_prior_mm is None or (

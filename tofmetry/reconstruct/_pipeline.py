@@ -390,7 +390,7 @@ class ReconstructionPipeline:
                                       scale_budget_of(views, segs, poses_fit, intr, z_obj, self.white_map,
                                                       rc.amplitude_k_sigma_mm, adj),
                                       rc.amplitude_k_sigma_mm if self.white_map is not None else None,
-                                      rc.scale_floor_pct, support)
+                                      rc.scale_floor_pct, support, object_depth_span_mm(views, segs))
                 | ({"mat_pattern": mat_scale} if self.mat is not None else {}),
                 "world": world, "slab": slab, "support_curve": support,
                 "views": {v.name: v.stats for v in views}, "fusion": fusion_info, "timings_s": self.timings,

@@ -27,7 +27,7 @@ OBJECT_SUPPORT_OFFSET_MM = 0.6
 
 def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z_ref_mm: float,
                  budget=None, k_sigma_mm: float | None = None, floor_pct: float = 0.0,
-                 support: dict | None = None) -> dict:
+                 support: dict | None = None, depth_span_mm=None) -> dict:
     """The model's predicted scale and surface-offset uncertainty from the depth chain.
 
     A range offset ``e`` left by the calibration moves every point along its ray: the surfaces
@@ -80,6 +80,9 @@ def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z
     configured figure, :attr:`RegistrationConfig.scale_floor_pct`), is added in quadrature to the
     prediction (``chain_floor_pct``).
 
+    ``depth_span_mm``: (lo, hi) depths Z the object's points span [mm], the lever of the gain a
+    calibration can leave (:func:`~tofmetry.reconstruct._calibration_support.calibration_gain_sigma`).
+
     Returns
     -------
     dict: depth_gain, gain_estimated, gain_sigma, predicted_scale_sigma_pct,
@@ -101,7 +104,7 @@ def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z
     if not est and e_curve is not None and e_curve > e:  # the views show more residual than predicted
         e_gain = e_curve
         out["curve_residual_mm"] = e_curve
-    sg_cal = calibration_gain_sigma(calibration_prediction)
+    sg_cal = calibration_gain_sigma(calibration_prediction, depth_span_mm)
     sg = (float(adj.get("gain_sigma_data", np.nan)) if est else
           sg_cal * e_gain / e if e > 0 and sg_cal is not None else e_gain / (spacing / 2))
     on_support = bool((support or {}).get("applied"))
