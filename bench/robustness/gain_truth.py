@@ -2,7 +2,7 @@
 
 ``.venv/bin/python -m bench.robustness.gain_truth --seeds S1,S2 [--stations family,dense] [--span 150]``
 
-For each seed's sensor (:func:`tofmetry.simulate.family.random_sensor`, via the family's draw) and
+For each seed's sensor (:func:`tofmetry.simulate.family.random_sensor`, the family's for that seed) and
 each station set (:data:`bench.robustness.family.STATION_SETS`), the sensor is calibrated as the
 family does (:func:`bench.robustness.family.calibrate_sensor`, no tilt boards), then noise-free walls
 every 25 mm over 0.55-1.65 m are corrected by that calibration and compared with the true depth
@@ -18,9 +18,10 @@ import argparse
 
 import numpy as np
 
-from bench.robustness.family import STATION_SETS, calibrate_sensor, draw_case
+from bench.robustness.family import STATION_SETS, calibrate_sensor
 from tofmetry.calibrate import apply_depth_calibration
 from tofmetry.reconstruct._calibration_support import calibration_gain_sigma
+from tofmetry.simulate.family import random_sensor
 from tofmetry.simulate.walls import wall_station_means
 
 
@@ -57,10 +58,10 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     print("seed stations | truth: residual RMS [mm], gain RMS [%] | predicted gain [%]: by the spacing, with the span")
     for seed in (int(s) for s in a.seeds.split(",")):
-        d = draw_case(seed)
+        sensor = random_sensor(seed)
         for st in a.stations.split(","):
-            cal, _, _ = calibrate_sensor(d.sensor, seed, distances_mm=STATION_SETS[st])
-            curve = residual_curve(d.sensor, cal, list(range(550, 1651, 25)))
+            cal, _, _ = calibrate_sensor(sensor, seed, distances_mm=STATION_SETS[st])
+            curve = residual_curve(sensor, cal, list(range(550, 1651, 25)))
             g = window_slopes(curve, a.span)
             p0 = calibration_gain_sigma(cal.prediction)
             p1 = calibration_gain_sigma(cal.prediction, (1000.0 - a.span / 2, 1000.0 + a.span / 2))
