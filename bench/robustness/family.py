@@ -182,6 +182,19 @@ def residual_tilt_mm(sensor, z_mm: float) -> list[float]:
     return [round(float(v), 3) for v in np.linalg.lstsq(A, d, rcond=None)[0][1:]]
 
 
+def tilt_left_mm(sensor, folded: dict | None, z_mm: float) -> list[float]:
+    """The depth tilt a calibration leaves on ``sensor`` at ``z_mm`` [mm per unit]: the sensor's
+    (:func:`residual_tilt_mm`) less the one folded in from boards (``folded``: the fit's dict, its
+    ``tilt_mm`` + slope at ``z_mm`` times its ``shrink``; None: nothing folded). What a scan on the
+    dot mat should measure (``mat_depth_tilt``)."""
+    t = np.array(residual_tilt_mm(sensor, z_mm), np.float64)
+    if folded:
+        z = float(np.clip(z_mm, *folded["z_span_mm"]))
+        at = np.array(folded["tilt_mm"]) + (z - folded["z_ref_mm"]) * np.array(folded["slope_mm_per_m"]) * 1e-3
+        t -= at * np.array(folded.get("shrink", [1.0, 1.0]))
+    return [round(float(v), 3) for v in t]
+
+
 def calibrate_sensor(draw, seed: int, n_frames: int = 20, amplitude_max_mm: float = 2500.0,
                      distances_mm=FAMILY_DISTANCES_MM, tilt_work: Path | None = None):
     """Depth calibration of ``draw`` by tofmetry's chain on in-memory wall stations, and the white
@@ -287,6 +300,8 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
                           "true_tilt_mm_1m": list(d.sensor.errors.deform_tilt_mm_1m)}
     tilt_fit = row["calibration"]["tilt"] or {}
     row["calibration"]["true_tilt_mm"] = residual_tilt_mm(d.sensor, tilt_fit.get("z_ref_mm", 1000.0))
+    row["calibration"]["tilt_left_true_mm"] = tilt_left_mm(d.sensor, tilt_fit if row["calibration"]["tilt_folded"]
+                                                           else None, 1e3 * d.path.distance_m)
     scan_dir = work / f"scan-{seed}"
     t1 = time.perf_counter()
     dmat = draw_mat(seed) if mat else None
@@ -344,6 +359,7 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
                pose_errors=pe.to_dict(),
                plan=res.diagnostics.get("plan"), amplitude_slope=res.diagnostics.get("amplitude_slope"),
                slab=res.diagnostics.get("slab"), mat_fixes=res.diagnostics.get("mat"),
+               mat_depth_tilt=res.diagnostics.get("mat_depth_tilt"),
                support_curve={k: v for k, v in (res.diagnostics.get("support_curve") or {}).items() if k != "curve_mm"})
     model = Geometry(res.mesh_vertices, res.mesh_triangles, source="model")
     try:

@@ -13,9 +13,7 @@ from tofmetry.reconstruct import ReconstructionConfig
 from tofmetry.reconstruct._mat_locate import albedo_image, locate_on_mat, match_dots
 from tofmetry.reconstruct._photometric import log_albedo
 from tofmetry.reconstruct._pipeline import ReconstructionPipeline
-from tofmetry.simulate import datasets
-from tofmetry.simulate.errors import ErrorModel
-from tofmetry.simulate.meshes import balustrade_mesh
+from tests.reconstruct.mat_scenes import perfect_mat_scan
 
 
 def test_a_subset_of_the_layout_moved_and_noisy_is_matched_back():
@@ -46,10 +44,7 @@ def test_a_scene_with_no_mat_places_no_view():
 
 @pytest.fixture(scope="module")
 def mat_scan(tmp_path_factory):
-    mat = DotMat(seed=5, yaw_deg=30.0)
-    out = datasets.scan(tmp_path_factory.mktemp("mat") / "scan", n_views=3, n_frames=2, radius_m=0.9,
-                        elevation_deg=40.0, errors=ErrorModel.none(), mesh=balustrade_mesh(), mat=mat, seed=3)
-    return out, mat
+    return perfect_mat_scan(tmp_path_factory.mktemp("mat"), 40.0)
 
 
 def test_each_view_is_placed_where_it_was(mat_scan):

@@ -144,7 +144,8 @@ def reconstruct(
     for e in res.edges:
         if not e["accepted"]:
             console.print(f"edge {e['source']}->{e['target']}: {e.get('verdict', 'rejected')}: {e.get('reason', '')}")
-    _print_mat(res.diagnostics.get("mat"), rel.get("views") or {}, (res.diagnostics.get("scale") or {}).get("mat_pattern"))
+    _print_mat(res.diagnostics.get("mat"), rel.get("views") or {}, (res.diagnostics.get("scale") or {}).get("mat_pattern"),
+               res.diagnostics.get("mat_depth_tilt"))
     tt = res.diagnostics.get("turntable")
     if tt:
         stepped = [f"{a}->{b} ({how})" for a, b, how in tt["bridged"]]
@@ -230,21 +231,29 @@ def reconstruct(
             raise typer.Exit(3)
 
 
-def _print_mat(fixes: dict | None, verdicts: dict, pattern: dict | None = None) -> None:
-    """The views' placements on the dot mat (``diagnostics.mat``), as a table, and the depth scale the
-    dots measure (``diagnostics.scale.mat_pattern``)."""
+def _print_mat(fixes: dict | None, verdicts: dict, pattern: dict | None = None, tilt: dict | None = None) -> None:
+    """The views' placements on the dot mat (``diagnostics.mat``), as a table, the depth tilt its dots
+    measured (``diagnostics.mat_depth_tilt``) and the depth scale they measure (``diagnostics.scale.mat_pattern``)."""
     if not fixes:
         return
     t = Table(title="views placed on the dot mat (each on its own; dots seen whole / matched to the layout)")
-    for col in ("view", "how", "dots", "matched", "RMS [mm]", "+- [deg]", "+- [mm]", "size [%]", "verdict"):
+    for col in ("view", "how", "dots", "matched", "RMS [mm]", "+- [deg]", "+- [mm]", "tilt +- [deg]", "size [%]",
+                "verdict"):
         t.add_column(col, justify="right")
     for name, f in fixes.items():
         how = f["how"] or ("via " + " + ".join(f["through"]["via"]) if f.get("through") else "not placed")
         size = f.get("pattern_scale_pct", float("nan"))
+        ts = f.get("tilt_sigma_deg")
         t.add_row(name, how, str(f["n_dots"]), str(f["n_matched"]), f"{f['rms_mm']:.2f}", f"{f['sigma_deg']:.3f}",
-                  f"{f['sigma_mm']:.2f}", "" if size != size else f"{size:+.2f} +- {f['pattern_scale_sigma_pct']:.2f}",
+                  f"{f['sigma_mm']:.2f}", "" if ts is None else f"{ts:.2f}",
+                  "" if size != size else f"{size:+.2f} +- {f['pattern_scale_sigma_pct']:.2f}",
                   (verdicts.get(name) or {}).get("verdict", ""))
     console.print(t)
+    if tilt:
+        m, ms, a = tilt["measured_mm"], tilt["measured_sigma_mm"], tilt["applied_mm"]
+        console.print(f"the dots measure the depth's tilt across the image: ({m[0]:+.1f}, {m[1]:+.1f}) +- ({ms[0]:.1f}, "
+                      f"{ms[1]:.1f}) mm per unit of x/z, y/z ({tilt['n_views']} views); against what the calibration "
+                      f"may have left (+-{tilt['prior_sigma_mm']:.1f}), ({a[0]:+.1f}, {a[1]:+.1f}) taken off every view")
     if pattern:
         console.print(f"the dots measure the depth scale at the mat: {pattern['scale_pct']:+.3f} % +- "
                       f"{pattern['sigma_pct']:.3f} % against their printed size ({pattern['views']} views; the "

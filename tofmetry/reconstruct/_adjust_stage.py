@@ -87,7 +87,8 @@ def joint_adjustment(views, segs, regs: list[RegView], poses: np.ndarray, cfg: R
                      white_map: np.ndarray | None, progress, *, turntable: bool = False,
                      loops: list[dict] | None = None, edges=(), edge_ir=(),
                      yaw_free: bool = False, tied=(),
-                     placed: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[AdjustResult | None, str | None]:
+                     placed: tuple[np.ndarray, np.ndarray] | None = None,
+                     tilt_measured_mm: float | None = None) -> tuple[AdjustResult | None, str | None]:
     """Global adjustment of the pose-graph poses ``poses`` (V, 4, 4) camera to world [m] (and the
     depth gain); applies the gain to ``views`` (depth and points) in place.
 
@@ -105,6 +106,8 @@ def joint_adjustment(views, segs, regs: list[RegView], poses: np.ndarray, cfg: R
     median reaches ``adjust_albedo_min_corr`` (:mod:`tofmetry.reconstruct._adjust_albedo`); with
     ``adjust_albedo_weak_ratio`` (opt-in), on any object whose pairs see the pattern, along each view's
     weak directions instead.
+    ``tilt_measured_mm``: the depth tilt's 1-sigma left after the scan measured it (the dot mat's
+    dots; :func:`~tofmetry.reconstruct._calibration_support.depth_field_prior`), or None.
     ``tied``: the pose-graph poses (V, 4, 4) of the choices of pairwise hypotheses tied with the one
     ``poses`` come from; the fit is run from each too (:func:`tied_probe`, in ``AdjustResult.tied``).
 
@@ -152,7 +155,8 @@ def joint_adjustment(views, segs, regs: list[RegView], poses: np.ndarray, cfg: R
         degree, degree_why = 0, ""
     field = None if cal is None else depth_field_prior(cal.prediction or {}, span,
                                                        regs[0].intr, tilt_sigma_mm=rc.uncalibrated_tilt_mm,
-                                                       z_ref_m=z_ref if rc.predict_gain_pose else None)
+                                                       z_ref_m=z_ref if rc.predict_gain_pose else None,
+                                                       tilt_measured_mm=tilt_measured_mm)
     tilt_prior = None if rc.image_tilt_prior_mm is None or (
         cal is not None and (cal.prediction or {}).get("tilt_calibrated")) else rc.image_tilt_prior_mm * 1e-3
 

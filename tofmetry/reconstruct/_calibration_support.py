@@ -196,7 +196,8 @@ def station_spacing_mm(calibration_prediction: dict) -> float:
 
 
 def depth_field_prior(calibration_prediction: dict | None, depth_span_mm, intr, degree: int = 3,
-                      tilt_sigma_mm: float = 0.0, z_ref_m: float | None = None) -> DepthFieldPrior | None:
+                      tilt_sigma_mm: float = 0.0, z_ref_m: float | None = None,
+                      tilt_measured_mm: float | None = None) -> DepthFieldPrior | None:
     """The per-pixel depth residual the calibration leaves where the object lies, as the global
     adjustment's :class:`~tofmetry.reconstruct._adjust_field.DepthFieldPrior`: its central error
     (:func:`local_prediction`) and the largest per-pixel systematic RMS (``rms_systematic_mm``) of
@@ -213,6 +214,9 @@ def depth_field_prior(calibration_prediction: dict | None, depth_span_mm, intr, 
         is used instead, and when it carries a ``tilt_bound`` (calibrations of 2026-11-29, whose boards
         neither confirmed nor contradicted their tilt and left it out), the larger of those bounds if
         that is smaller
+    tilt_measured_mm : the 1-sigma of the tilt left after the scan itself measured it and took it off
+        (the dot mat's dots, :class:`~tofmetry.reconstruct._mat_tilt.MatDepthTilt`) [mm per unit];
+        it replaces the calibration's
     z_ref_m : the adjustment's reference depth [m]; given, the prior also carries the depth gain
         the calibration can leave between its stations (:func:`calibration_gain_sigma`, zero at
         ``z_ref_m``), the range term of :class:`~tofmetry.reconstruct._adjust_field.DepthFieldPrior`
@@ -228,6 +232,8 @@ def depth_field_prior(calibration_prediction: dict | None, depth_span_mm, intr, 
         tilt_sd = max(fitted.get("sigma_mm") or [0.0])
     else:
         tilt_sd = min(max(bound), tilt_sigma_mm) if bound else tilt_sigma_mm
+    if tilt_measured_mm is not None:
+        tilt_sd = float(tilt_measured_mm)
     gain_sd = (calibration_gain_sigma(calibration_prediction, depth_span_mm) or 0.0) if z_ref_m is not None else 0.0
     return DepthFieldPrior((intr.width / 2 / intr.fx, intr.height / 2 / intr.fy), central * 1e-3,
                            max(rms) * 1e-3, degree, tilt_sd * 1e-3, gain_sd, z_ref_m or 0.0)

@@ -192,6 +192,9 @@ class RegistrationConfig(BaseModel):
                                  "its placement [deg] (the placement's tilt comes from the support plane, which the "
                                  "depth calibration's residual tilts by ~0.1-0.2 deg)")
     mat_prior_mm: float = Field(3.0, gt=0, description="... and within about this at the object [mm]")
+    mat_depth_tilt: bool = Field(True, description="on a dot mat with a depth calibration, measure the depth's tilt "
+                                 "across the image from the dots' planes, weigh it against what the calibration may "
+                                 "have left, and take it off every view (tofmetry.reconstruct._mat_tilt)")
     mat_scale_floor_pct: float = Field(0.1, ge=0, description="the dots' own systematic scale error [%] (1 sigma) in "
                                        "the mat's check of the depth scale (_mat_stage.pattern_scale): on exact depth "
                                        "they came out 0.09 +- 0.02 % small over 8 views of a vase")

@@ -49,6 +49,9 @@ class MatFix:
     pattern_scale, pattern_scale_sigma : the matched dots' size relative to the printed layout, minus
         1, and its 1-sigma (a similarity fit; NaN without matched dots): the depth camera's scale
         at the mat (:func:`fix_from_matches`)
+    tilt_sigma_deg : 1-sigma of the placement's tilt (its larger axis) [deg], NaN where not judged;
+    tilt_deg : how far the dots turned it from the depth's support plane [deg]
+        (:mod:`~tofmetry.reconstruct._mat_tilt`)
     """
 
     located: bool
@@ -62,6 +65,8 @@ class MatFix:
     how: str = ""
     pattern_scale: float = float("nan")
     pattern_scale_sigma: float = float("nan")
+    tilt_sigma_deg: float = float("nan")
+    tilt_deg: float = 0.0
 
     def to_dict(self) -> dict:
         return {"located": self.located, "how": self.how, "n_dots": self.n_dots, "n_matched": self.n_matched,
@@ -69,6 +74,7 @@ class MatFix:
                 "sigma_mm": round(self.sigma_mm, 3), "reason": self.reason,
                 "pattern_scale_pct": round(100 * self.pattern_scale, 4),
                 "pattern_scale_sigma_pct": round(100 * self.pattern_scale_sigma, 4),
+                "tilt_sigma_deg": round(self.tilt_sigma_deg, 4), "tilt_from_dots_deg": round(self.tilt_deg, 4),
                 "camera_to_mat": self.camera_to_mat.tolist() if self.located else None}
 
 

@@ -22,7 +22,7 @@ in the same views), the same in every view.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -48,6 +48,9 @@ class DotPlane:
     inverse_depth : (3,) ``(a, b, c)`` with ``1 / Z = a x + b y + c`` on the plane [1/m]
     inverse_depth_cov : (3, 3) their covariance [1/m^2]
     n_dots : matched dots that entered the fit; rms_mm : their residual RMS [mm]
+    tilt : (2,) the plane's turn from the depth's support plane about the x and y axes of that
+        plane's :func:`~tofmetry.reconstruct._mat_locate.plane_frame` [rad]; tilt_cov : (2, 2) its
+        covariance from the fit [rad^2]
     """
 
     plane: np.ndarray
@@ -55,6 +58,8 @@ class DotPlane:
     inverse_depth_cov: np.ndarray
     n_dots: int
     rms_mm: float
+    tilt: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    tilt_cov: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
 
     def to_dict(self) -> dict:
         """The camera's distance from the sheet [mm], its 1-sigma, the dots and their residual RMS."""
@@ -72,7 +77,7 @@ def dot_centres(dot_rays: list[np.ndarray], plane: np.ndarray) -> np.ndarray:
     return np.array([dot_moments(r, n, float(plane[3]), G)[0] for r in dot_rays]).reshape(-1, 2)
 
 
-def _tilted(n0: np.ndarray, a: float, b: float) -> np.ndarray:
+def tilted_normal(n0: np.ndarray, a: float, b: float) -> np.ndarray:
     """``n0`` turned by ``a`` and ``b`` [rad] about the x and y axes of its plane frame."""
     G = plane_frame(np.r_[n0, 1.0])[:3, :3]
     ca, sa, cb, sb = np.cos(a), np.sin(a), np.cos(b), np.sin(b)
@@ -103,7 +108,7 @@ def plane_from_dots(dot_rays: list[np.ndarray], printed_xy: np.ndarray, plane0: 
     C = np.asarray(printed_xy, np.float64)
 
     def plane_of(p):
-        return np.r_[_tilted(n0, p[0], p[1]), d0 * np.exp(p[2])]
+        return np.r_[tilted_normal(n0, p[0], p[1]), d0 * np.exp(p[2])]
 
     def resid(p):
         c = dot_centres(dot_rays, plane_of(p))
@@ -133,14 +138,15 @@ def plane_from_dots(dot_rays: list[np.ndarray], printed_xy: np.ndarray, plane0: 
         J[:, k] = (inv_depth(sol.x + dp) - inv_depth(sol.x - dp)) / 2e-6
     abc = inv_depth(sol.x)
     cov_abc = J @ cov[:3, :3] @ J.T + DISTANCE_FLOOR ** 2 * np.outer(abc, abc)
-    return DotPlane(pl, abc, cov_abc, K, float(np.sqrt(np.mean(sol.fun ** 2))))
+    return DotPlane(pl, abc, cov_abc, K, float(np.sqrt(np.mean(sol.fun ** 2))), sol.x[:2].copy(), cov[:2, :2].copy())
 
 
-def view_dot_plane(alb: np.ndarray, rays: np.ndarray, plane: np.ndarray, fix: MatFix, mat: DotMat,
-                   min_dots: int = 8) -> DotPlane | None:
-    """One placed view's :class:`DotPlane`: the dots it sees (``alb``, ``rays``, ``plane`` as
-    :func:`~tofmetry.reconstruct._mat_locate.seen_dots`) matched to the layout near where its
-    placement ``fix`` puts them, then :func:`plane_from_dots`; None when fewer than ``min_dots`` match."""
+def matched_dots(alb: np.ndarray, rays: np.ndarray, plane: np.ndarray, fix: MatFix, mat: DotMat,
+                 min_dots: int = 8) -> tuple | None:
+    """The dots one placed view sees (``alb``, ``rays``, ``plane`` as
+    :func:`~tofmetry.reconstruct._mat_locate.seen_dots`), matched to the layout near where its
+    placement ``fix`` puts them: (per dot its pixels' rays (M, 3), radii (K,) [m], R (2, 2), t (2,),
+    matched (K,), -1: none), or None when fewer than ``min_dots`` are seen or match."""
     if not fix.located:
         return None
     c, r, blobs = seen_dots(alb, rays, plane, contrast(mat), with_rays=True)
@@ -148,7 +154,18 @@ def view_dot_plane(alb: np.ndarray, rays: np.ndarray, plane: np.ndarray, fix: Ma
         return None
     S = fix.camera_to_mat @ np.linalg.inv(plane_frame(plane))
     R, t, matched = guided_match(c, r, S[:2, :2], S[:2, 3], mat)
-    m = matched >= 0
-    if m.sum() < min_dots:
+    if (matched >= 0).sum() < min_dots:
         return None
+    return blobs, r, R, t, matched
+
+
+def view_dot_plane(alb: np.ndarray, rays: np.ndarray, plane: np.ndarray, fix: MatFix, mat: DotMat,
+                   min_dots: int = 8, seen: tuple | None = None) -> DotPlane | None:
+    """One placed view's :class:`DotPlane`: its :func:`matched_dots` (or ``seen``, what that returned),
+    then :func:`plane_from_dots`; None when fewer than ``min_dots`` match."""
+    seen = matched_dots(alb, rays, plane, fix, mat, min_dots) if seen is None else seen
+    if seen is None:
+        return None
+    blobs, _, R, t, matched = seen
+    m = matched >= 0
     return plane_from_dots([b for b, k in zip(blobs, m) if k], mat.dots()[0][matched[m]], plane, R, t)

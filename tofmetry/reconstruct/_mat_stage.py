@@ -21,7 +21,9 @@ from tofmetry._shared.dot_mat import DotMat
 from tofmetry.reconstruct._config import RegistrationConfig
 from tofmetry.reconstruct._mat_dense import locate_by_pattern
 from tofmetry.reconstruct._mat_locate import MatFix, albedo_image, locate_on_mat, plane_frame
-from tofmetry.reconstruct._mat_plane import view_dot_plane
+from tofmetry.reconstruct._adjust_field import DepthFieldPrior
+from tofmetry.reconstruct._mat_plane import matched_dots, view_dot_plane
+from tofmetry.reconstruct._mat_tilt import combined_tilt, depth_plane_tilt_cov, retilted_fix, support_mask
 from tofmetry.reconstruct._photometric import log_albedo
 from tofmetry.reconstruct._posegraph import PoseGraphResult
 from tofmetry.reconstruct._register import pair_result, register_pair, rejection_reason
@@ -31,8 +33,6 @@ from tofmetry.reconstruct._regview import object_fitness, passes_gates, visibili
 MAT_METHOD = "mat"
 #: a standard normal's 90th percentile of |x|: a placement's 1-sigma times this is its p90
 P90_Z = 1.645
-#: support points within this of the plane are searched for the mat's pattern [m]
-GROUND_BAND_M = 0.015
 
 
 @dataclass
@@ -73,7 +73,10 @@ class MatPlacement:
                 out[n] = {"verdict": "placed on the mat",
                           "reason": how + (f"{f.n_matched} of {f.n_dots} dots seen match the mat's layout, RMS "
                                            f"{f.rms_mm:.2f} mm " if f.how != "pattern" else "")
-                          + f"(+/- {f.sigma_deg:.3f} deg, {f.sigma_mm:.2f} mm in the plane)"}
+                          + f"(+/- {f.sigma_deg:.3f} deg, {f.sigma_mm:.2f} mm in the plane"
+                          + (f"; tilt +/- {f.tilt_sigma_deg:.2f} deg" if np.isfinite(f.tilt_sigma_deg) else "")
+                          + (f", turned {f.tilt_deg:.2f} deg from the depth's plane by its dots" if f.tilt_deg >= 0.01
+                             else "") + ")"}
             elif n in self.through:
                 t = self.through[n]
                 two = len(t["via"]) == 2
@@ -86,10 +89,14 @@ class MatPlacement:
 
     def loose_views(self, gate_deg: float, gate_mm: float, z: float = P90_Z) -> dict:
         """name -> (sigma_deg, sigma_mm) of the placed views whose placement's own ``z``-sigma (p90 by
-        default) reaches beyond the pose gate (``gate_deg`` about the vertical, ``gate_mm`` along the
-        sheet): few dots seen, the pose is not vouched for within the gate by the mat alone."""
-        return {n: (f.sigma_deg, f.sigma_mm) for n, f in self.fixes.items()
-                if f.located and (z * f.sigma_deg > gate_deg or z * f.sigma_mm > gate_mm)}
+        default) reaches beyond the pose gate (``gate_deg`` in rotation, ``gate_mm`` along the sheet):
+        few dots seen, or a tilt neither the depth nor the dots pin (``sigma_deg`` is the turn about
+        the vertical and the tilt, :attr:`MatFix.tilt_sigma_deg`, together), the pose is not vouched
+        for within the gate by the mat alone."""
+        return {n: (float(np.hypot(f.sigma_deg, np.nan_to_num(f.tilt_sigma_deg))), f.sigma_mm)
+                for n, f in self.fixes.items()
+                if f.located and (z * np.hypot(f.sigma_deg, np.nan_to_num(f.tilt_sigma_deg)) > gate_deg
+                                  or z * f.sigma_mm > gate_mm)}
 
     def prior(self, tilt_deg: float, height_mm: float, inflation: float = 2.0, floor_deg: float = 0.03,
               floor_mm: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
@@ -113,7 +120,8 @@ class MatPlacement:
 
 
 def place_views(views, segs, regs, intr, white_map, rc: RegistrationConfig, names: list[str],
-                plane_threshold_m: float, dot_planes: bool = False) -> MatPlacement:
+                plane_threshold_m: float, dot_planes: bool = False,
+                depth_field: DepthFieldPrior | None = None) -> MatPlacement:
     """Place every view on the mat ``rc.mat`` (module docstring).
 
     Parameters
@@ -121,7 +129,11 @@ def place_views(views, segs, regs, intr, white_map, rc: RegistrationConfig, name
     views, segs, regs : the prepared views, their segmentations and registration clouds
     intr : CameraIntrinsics of the depth images; white_map : (H, W) amplitude reference or None
     names : the views' names; plane_threshold_m : the support plane's inlier distance [m]
-    dot_planes : also fit each view's plane from its dots alone (``MatPlacement.dot_planes``)
+    dot_planes : also fit each view's plane from its dots alone (``MatPlacement.dot_planes``; always
+        with ``depth_field``)
+    depth_field : the depth calibration's residual field; given, each view placed by its dots takes
+        its tilt from the depth's support plane and the dots' own plane, weighed by their
+        covariances (:mod:`~tofmetry.reconstruct._mat_tilt`); None: from the support plane alone
 
     Returns
     -------
@@ -135,9 +147,7 @@ def place_views(views, segs, regs, intr, white_map, rc: RegistrationConfig, name
             fixes[names[k]] = MatFix(False, reason="no support plane was found in the view" if s.plane is None else
                                      "the view has no IR frames (the mat's dots are seen in the IR amplitude)")
             continue
-        h = v.points @ np.asarray(s.plane[:3]) + float(s.plane[3])
-        # the dark toner reads farther than the paper (amplitude-dependent range error): a wide band
-        ground = (np.abs(h) < max(plane_threshold_m, GROUND_BAND_M)) & ~s.object_mask
+        ground = support_mask(v, s, plane_threshold_m)
         alb = albedo_image(v.index, intr.shape, ground, log_albedo(v, intr, white_map))
         fx = locate_on_mat(alb, rays, s.plane, mat, rc.mat_min_dots)
         if not fx.located and s.object_mask.any():  # too few whole dots: the whole pattern
@@ -145,10 +155,19 @@ def place_views(views, segs, regs, intr, white_map, rc: RegistrationConfig, name
             foot = (v.points[s.object_mask] @ G[:2, :3].T + G[:2, 3]).mean(0)
             fp = locate_by_pattern(alb, rays, s.plane, foot, mat)
             fx = fp if fp.located else replace(fx, reason=f"{fx.reason}; {fp.reason}")
+        seen = matched_dots(alb, rays, s.plane, fx, mat) if fx.located and "dots" in fx.how else None
+        dp = None if seen is None or not (dot_planes or depth_field) else view_dot_plane(alb, rays, s.plane, fx, mat,
+                                                                                      seen=seen)
+        if depth_field is not None and fx.located:
+            cov = depth_plane_tilt_cov(s.plane, v.points[ground], depth_field)
+            if dp is not None:
+                tilt, tcov = combined_tilt(dp, cov)
+                fx, _ = retilted_fix(fx, s.plane, seen[0], seen[1], tilt, tcov, mat)
+            else:
+                fx = replace(fx, tilt_sigma_deg=float(np.degrees(np.sqrt(max(np.linalg.eigvalsh(cov)[-1], 0.0)))))
         fixes[names[k]] = fx
         if fx.located:
             poses[k] = fx.camera_to_mat
-            dp = view_dot_plane(alb, rays, s.plane, fx, mat) if dot_planes and "dots" in fx.how else None
             if dp is not None:
                 planes[names[k]] = dp
     through, not_through = {}, {}
@@ -311,3 +330,29 @@ def calibration_beyond_gate(calibration_pose: dict | None, gate_deg: float, gate
     deg = float((calibration_pose.get("rot_deg") or {}).get("p90", 0.0))
     mm = float((calibration_pose.get("object_mm") or {}).get("p90", 0.0))
     return (round(deg, 3), round(mm, 2)) if deg > gate_deg or mm > gate_mm else None
+
+
+def judge_placements(verdict: dict, mat: MatPlacement, unsure: tuple | None, kept: dict | None, gate_deg: float,
+                     gate_mm: float) -> None:
+    """The verdict (``verdict``: its ``warnings``, ``reasons`` and ``reliable``, in place) of a scan whose
+    mat placements stand unrefined: because the depth calibration's residual could move the joint fit
+    beyond the gate (``unsure``: :func:`calibration_beyond_gate`), or because the fit slid views
+    beyond it (``kept``: :func:`departures`). Then a placement the mat alone does not hold within the
+    gate (:meth:`MatPlacement.loose_views`) makes the run unreliable."""
+    if unsure:
+        verdict["warnings"].append(
+            f"the depth calibration's residual could move the joint fit's poses by up to {unsure[0]:g} deg / "
+            f"{unsure[1]:g} mm at the object (p90), beyond the pose gate ({gate_deg:g} deg / {gate_mm:g} mm): the "
+            "dot mat's placements are kept, unrefined")
+    if kept:
+        verdict["warnings"].append(
+            "the joint fit moved view(s) " + ", ".join(f"{n} by {d:.2f} deg / {m:.1f} mm" for n, (d, m) in kept.items())
+            + f" at the object from where the dot mat placed them (beyond the pose gate, {gate_deg:g} deg / "
+            f"{gate_mm:g} mm): it slid along what the object's points leave free; the mat's placements are kept, "
+            "unrefined")
+    loose = mat.loose_views(gate_deg, gate_mm) if unsure or kept else {}
+    if loose:  # the placements stand unrefined, and the mat alone does not hold these within the gate
+        verdict["reasons"].append(loose_reason(loose, gate_deg, gate_mm,
+                                               "the depth calibration's residual could move it beyond the gate"
+                                               if unsure else "it slid along what the object's points leave free"))
+        verdict["reliable"] = False

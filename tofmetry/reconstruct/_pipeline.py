@@ -17,8 +17,8 @@ from tofmetry.errors import EstimationError, InputError, SensorMismatchError
 from tofmetry.reconstruct._adjust_circle import off_axis_reason
 from tofmetry.reconstruct._adjust_result import AdjustResult
 from tofmetry.reconstruct._adjust_stage import joint_adjustment, scale_budget_of
-from tofmetry.reconstruct._calibration_support import (calibration_central_mm, extrapolated_points, extrapolation_warning,
-                                                     local_prediction)
+from tofmetry.reconstruct._calibration_support import (calibration_central_mm, depth_field_prior, extrapolated_points,
+                                                     extrapolation_warning, local_prediction)
 from tofmetry.reconstruct._colour import colour_model
 from tofmetry.reconstruct._config import ReconstructionConfig
 from tofmetry.reconstruct._model_build import (
@@ -28,8 +28,9 @@ from tofmetry.reconstruct._model_build import (
     object_depth_span_mm,
     world_plane,
 )
-from tofmetry.reconstruct._mat_stage import (calibration_beyond_gate, departures, loose_reason, pattern_scale,
+from tofmetry.reconstruct._mat_stage import (calibration_beyond_gate, departures, judge_placements, pattern_scale,
                                              pattern_scale_warning, place_views)
+from tofmetry.reconstruct._mat_tilt import MatDepthTilt, take_off_depth_tilt
 from tofmetry.reconstruct._preprocess import ViewData, prepare_view
 from tofmetry.reconstruct._support_curve import correct_by_support
 from tofmetry.reconstruct._register_stage import register_views
@@ -117,6 +118,7 @@ class ReconstructionPipeline:
         self.pattern: dict | None = None  # the edges searched again by the IR pattern (search_by_pattern)
         self.tied_starts: list[np.ndarray] = []  # pose-graph poses of the choices tied with the chosen one
         self.mat = None  # the views' placements on a dot mat (place_views), when registration.mat is set
+        self.mat_tilt = None  # the depth's tilt the mat's dots measured and took off (MatDepthTilt)
 
     # -- stages -----------------------------------------------------------------------------
     def _intrinsics(self, cap):
@@ -185,7 +187,9 @@ class ReconstructionPipeline:
         res, self.adjust_failure = joint_adjustment(views, segs, regs, poses, self.cfg, self.cal, self.white_map,
                                                     self.progress, turntable=bool(self.turntable), loops=loops,
                                                     edges=edges, edge_ir=edge_ir, yaw_free=yaw_free, tied=tied,
-                                                    placed=placed)
+                                                    placed=placed,
+                                                    tilt_measured_mm=None if self.mat_tilt is None else
+                                                    self.mat_tilt.sigma_mm)
         return res
 
     def correct_by_support(self, views, segs, intr, anchors: list | None = None, level: bool = True) -> dict:
@@ -215,12 +219,48 @@ class ReconstructionPipeline:
         report = self.correct_by_support(views, segs, intr, anchors, level=False)
         if report.get("applied"):
             regs[:] = [make_reg_view(v, s, rc, intr, self.white_map) for v, s in zip(views, segs)]
-            with self.progress("placing the views on the mat again", 1) as adv:
-                self.mat = place_views(views, segs, regs, intr, self.white_map, rc, list(self.ds.names),
-                                       self.cfg.segment.plane_threshold_mm * 1e-3,
-                                       self.cfg.preprocess.support_anchor != "none")
-                adv()
+            self.place_on_mat(views, segs, regs, intr, "placing the views on the mat again")
         return report
+
+    def mat_field(self, views, segs, intr):
+        """The depth calibration's residual field where the object lies
+        (:func:`~tofmetry.reconstruct._calibration_support.depth_field_prior`, its tilt
+        ``registration.uncalibrated_tilt_mm`` where it left that uncalibrated, or what the mat's dots
+        left of it, :attr:`mat_tilt`), which the mat's placements weigh their support plane's tilt by;
+        None without a calibration."""
+        if self.cal is None:
+            return None
+        return depth_field_prior(self.cal.prediction or {}, object_depth_span_mm(views, segs), intr,
+                                 tilt_sigma_mm=self.cfg.registration.uncalibrated_tilt_mm,
+                                 tilt_measured_mm=None if self.mat_tilt is None else self.mat_tilt.sigma_mm)
+
+    def tilt_from_mat(self, views, segs, regs, intr, rc) -> MatDepthTilt | None:
+        """The depth's tilt across the image, measured by the mat's dots against each view's support
+        (:func:`~tofmetry.reconstruct._mat_tilt.depth_tilt_from_dots`, weighed against what the
+        calibration may have left), taken off every view's depth; the support planes refitted, the
+        registration clouds rebuilt (``regs`` in place) and the views placed again. None (nothing
+        changed) without a calibration or with fewer than three views whose dots gave their plane."""
+        field = self.mat_field(views, segs, intr)
+        if field is None or self.mat is None or not rc.mat_depth_tilt:
+            return None
+        thr = self.cfg.segment.plane_threshold_mm * 1e-3
+        mt = take_off_depth_tilt(views, segs, intr, [self.mat.dot_planes.get(n) for n in self.ds.names],
+                                 field.tilt_sigma_m * 1e3, thr, field)
+        if mt is None:
+            return None
+        self.mat_tilt = mt
+        regs[:] = [make_reg_view(v, s, rc, intr, self.white_map) for v, s in zip(views, segs)]
+        self.place_on_mat(views, segs, regs, intr, "placing the views on the mat again (depth tilt taken off)")
+        return mt
+
+    def place_on_mat(self, views, segs, regs, intr, what: str) -> None:
+        """Every view placed on the dot mat (:func:`place_views`, into :attr:`mat`), its tilt weighed
+        by the calibration's residual field (:meth:`mat_field`)."""
+        with self.progress(what, 1) as adv:
+            self.mat = place_views(views, segs, regs, intr, self.white_map, self.cfg.registration, list(self.ds.names),
+                                   self.cfg.segment.plane_threshold_mm * 1e-3,
+                                   self.cfg.preprocess.support_anchor != "none", self.mat_field(views, segs, intr))
+            adv()
 
     def mat_anchors(self, names: list[str]) -> list | None:
         """Per view of ``names``, ``(a, b, c)`` and their covariance of the plane the mat's dots alone gave
@@ -254,11 +294,8 @@ class ReconstructionPipeline:
         t1 = time.perf_counter()
         rc = self.cfg.registration
         if rc.mat is not None:  # each view placed on the dot mat on its own
-            with self.progress("placing the views on the mat", 1) as adv:
-                self.mat = place_views(views, segs, regs, intr, self.white_map, rc, list(self.ds.names),
-                                       self.cfg.segment.plane_threshold_mm * 1e-3,
-                                       self.cfg.preprocess.support_anchor != "none")
-                adv()
+            self.place_on_mat(views, segs, regs, intr, "placing the views on the mat")
+            self.mat_tilt = self.tilt_from_mat(views, segs, regs, intr, rc)
             support = self.anchored_support(views, segs, regs, intr, rc)
             if len(self.mat.kept) < 2:
                 raise EstimationError("fewer than two views were placed on the dot mat: " + "; ".join(
@@ -343,25 +380,8 @@ class ReconstructionPipeline:
                          turntable_accuracy_deg=rc.turntable_accuracy_deg,
                          turntable_placed=bool(self.turntable), restart_share=rc.restart_share,
                          placed=None if self.mat is None else {"by": "the dot mat", "views": self.mat.view_verdicts()})
-        if mat_unsure:
-            verdict["warnings"].append(
-                f"the depth calibration's residual could move the joint fit's poses by up to {mat_unsure[0]:g} deg / "
-                f"{mat_unsure[1]:g} mm at the object (p90), beyond the pose gate ({rc.pose_gate_deg:g} deg / "
-                f"{rc.pose_gate_mm:g} mm): the dot mat's placements are kept, unrefined")
-        if mat_kept:
-            verdict["warnings"].append(
-                "the joint fit moved view(s) " + ", ".join(f"{n} by {d:.2f} deg / {m:.1f} mm" for n, (d, m) in
-                                                           mat_kept.items())
-                + f" at the object from where the dot mat placed them (beyond the pose gate, {rc.pose_gate_deg:g} deg "
-                f"/ {rc.pose_gate_mm:g} mm): it slid along what the object's points leave free; the mat's placements "
-                "are kept, unrefined")
-        loose = {} if self.mat is None or not (mat_unsure or mat_kept) else self.mat.loose_views(rc.pose_gate_deg,
-                                                                                              rc.pose_gate_mm)
-        if loose:  # the placements stand unrefined, and the mat alone does not hold these within the gate
-            verdict["reasons"].append(loose_reason(loose, rc.pose_gate_deg, rc.pose_gate_mm,
-                                                   "the depth calibration's residual could move it beyond the gate"
-                                                   if mat_unsure else "it slid along what the object's points leave free"))
-            verdict["reliable"] = False
+        if self.mat is not None:
+            judge_placements(verdict, self.mat, mat_unsure, mat_kept, rc.pose_gate_deg, rc.pose_gate_mm)
         mat_scale = None if self.mat is None else pattern_scale(self.mat.fixes, calibration_central_mm(pred), rc.mat_scale_floor_pct)
         if pattern_scale_warning(mat_scale):
             verdict["warnings"].append(pattern_scale_warning(mat_scale))
@@ -396,6 +416,7 @@ class ReconstructionPipeline:
                 "views": {v.name: v.stats for v in views}, "fusion": fusion_info, "timings_s": self.timings,
                 "adjustment": adj_d, "left_out": self.left_out, "color": colour_diag, "turntable": self.turntable,
                 "pattern": self.pattern, "mat": None if self.mat is None else self.mat.to_dict(),
+                "mat_depth_tilt": None if self.mat_tilt is None else self.mat_tilt.to_dict(),
                 "calibrated": self.cal is not None, "amplitude_corrected": self.white_map is not None, "intrinsics": intr.to_dict(),
                 "calibration_local": (self.prediction_at_object or {}).get("local"),
                 "working_range_mm": self.working_range_mm(), "config": self.cfg.model_dump()}
