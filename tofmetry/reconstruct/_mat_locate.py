@@ -68,6 +68,12 @@ class MatFix:
     tilt_sigma_deg: float = float("nan")
     tilt_deg: float = 0.0
 
+    @property
+    def rotation_sigma_deg(self) -> float:
+        """1-sigma of the placement's rotation [deg]: its turn about the vertical and its tilt
+        (:attr:`tilt_sigma_deg`, 0 where not judged) together."""
+        return float(np.hypot(self.sigma_deg, np.nan_to_num(self.tilt_sigma_deg)))
+
     def to_dict(self) -> dict:
         return {"located": self.located, "how": self.how, "n_dots": self.n_dots, "n_matched": self.n_matched,
                 "rms_mm": round(self.rms_mm, 3), "sigma_deg": round(self.sigma_deg, 4),

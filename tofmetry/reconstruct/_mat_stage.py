@@ -23,7 +23,8 @@ from tofmetry.reconstruct._mat_dense import locate_by_pattern
 from tofmetry.reconstruct._mat_locate import MatFix, albedo_image, locate_on_mat, plane_frame
 from tofmetry.reconstruct._adjust_field import DepthFieldPrior
 from tofmetry.reconstruct._mat_plane import matched_dots, view_dot_plane
-from tofmetry.reconstruct._mat_tilt import combined_tilt, depth_plane_tilt_cov, retilted_fix, support_mask
+from tofmetry.reconstruct._mat_tilt import (combined_tilt, depth_plane_tilt_cov, largest_sigma, retilted_fix,
+                                            support_mask)
 from tofmetry.reconstruct._photometric import log_albedo
 from tofmetry.reconstruct._posegraph import PoseGraphResult
 from tofmetry.reconstruct._register import pair_result, register_pair, rejection_reason
@@ -90,13 +91,10 @@ class MatPlacement:
     def loose_views(self, gate_deg: float, gate_mm: float, z: float = P90_Z) -> dict:
         """name -> (sigma_deg, sigma_mm) of the placed views whose placement's own ``z``-sigma (p90 by
         default) reaches beyond the pose gate (``gate_deg`` in rotation, ``gate_mm`` along the sheet):
-        few dots seen, or a tilt neither the depth nor the dots pin (``sigma_deg`` is the turn about
-        the vertical and the tilt, :attr:`MatFix.tilt_sigma_deg`, together), the pose is not vouched
-        for within the gate by the mat alone."""
-        return {n: (float(np.hypot(f.sigma_deg, np.nan_to_num(f.tilt_sigma_deg))), f.sigma_mm)
-                for n, f in self.fixes.items()
-                if f.located and (z * np.hypot(f.sigma_deg, np.nan_to_num(f.tilt_sigma_deg)) > gate_deg
-                                  or z * f.sigma_mm > gate_mm)}
+        few dots seen, or a tilt neither the depth nor the dots pin (:attr:`MatFix.rotation_sigma_deg`),
+        the pose is not vouched for within the gate by the mat alone."""
+        return {n: (f.rotation_sigma_deg, f.sigma_mm) for n, f in self.fixes.items()
+                if f.located and (z * f.rotation_sigma_deg > gate_deg or z * f.sigma_mm > gate_mm)}
 
     def prior(self, tilt_deg: float, height_mm: float, inflation: float = 2.0, floor_deg: float = 0.03,
               floor_mm: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
@@ -155,16 +153,16 @@ def place_views(views, segs, regs, intr, white_map, rc: RegistrationConfig, name
             foot = (v.points[s.object_mask] @ G[:2, :3].T + G[:2, 3]).mean(0)
             fp = locate_by_pattern(alb, rays, s.plane, foot, mat)
             fx = fp if fp.located else replace(fx, reason=f"{fx.reason}; {fp.reason}")
-        seen = matched_dots(alb, rays, s.plane, fx, mat) if fx.located and "dots" in fx.how else None
-        dp = None if seen is None or not (dot_planes or depth_field) else view_dot_plane(alb, rays, s.plane, fx, mat,
-                                                                                      seen=seen)
+        wanted = (dot_planes or depth_field is not None) and fx.located and "dots" in fx.how
+        seen = matched_dots(alb, rays, s.plane, fx, mat) if wanted else None
+        dp = None if seen is None else view_dot_plane(alb, rays, s.plane, fx, mat, seen=seen)
         if depth_field is not None and fx.located:
             cov = depth_plane_tilt_cov(s.plane, v.points[ground], depth_field)
             if dp is not None:
                 tilt, tcov = combined_tilt(dp, cov)
                 fx, _ = retilted_fix(fx, s.plane, seen[0], seen[1], tilt, tcov, mat)
             else:
-                fx = replace(fx, tilt_sigma_deg=float(np.degrees(np.sqrt(max(np.linalg.eigvalsh(cov)[-1], 0.0)))))
+                fx = replace(fx, tilt_sigma_deg=float(np.degrees(largest_sigma(cov))))
         fixes[names[k]] = fx
         if fx.located:
             poses[k] = fx.camera_to_mat

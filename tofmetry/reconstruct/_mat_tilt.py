@@ -26,10 +26,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from tofmetry._shared.dot_mat import DotMat
-from tofmetry._shared.geometry import fit_plane_svd
 from tofmetry.reconstruct._adjust_field import DepthFieldPrior
 from tofmetry.reconstruct._mat_locate import MatFix, fix_from_matches, guided_match, plane_frame
 from tofmetry.reconstruct._mat_plane import DotPlane, dot_centres, tilted_normal
+from tofmetry.reconstruct._preprocess import correct_views
 
 #: 1-sigma added to each axis of a dot plane's tilt: what its fit does not show (the dots' rims, the
 #: lens calibration). Measured on family draw 78's rocker arm (20 views of 9-49 dots): 0.02-0.28 deg
@@ -39,6 +39,11 @@ DOT_TILT_FLOOR_DEG = 0.1
 MAX_POINTS = 2000
 #: support points within this of the plane are searched for the mat's pattern [m]
 GROUND_BAND_M = 0.015
+
+
+def largest_sigma(cov: np.ndarray) -> float:
+    """The 1-sigma along the larger axis of a (2, 2) covariance (its unit's square root)."""
+    return float(np.sqrt(max(np.linalg.eigvalsh(cov)[-1], 0.0)))
 
 
 def support_mask(view, seg, plane_threshold_m: float) -> np.ndarray:
@@ -121,7 +126,7 @@ def retilted_fix(fix: MatFix, plane: np.ndarray, dot_rays: list[np.ndarray], rad
     (MatFix, the turned plane (4,)); ``fix`` with the tilt's sigma alone when its dots no longer match
     as many of the layout
     """
-    sigma = float(np.degrees(np.sqrt(max(np.linalg.eigvalsh(tilt_cov)[-1], 0.0))))
+    sigma = float(np.degrees(largest_sigma(tilt_cov)))
     n0 = np.asarray(plane[:3], np.float64)
     cut = np.concatenate([r * (-float(plane[3]) / (r @ n0))[:, None] for r in dot_rays])
     n1 = tilted_normal(n0, float(tilt[0]), float(tilt[1]))
@@ -160,7 +165,7 @@ class MatDepthTilt:
     @property
     def sigma_mm(self) -> float:
         """The larger axis' 1-sigma of what is left after the tilt applied [mm per unit]."""
-        return float(np.sqrt(max(np.linalg.eigvalsh(self.applied_cov)[-1], 0.0)))
+        return largest_sigma(self.applied_cov)
 
     def to_dict(self) -> dict:
         r = lambda a: [round(float(x), 3) for x in np.ravel(a)]
@@ -263,9 +268,5 @@ def take_off_depth_tilt(views, segs, intr, dot_planes: list, prior_sigma_mm: flo
     if mt is None:
         return None
     rays = intr.ray_table(True)
-    for v, s in zip(views, segs):
-        on = None if s.plane is None else np.abs(v.points @ s.plane[:3] + s.plane[3]) < plane_threshold_m
-        v.points, v.depth_mm = without_depth_tilt(v.points, v.depth_mm, rays, mt.applied_mm)
-        if on is not None and on.sum() >= 3:
-            s.plane = fit_plane_svd(v.points[on], orient=s.plane[:3])
+    correct_views(views, segs, plane_threshold_m, lambda v: without_depth_tilt(v.points, v.depth_mm, rays, mt.applied_mm))
     return mt

@@ -238,8 +238,9 @@ class ReconstructionPipeline:
         """The depth's tilt across the image, measured by the mat's dots against each view's support
         (:func:`~tofmetry.reconstruct._mat_tilt.depth_tilt_from_dots`, weighed against what the
         calibration may have left), taken off every view's depth; the support planes refitted, the
-        registration clouds rebuilt (``regs`` in place) and the views placed again. None (nothing
-        changed) without a calibration or with fewer than three views whose dots gave their plane."""
+        registration clouds rebuilt (``regs`` in place) and the views placed again. Sets and returns
+        :attr:`mat_tilt`; None (nothing changed) without a calibration or with fewer than three views
+        whose dots gave their plane."""
         field = self.mat_field(views, segs, intr)
         if field is None or self.mat is None or not rc.mat_depth_tilt:
             return None
@@ -295,7 +296,7 @@ class ReconstructionPipeline:
         rc = self.cfg.registration
         if rc.mat is not None:  # each view placed on the dot mat on its own
             self.place_on_mat(views, segs, regs, intr, "placing the views on the mat")
-            self.mat_tilt = self.tilt_from_mat(views, segs, regs, intr, rc)
+            self.tilt_from_mat(views, segs, regs, intr, rc)
             support = self.anchored_support(views, segs, regs, intr, rc)
             if len(self.mat.kept) < 2:
                 raise EstimationError("fewer than two views were placed on the dot mat: " + "; ".join(

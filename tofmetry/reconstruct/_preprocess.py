@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from tofmetry._shared.geometry import fit_plane_svd
 from tofmetry.assess import remove_flying_pixels
 from tofmetry.errors import InputError
 from tofmetry.calibrate import DepthCalibration, apply_depth_calibration, count_outside_range
@@ -284,3 +285,14 @@ def _window_plane_normals(img: np.ndarray, jump: np.ndarray, index: np.ndarray, 
         v = np.einsum("nij,nj->ni", A, v)
         v /= np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-300)
     return v, (bad == 0) & (cnt >= 0.5 * w * w)
+
+
+def correct_views(views: list[ViewData], segs, plane_threshold_m: float, correct) -> None:
+    """Every view's depth corrected in place, ``correct(view) -> (points (N, 3) [m], depth_mm (H, W))``
+    (each point moved along its ray, the depth map with it), and each support plane (``segs[k].plane``)
+    refitted on the points that lay within ``plane_threshold_m`` of it before."""
+    for v, s in zip(views, segs):
+        on = None if s.plane is None else np.abs(v.points @ s.plane[:3] + s.plane[3]) < plane_threshold_m
+        v.points, v.depth_mm = correct(v)
+        if on is not None and on.sum() >= 3:
+            s.plane = fit_plane_svd(v.points[on], orient=s.plane[:3])

@@ -18,10 +18,9 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-from tofmetry._shared.geometry import fit_plane_svd
 from tofmetry.calibrate import flat_support_curve
 from tofmetry.errors import EstimationError
-from tofmetry.reconstruct._preprocess import ViewData
+from tofmetry.reconstruct._preprocess import ViewData, correct_views
 from tofmetry.reconstruct._segment import Segmentation
 from tofmetry.sensor import CameraIntrinsics
 
@@ -97,17 +96,16 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
     lv, slv = curve.mean_error(z_obj)
     if levelled:
         curve = curve.levelled(z_obj)
-    for v, s in zip(views, segs):
-        on = None if s.plane is None else np.abs(v.points @ s.plane[:3] + s.plane[3]) < plane_threshold_m
+
+    def along_rays(v: ViewData) -> tuple[np.ndarray, np.ndarray]:  # Z -> Z - e(Z)
         d = v.depth_mm
         valid = d > 0
         new = d.copy()
         new[valid] = d[valid] - curve.error_mm(d[valid])
         z0 = v.points[:, 2]
-        v.points = v.points * (1.0 - 1e-3 * curve.error_mm(z0 * 1e3) / z0)[:, None]
-        v.depth_mm = new
-        if on is not None and on.sum() >= 3:
-            s.plane = fit_plane_svd(v.points[on], orient=s.plane[:3])
+        return v.points * (1.0 - 1e-3 * curve.error_mm(z0 * 1e3) / z0)[:, None], new
+
+    correct_views(views, segs, plane_threshold_m, along_rays)
     g, sg = curve.mean_gain(z_obj)
     out = {"applied": True, "object_gain_pct": round(100 * g, 4), "object_gain_sigma_pct": round(100 * sg, 4),
            "object_depth_mm": [round(float(np.percentile(z_obj, q)), 1) for q in (5, 95)]}
