@@ -245,7 +245,7 @@ def _print_mat(fixes: dict | None, verdicts: dict, pattern: dict | None = None, 
         size = f.get("pattern_scale_pct", float("nan"))
         ts = f.get("tilt_sigma_deg")
         t.add_row(name, how, str(f["n_dots"]), str(f["n_matched"]), f"{f['rms_mm']:.2f}", f"{f['sigma_deg']:.3f}",
-                  f"{f['sigma_mm']:.2f}", "" if ts is None else f"{ts:.2f}",
+                  f"{f['sigma_mm']:.2f}", "" if ts is None or ts != ts else f"{ts:.2f}",
                   "" if size != size else f"{size:+.2f} +- {f['pattern_scale_sigma_pct']:.2f}",
                   (verdicts.get(name) or {}).get("verdict", ""))
     console.print(t)
