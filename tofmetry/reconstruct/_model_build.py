@@ -54,7 +54,7 @@ def fuse_views(views, segs, poses: np.ndarray, intr, cfg: ReconstructionConfig, 
             adv()
     V, F, N, P, PN = tsdf.extract(1.0)  # surface seen by a single view is kept (undersides, flanks)
     return V, F, N, P, PN, {"voxel_mm": voxel, "trunc_mm": trunc, "median_object_depth_mm": z_med, "min_views": 1,
-                            "rule": "voxel = 0.6 * z / f; trunc = max(4 * sigma_eff(z), 3 voxels)"}
+                            "rule": "voxel = 0.6 * z / f; trunc = max(4 * sqrt(sigma_eff(z)^2 + sigma_views^2), 3 voxels)"}
 
 
 def fusion_depth(v, seg, cfg: ReconstructionConfig) -> np.ndarray:

@@ -166,7 +166,7 @@ class RigReconstruction(ReconstructionPipeline):
                 adv()
         return (*tsdf.extract(1.0), {"voxel_mm": voxel, "trunc_mm": trunc, "median_object_depth_mm": z_med,
                                      "min_views": 1, "rule": "voxel = 0.6 * z / f (mean f of the sensors); "
-                                                             "trunc = max(4 * sigma_eff(z), 3 voxels)"})
+                                                             "trunc = max(4 * sqrt(sigma_eff(z)^2 + sigma_views^2), 3 voxels)"})
 
     def rig_check(self, views, segs, poses) -> tuple[list, list, list]:
         """Check the rig against the data, pair by pair: the ICP correction of one view's object points
