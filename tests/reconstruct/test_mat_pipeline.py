@@ -55,6 +55,8 @@ def test_a_plain_vase_on_a_mat_is_placed_and_in_the_mats_frame(tmp_path):
     assert "the dots measure the depth scale" in out and "NOT consistent" not in out  # exact depth: no warning
     mat_table = out.split("views placed on the dot mat")[1].split("the dots measure the depth scale")[0]
     assert " nan " not in mat_table  # no calibration: no tilt judged, its column left empty
+    edges_table = out.split("registration edges")[1].split("views placed on the dot mat")[0]
+    assert "mat" in edges_table and "nan" not in edges_table  # the mat's edges have no pose-graph residual
     doc = read_json(tmp_path / "rec" / "poses.json")
     assert doc["reliable"] is True
     assert all(v["verdict"]["verdict"] == "placed on the mat" for v in doc["views"]), doc["views"]

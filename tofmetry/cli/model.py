@@ -137,8 +137,7 @@ def reconstruct(
         if e["accepted"]:
             t.add_row(e["source"], e["target"], e["method"], f"{e['fitness']:.3f}", f"{e['inlier_rmse_mm']:.2f}",
                       f"{e.get('see_through', 0.0):.1%}", "yes" if e["kept"] else "pruned",
-                      f"{e.get('residual_rot_deg', float('nan')):.3f}", f"{e.get('residual_trans_mm', float('nan')):.2f}",
-                      e.get("verdict", ""))
+                      _figure(e.get("residual_rot_deg"), 3), _figure(e.get("residual_trans_mm"), 2), e.get("verdict", ""))
     console.print(t)
     rel = res.diagnostics.get("reliability") or {}
     for e in res.edges:
@@ -245,7 +244,7 @@ def _print_mat(fixes: dict | None, verdicts: dict, pattern: dict | None = None, 
         size = f.get("pattern_scale_pct", float("nan"))
         ts = f.get("tilt_sigma_deg")
         t.add_row(name, how, str(f["n_dots"]), str(f["n_matched"]), f"{f['rms_mm']:.2f}", f"{f['sigma_deg']:.3f}",
-                  f"{f['sigma_mm']:.2f}", "" if ts is None or ts != ts else f"{ts:.2f}",
+                  f"{f['sigma_mm']:.2f}", _figure(ts, 2),
                   "" if size != size else f"{size:+.2f} +- {f['pattern_scale_sigma_pct']:.2f}",
                   (verdicts.get(name) or {}).get("verdict", ""))
     console.print(t)
@@ -484,6 +483,12 @@ def plan(
                       f"aimed at {run.settings['aimed_at']:.1%} so that the scan reaches {target:.0%} on about 95 % of "
                       f"runs), mean |d| {p.mean_abs_mm:.2f} mm")
     console.print(f"wrote {output}")
+
+
+def _figure(x, digits: int) -> str:
+    """``x`` with ``digits`` decimals; empty where there is none (None or NaN: an edge the mat placed has
+    no pose-graph residual)."""
+    return "" if x is None or x != x else f"{x:.{digits}f}"
 
 
 def _span(p) -> str:
