@@ -11,7 +11,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from tofmetry.errors import EstimationError
-from tofmetry.reconstruct._config import ReconstructionConfig
+from tofmetry.reconstruct._config import TRUNCATION_RULE, ReconstructionConfig
 from tofmetry.reconstruct._fusion import TSDFFusion, crop_mesh, poisson_mesh
 from tofmetry.reconstruct._world import transform_plane
 
@@ -54,7 +54,7 @@ def fuse_views(views, segs, poses: np.ndarray, intr, cfg: ReconstructionConfig, 
             adv()
     V, F, N, P, PN = tsdf.extract(1.0)  # surface seen by a single view is kept (undersides, flanks)
     return V, F, N, P, PN, {"voxel_mm": voxel, "trunc_mm": trunc, "median_object_depth_mm": z_med, "min_views": 1,
-                            "rule": "voxel = 0.6 * z / f; trunc = max(4 * sqrt(sigma_eff(z)^2 + sigma_views^2), 3 voxels)"}
+                            "rule": "voxel = 0.6 * z / f; " + TRUNCATION_RULE}
 
 
 def fusion_depth(v, seg, cfg: ReconstructionConfig) -> np.ndarray:

@@ -28,6 +28,7 @@ from scipy.spatial import cKDTree
 
 from tofmetry.errors import InputError, SensorMismatchError
 from tofmetry.reconstruct._colour import colour_model
+from tofmetry.reconstruct._config import TRUNCATION_RULE
 from tofmetry.reconstruct._fusion import TSDFFusion
 from tofmetry.reconstruct._model_build import fusion_depth, median_object_depth_m
 from tofmetry.reconstruct._pipeline import ReconstructionPipeline, ReconstructionResult
@@ -165,8 +166,7 @@ class RigReconstruction(ReconstructionPipeline):
                 tsdf.integrate(fusion_depth(v, seg, self.cfg), T, s.intrinsics)
                 adv()
         return (*tsdf.extract(1.0), {"voxel_mm": voxel, "trunc_mm": trunc, "median_object_depth_mm": z_med,
-                                     "min_views": 1, "rule": "voxel = 0.6 * z / f (mean f of the sensors); "
-                                                             "trunc = max(4 * sqrt(sigma_eff(z)^2 + sigma_views^2), 3 voxels)"})
+                                     "min_views": 1, "rule": "voxel = 0.6 * z / f (mean f of the sensors); " + TRUNCATION_RULE})
 
     def rig_check(self, views, segs, poses) -> tuple[list, list, list]:
         """Check the rig against the data, pair by pair: the ICP correction of one view's object points
