@@ -58,3 +58,17 @@ def test_a_bar_symmetric_end_for_end_is_reported_ambiguous_and_one_with_a_notch_
     model2 = ref2 + rng.normal(0, 0.0005, ref2.shape)
     res = align_to_reference(model2, ref2, nrm2, coarse=True, seeds=1, extra_candidates=cands)
     assert not res.ambiguous and res.misfit_mm < 1.0 and np.degrees(np.arccos((np.trace(res.transform[:3, :3]) - 1) / 2)) < 1.0
+
+
+def test_copies_of_one_basin_do_not_crowd_a_distinct_alignment_out_of_the_screening():
+    """Six hypotheses within a few degrees of the right pose and one turned end for end, on a plain
+    bar (equally good both ways), with two kept after screening: the two kept are distinct, so the
+    end-for-end alignment reaches the full ICP and is reported; the ambiguous result is run again."""
+    rng = np.random.default_rng(5)
+    V, F = _box((0.30, 0.05, 0.04))
+    ref, nrm, _ = sample_mesh(V, F, 0.003, seed=1)
+    model = ref + rng.normal(0, 0.0005, ref.shape)
+    cands = [_yawed(a) for a in (-3.0, -2.0, -1.0, 1.0, 2.0, 3.0)] + [_yawed(182.0)]
+    res = align_to_reference(model, ref, nrm, coarse=True, seeds=0, extra_candidates=cands, screen_keep=2)
+    assert res.runner_up is not None and res.runner_up["deg"] > 170
+    assert res.ambiguous and res.retried and res.misfit_mm < 1.0
