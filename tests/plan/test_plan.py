@@ -34,7 +34,7 @@ def test_out_of_range_views_see_nothing(box):
 
 
 def test_proposal_reaches_the_target_with_the_fewest_views(box):
-    best, ranked = propose(box, KINECT_V2.depth, target=0.9, distance_m=1.0, max_scale_sigma_pct=None)
+    best, ranked = propose(box, KINECT_V2.depth, target=0.9, distance_m=1.0)
     assert best is not None and best.prediction.completeness >= 0.9 and best.prediction.min_overlap >= 0.5
     assert all(p.prediction.n_views >= best.prediction.n_views for p in ranked
                if p.prediction.completeness >= 0.9 and p.prediction.min_overlap >= 0.5)

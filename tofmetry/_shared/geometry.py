@@ -103,35 +103,3 @@ def similarity_offset_jacobian(centred: np.ndarray, normals: np.ndarray, length:
     """
     q, n = np.asarray(centred, np.float64), np.asarray(normals, np.float64)
     return np.c_[np.cross(q, n) / length, n, np.einsum("ij,ij->i", n, q), np.ones(len(q))]
-
-
-def similarity_scale_rows(points: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray | None, float]:
-    """The scale-and-offset fit of a surface (rigid motion, a scale about the centroid and an offset
-    along the normals, point to plane) as a linear map of small moves.
-
-    Parameters
-    ----------
-    points : (N, 3) [m] surface points; normals : (N, 3) unit normals, all outward
-
-    Returns
-    -------
-    ``(rows, correlation)``: ``rows`` (2, N) such that a displacement field ``d`` (N, 3) [m] has the
-    relative scale ``rows[0] @ (n . d)`` and the normal offset ``rows[1] @ (n . d)`` [m]; ``rows`` is
-    None where the fit is singular (a plane) or scale and offset are not separable on this shape
-    (``|correlation| > SCALE_OFFSET_MAX_CORRELATION``); ``correlation`` of the two estimates.
-    """
-    p = np.asarray(points, np.float64)
-    n = np.asarray(normals, np.float64)
-    if len(p) < 10:
-        return None, float("nan")
-    qc = p - p.mean(0)
-    L = float(np.sqrt(np.mean(np.sum(qc ** 2, 1)))) or 1.0
-    J = similarity_offset_jacobian(qc, n, L)
-    H = J.T @ J
-    if not np.linalg.cond(H) < 1e12:  # a plane: the scale moves nothing along its normal
-        return None, float("nan")
-    Hi = np.linalg.inv(H)
-    corr = float(Hi[6, 7] / np.sqrt(max(Hi[6, 6] * Hi[7, 7], 1e-300)))
-    if not np.isfinite(corr) or abs(corr) > SCALE_OFFSET_MAX_CORRELATION:
-        return None, corr
-    return (Hi @ J.T)[6:8], corr

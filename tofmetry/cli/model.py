@@ -442,9 +442,6 @@ def plan(
                                      "ELEV deg, plus M zenithal views at ELEV2)."),
     complete_views: bool = typer.Option(False, "--complete", help="Propose the views to add to --views so that "
                                         "they reach --target (each placed where its azimuth falls in the loop)."),
-    scale_sigma: float = typer.Option(0.1, "--scale-sigma", help="Of the view sets that reach --target, the fewest "
-                                      "whose poses leave the model's scale at most this standard deviation [%] "
-                                      "(boxes and plaques need more views than their surface does)."),
     force: bool = typer.Option(False, "--force", help="Replace an existing plan.json."),
 ) -> None:
     """Acquisition planning: predicted completeness and accuracy of views around an object, and the views to take."""
@@ -453,18 +450,17 @@ def plan(
     sz = None if size is None else _parse_floats(size, "--size", 3)
     run = plan_acquisition(size=sz, mesh=mesh, mesh_scale=mesh_scale, mesh_up=_parse_floats(mesh_up, "--mesh-up", 3),
                            first_view=first_view, calibration=calibration, distance_m=distance, target=target,
-                           n_frames=frames, views=views, complete_views=complete_views, output=output, force=force,
-                           max_scale_sigma_pct=scale_sigma)
+                           n_frames=frames, views=views, complete_views=complete_views, output=output, force=force)
     ext = run.object.extent_m
     console.print(f"object ({run.object.source}): {ext[0]:.3f} x {ext[1]:.3f} x {ext[2]:.3f} m; views at "
                   f"{run.settings['distance_m']:.2f} m")
     t = Table(title="candidate view sets (best first)")
-    for col in ("views", "n", "completeness", "range", "min overlap", "mean |d| [mm]", "p95 [mm]", "scale σ [%]"):
+    for col in ("views", "n", "completeness", "range", "min overlap", "mean |d| [mm]", "p95 [mm]"):
         t.add_column(col, justify="right")
     for c in run.candidates[:10]:
         p = c.prediction
         t.add_row(c.name, str(p.n_views), f"{p.completeness:.1%}", _span(p), f"{p.min_overlap:.2f}",
-                  f"{p.mean_abs_mm:.2f}", f"{p.p95_mm:.2f}", _figure(p.scale_sigma_pct, 2))
+                  f"{p.mean_abs_mm:.2f}", f"{p.p95_mm:.2f}")
     console.print(t)
     if run.asked is not None:
         p = run.asked.prediction
@@ -485,12 +481,7 @@ def plan(
         p = run.proposal.prediction
         console.print(f"proposal: {run.proposal.name}: predicted completeness {p.completeness:.1%} ({_span(p)}; "
                       f"aimed at {run.settings['aimed_at']:.1%} so that the scan reaches {target:.0%} on about 95 % of "
-                      f"runs), mean |d| {p.mean_abs_mm:.2f} mm, scale σ from the poses "
-                      f"{_figure(p.scale_sigma_pct, 2) or 'not separable on this shape'} %")
-        if p.scale_sigma_pct > run.settings["max_scale_sigma_pct"]:
-            console.print(f"[yellow]no view set that reaches the target holds the scale within "
-                          f"{run.settings['max_scale_sigma_pct']:g} % (σ); this one comes closest: scan closer, "
-                          "or with more frames per view[/yellow]")
+                      f"runs), mean |d| {p.mean_abs_mm:.2f} mm")
     console.print(f"wrote {output}")
 
 

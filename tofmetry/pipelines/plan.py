@@ -18,9 +18,8 @@ import numpy as np
 from tofmetry.errors import InputError
 from tofmetry.io import atomic_write_json, read_json
 from tofmetry.pipelines.paths import refuse_existing
-from tofmetry.plan import (PREDICTION_ERROR_PTS, SCALE_NEAR_LOWEST, SCALE_SIGMA_PCT, PlanObject, Proposal, aim_for,
-                           complete, predict, propose, proxy_from_mesh, proxy_from_points, proxy_from_size, ring,
-                           surface_samples, turn_about_vertical)
+from tofmetry.plan import (PREDICTION_ERROR_PTS, PlanObject, Proposal, aim_for, complete, predict, propose,
+                           proxy_from_mesh, proxy_from_points, proxy_from_size, ring, surface_samples, turn_about_vertical)
 from tofmetry.sensor import KINECT_V2, CameraIntrinsics
 
 
@@ -95,7 +94,7 @@ def plan_acquisition(*, size: tuple[float, float, float] | None = None, mesh: st
                      mesh_scale: float = 1.0, mesh_up=(0.0, 0.0, 1.0), first_view: str | os.PathLike | None = None,
                      calibration=None, distance_m: float | None = None, target: float = 0.9, n_frames: int = 10,
                      views: str | None = None, complete_views: bool = False, output: str | os.PathLike | None = None,
-                     force: bool = False, max_scale_sigma_pct: float | None = SCALE_SIGMA_PCT) -> PlanRun:
+                     force: bool = False) -> PlanRun:
     """Plan the acquisition of one object (exactly one of ``size``, ``mesh``, ``first_view``).
 
     Parameters
@@ -112,8 +111,6 @@ def plan_acquisition(*, size: tuple[float, float, float] | None = None, mesh: st
     complete_views : also propose the views to add to ``views`` so that they reach ``target``
         (:func:`tofmetry.plan.complete`: next-best views, each placed in the loop where its azimuth falls)
     output : ``plan.json`` to write (atomic; refuses to overwrite without ``force``)
-    max_scale_sigma_pct : the proposal's poses may leave the model's scale this standard deviation
-        at most [%] (:func:`tofmetry.plan.propose`); None: the scale is not weighed
     """
     from tofmetry.pipelines.calibration_files import load_calibration
 
@@ -121,8 +118,6 @@ def plan_acquisition(*, size: tuple[float, float, float] | None = None, mesh: st
         raise InputError("plan: give exactly one of --size, --mesh, --first-view")
     if not 0 < target <= 1:
         raise InputError(f"plan: --target must be in (0, 1], found {target}")
-    if max_scale_sigma_pct is not None and not max_scale_sigma_pct > 0:
-        raise InputError(f"plan: --scale-sigma must be above 0 [%], found {max_scale_sigma_pct}")
     cal = load_calibration(calibration) if calibration is not None and not hasattr(calibration, "intrinsics") \
         else calibration
     intr = cal.intrinsics if cal is not None else KINECT_V2.depth
@@ -145,7 +140,7 @@ def plan_acquisition(*, size: tuple[float, float, float] | None = None, mesh: st
         cal_mm = float(((cal.prediction or {}).get("interpolation") or {}).get("central_abs_mm", {}).get("predicted", 0.5))
     kw = {"n_frames": n_frames, "calibration_mm": cal_mm}
     aim = aim_for(target)  # the prediction over-estimates by up to 2.8 points (p95, PREDICTION_ERROR_PTS): aim that much higher
-    best, ranked = propose(obj, intr, aim, distance_m, max_scale_sigma_pct=max_scale_sigma_pct, **kw)
+    best, ranked = propose(obj, intr, aim, distance_m, **kw)
     asked = None
     if views is not None:
         poses = parse_views(views, obj, distance_m)
@@ -157,10 +152,7 @@ def plan_acquisition(*, size: tuple[float, float, float] | None = None, mesh: st
         poses, added, pred = complete(obj, asked.poses, intr, aim, distance_m, **kw)
         completed = Proposal(f"{views} + {len(added)} planned", poses, pred, {"spec": views, "added_at": added})
     settings = {"target": target, "aimed_at": round(aim, 4), "distance_m": distance_m, "n_frames": n_frames,
-                "calibration_mm": cal_mm, "max_scale_sigma_pct": max_scale_sigma_pct,
-                "scale_rule": "of the views that reach the target, the fewest whose poses leave the model's scale a "
-                              "standard deviation up to max_scale_sigma_pct (else within "
-                              f"{SCALE_NEAR_LOWEST:g} x the lowest): tofmetry.plan._scale",
+                "calibration_mm": cal_mm,
                 "aim_rule": f"the views must be predicted to reach the target plus {PREDICTION_ERROR_PTS[1]:g} points, the "
                             "prediction's p95 over-estimate on the family (bench/robustness), so that the scan "
                             "reaches the target on about 95 % of runs"}

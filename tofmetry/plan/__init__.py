@@ -8,8 +8,6 @@ is a mesh, a proxy of a rough size (:func:`proxy_from_size`) or of a first view
 
 from tofmetry.plan._plan import (
     PREDICTION_ERROR_PTS,
-    SCALE_NEAR_LOWEST,
-    SCALE_SIGMA_PCT,
     PlanObject,
     Prediction,
     Proposal,
@@ -30,6 +28,6 @@ from tofmetry.plan._plan import (
 )
 from tofmetry.plan._symmetry import TURN_FREE_BELOW, turn_about_vertical
 
-__all__ = ["PREDICTION_ERROR_PTS", "SCALE_NEAR_LOWEST", "SCALE_SIGMA_PCT", "PlanObject", "Prediction", "Proposal", "aim_for", "candidates", "complete", "predict", "propose", "proxy_from_mesh",
+__all__ = ["PREDICTION_ERROR_PTS", "PlanObject", "Prediction", "Proposal", "aim_for", "candidates", "complete", "predict", "propose", "proxy_from_mesh",
            "proxy_from_points", "proxy_from_size", "reconstructed_share", "ring", "seen_cosines", "seen_masks", "stripes",
            "surface_samples", "TURN_FREE_BELOW", "turn_about_vertical"]

@@ -52,11 +52,8 @@ over the smaller one's visible share, ``overlap``); a proposal whose smallest ov
 objects): rings of 8-16 views at 20-45 deg elevation, rings plus 2-4 zenithal views at 65 deg,
 and, for an object at least twice as long as wide, stripes (views along both long sides and at
 both ends); the proposal is the one with the fewest views that reaches the target completeness
-with every successive overlap above ``min_overlap`` and whose poses leave the model's scale
-uncertain by at most :data:`SCALE_SIGMA_PCT` (:mod:`tofmetry.plan._scale`: boxes and plaques at 8
-views do not; when no candidate does, the fewest views within :data:`SCALE_NEAR_LOWEST` of the lowest)
-(ties: the one that reaches the target even if every grazing surface is lost, the low end of its
-range; then the higher completeness).
+with every successive overlap above ``min_overlap`` (ties: the one that reaches the target even if
+every grazing surface is lost, the low end of its range; then the higher completeness).
 Rings of 6 views are no longer proposed: on the family (``bench/robustness``, draw 47, 2026-11-30)
 the same 20 objects and sensors were scanned along their drawn paths and along the plan's
 proposals; where the plan proposed a ring of 6 (10 objects), 1 run came out right and reliable
@@ -84,7 +81,6 @@ from scipy.spatial import ConvexHull
 
 from tofmetry.errors import InputError
 from tofmetry.evaluate import CameraViews, sample_mesh, view_cosines
-from tofmetry.plan._scale import pose_scale_sigma
 from tofmetry.sensor import CameraIntrinsics
 from tofmetry.simulate.objects import grid_mesh, place_object
 from tofmetry.simulate.paths import turntable
@@ -99,13 +95,6 @@ SINGLE_VIEW_KEEP = 0.9
 #: predicted - achieved completeness [points], p5 and p95 over 291 right, reliable family runs
 #: (``bench/robustness``, draws 50-71, 2026-12-02, with :data:`GRAZING_KEEP` and :data:`SINGLE_VIEW_KEEP`)
 PREDICTION_ERROR_PTS = (-2.4, 2.8)
-
-
-#: the largest scale standard deviation [%] the poses of a proposal may leave (:func:`propose`): with the
-#: chain's other terms (about 0.1 %) the model's scale then stays within 0.2 % on about 90 % of scans
-SCALE_SIGMA_PCT = 0.1
-#: when no candidate reaches :data:`SCALE_SIGMA_PCT`, those within this factor of the lowest are kept
-SCALE_NEAR_LOWEST = 1.2
 
 
 def aim_for(target: float) -> float:
@@ -154,9 +143,6 @@ class Prediction:
         grazing surfaces all lost), and the share some view sees at all up to the last grazing
         limit (all kept); ``completeness`` lies between, or just below the low end where a large
         share is seen squarely by one view alone (counted whole there, 0.9 in the prediction)
-    scale_sigma_pct : the model's scale standard deviation from its poses' noise [%]
-        (:func:`~tofmetry.plan._scale.pose_scale_sigma`); NaN where the shape does not tell scale
-        from a surface offset (a sphere)
     """
 
     completeness: float
@@ -167,10 +153,9 @@ class Prediction:
     per_view_seen: np.ndarray
     n_views: int
     completeness_range: tuple = (float("nan"), float("nan"))
-    scale_sigma_pct: float = float("nan")
 
     def to_dict(self) -> dict:
-        return {"completeness": round(self.completeness, 4), "scale_sigma_pct": round(self.scale_sigma_pct, 4),
+        return {"completeness": round(self.completeness, 4),
                 "completeness_range": [round(float(x), 4) for x in self.completeness_range],
                 "min_overlap": round(self.min_overlap, 4),
                 "overlaps": [round(float(x), 3) for x in self.overlaps], "mean_abs_mm": round(self.mean_abs_mm, 3),
@@ -357,11 +342,8 @@ def predict(obj: PlanObject, poses, intr: CameraIntrinsics, *, n_frames: int = 1
     noise = noise_1m_mm * float(np.median(z)) ** 1.5
     views_per_point = float(np.mean(count[count > 0])) if (count > 0).any() else 1.0
     sigma = float(np.hypot(noise / np.sqrt(n_frames * views_per_point), calibration_mm))
-    pts, nrm = surface_samples(obj, spacing_mm, seed)
-    scale, _ = pose_scale_sigma(pts, nrm, cosines, poses, obj.centre_m, intr, n_frames=n_frames,
-                                noise_1m_mm=noise_1m_mm, spacing_mm=spacing_mm, max_incidence_deg=max_incidence_deg)
     return Prediction(comp, float(ov.min()) if V > 1 else 1.0, ov, 0.8 * sigma, 2.0 * sigma, S.mean(1), V,
-                      (float((count > 0).mean()), glimpsed), 100.0 * scale)
+                      (float((count > 0).mean()), glimpsed))
 
 
 def _overlap(a: np.ndarray, b: np.ndarray) -> float:
@@ -417,14 +399,8 @@ def candidates(obj: PlanObject, distance_m: float) -> list[tuple[str, list, dict
 
 
 def propose(obj: PlanObject, intr: CameraIntrinsics, target: float = 0.9, distance_m: float = 1.0,
-            min_overlap: float = 0.5, max_scale_sigma_pct: float | None = SCALE_SIGMA_PCT,
-            **kw) -> tuple[Proposal | None, list[Proposal]]:
+            min_overlap: float = 0.5, **kw) -> tuple[Proposal | None, list[Proposal]]:
     """Predict every candidate (:func:`candidates`) and pick the proposal (module docstring).
-
-    ``max_scale_sigma_pct``: among the candidates that reach ``target`` with enough overlap, those
-    whose poses leave the scale a standard deviation up to this [%] (:attr:`Prediction.scale_sigma_pct`;
-    a shape whose scale is not separable passes); when none does, those within
-    :data:`SCALE_NEAR_LOWEST` of the lowest; None: the scale is not weighed.
 
     Returns
     -------
@@ -434,20 +410,11 @@ def propose(obj: PlanObject, intr: CameraIntrinsics, target: float = 0.9, distan
     for name, poses, params in candidates(obj, distance_m):
         out.append(Proposal(name, poses, predict(obj, poses, intr, **kw), params))
     ok = [p for p in out if p.prediction.completeness >= target and p.prediction.min_overlap >= min_overlap]
-    if ok and max_scale_sigma_pct is not None:
-        def scale(p: Proposal) -> float:
-            s = p.prediction.scale_sigma_pct
-            return float(s) if np.isfinite(s) else 0.0
-
-        held = [p for p in ok if scale(p) <= max_scale_sigma_pct]
-        ok = held or [p for p in ok if scale(p) <= SCALE_NEAR_LOWEST * min(scale(q) for q in ok)]
-    chosen = {id(p) for p in ok}
 
     def safe(p: Proposal) -> float:  # the completeness it reaches even if every grazing surface is lost, up to the target
         return min(p.prediction.completeness_range[0], target)
 
-    rank = sorted(out, key=lambda p: (-(id(p) in chosen), -(p.prediction.completeness >= target
-                                                            and p.prediction.min_overlap >= min_overlap),
+    rank = sorted(out, key=lambda p: (-(p.prediction.completeness >= target and p.prediction.min_overlap >= min_overlap),
                                       p.prediction.n_views if p.prediction.completeness >= target else 0,
                                       -safe(p), -p.prediction.completeness))
     best = min(ok, key=lambda p: (p.prediction.n_views, -safe(p), -p.prediction.completeness)) if ok else None

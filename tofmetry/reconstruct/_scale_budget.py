@@ -39,7 +39,7 @@ from typing import Callable
 
 import numpy as np
 
-from tofmetry._shared.geometry import similarity_scale_rows
+from tofmetry._shared.geometry import SCALE_OFFSET_MAX_CORRELATION, similarity_offset_jacobian
 
 
 @dataclass(frozen=True)
@@ -62,6 +62,28 @@ class PoseUncertainty:
     field_basis: Callable[[np.ndarray], np.ndarray] | None = None
 
 
+def _scale_rows(points_w: np.ndarray, normals_w: np.ndarray) -> tuple[np.ndarray | None, float]:
+    """The fit of :func:`scale_response` as a linear map: ``(rows, correlation)`` with ``rows`` (2, N)
+    such that a displacement field ``d`` has scale ``rows[0] @ (n . d)`` and normal offset
+    ``rows[1] @ (n . d)`` [m]; ``rows`` is None where the fit is singular or scale and offset are not
+    separable (``|correlation| > SCALE_OFFSET_MAX_CORRELATION``)."""
+    p = np.asarray(points_w, np.float64)
+    n = np.asarray(normals_w, np.float64)
+    if len(p) < 10:
+        return None, float("nan")
+    qc = p - p.mean(0)
+    L = float(np.sqrt(np.mean(np.sum(qc ** 2, 1)))) or 1.0
+    J = similarity_offset_jacobian(qc, n, L)
+    H = J.T @ J
+    if not np.linalg.cond(H) < 1e12:  # a plane: the scale moves nothing along its normal
+        return None, float("nan")
+    Hi = np.linalg.inv(H)
+    corr = float(Hi[6, 7] / np.sqrt(max(Hi[6, 6] * Hi[7, 7], 1e-300)))
+    if not np.isfinite(corr) or abs(corr) > SCALE_OFFSET_MAX_CORRELATION:
+        return None, corr
+    return (Hi @ J.T)[6:8], corr
+
+
 def scale_response(points_w: np.ndarray, normals_w: np.ndarray, moves_w: np.ndarray) -> tuple[float, float, float]:
     """Scale change of a surface under a small displacement field, rigid motion and normal offset removed.
 
@@ -78,7 +100,7 @@ def scale_response(points_w: np.ndarray, normals_w: np.ndarray, moves_w: np.ndar
     the two are not separable on this shape (``|correlation| > SCALE_OFFSET_MAX_CORRELATION``) or
     the fit is singular.
     """
-    rows, corr = similarity_scale_rows(points_w, normals_w)
+    rows, corr = _scale_rows(points_w, normals_w)
     if rows is None:
         return float("nan"), float("nan"), corr
     x = rows @ np.einsum("ij,ij->i", np.asarray(normals_w, np.float64), np.asarray(moves_w, np.float64))
@@ -103,12 +125,12 @@ def pose_scale_response(points_w: np.ndarray, normals_w: np.ndarray, view: np.nd
     (6 (n_views - 1),) relative scale per rad and per m of each increment, or None where scale and
     offset are not separable on this shape
     """
-    rows, _ = similarity_scale_rows(points_w, normals_w)
+    rows, _ = _scale_rows(points_w, normals_w)
     return None if rows is None else _pose_rows(points_w, normals_w, rows[0], view, n_views)
 
 
 def _pose_rows(points_w, normals_w, scale_row: np.ndarray, view, n_views: int) -> np.ndarray:
-    """:func:`pose_scale_response` from the scale fit's row (:func:`~tofmetry._shared.geometry.similarity_scale_rows`)."""
+    """:func:`pose_scale_response` from the scale fit's row (:func:`_scale_rows`)."""
     p, n = np.asarray(points_w, np.float64), np.asarray(normals_w, np.float64)
     a = np.zeros((n_views, 6))
     np.add.at(a, np.asarray(view), np.c_[np.cross(p, n), n] * scale_row[:, None])
@@ -158,7 +180,7 @@ def scale_budget(points_cam: list[np.ndarray], normals_cam: list[np.ndarray], po
     z = P[:, 2]
     # a depth error delta moves a point along its ray by P delta / z: along the normal by (N . P / z) delta
     along = np.einsum("ij,ij->i", N, P) / z
-    rows, corr = similarity_scale_rows(Pw, Nw)  # the scale fit, once for every term (linear in the moves)
+    rows, corr = _scale_rows(Pw, Nw)  # the scale fit, once for every term (linear in the moves)
 
     def response(delta: np.ndarray) -> tuple[float, float]:
         return (float("nan") if rows is None else float(rows[0] @ (along * delta))), corr
