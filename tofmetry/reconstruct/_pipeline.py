@@ -339,7 +339,8 @@ class ReconstructionPipeline:
         poses = start if adj is None else adj.poses
         if support is None:  # the curve after the poses, levelled on the object; on a mat, its gain anchored
             gain = self.cfg.preprocess.support_anchor == "gain"
-            support = self.correct_by_support(views, segs, intr, self.mat_anchors(names) if gain else None)
+            support = self.correct_by_support(views, segs, intr, self.mat_anchors(names) if gain else None,
+                                              level=gain or self.cfg.preprocess.support_curve_level == "calibration")
         t2b = time.perf_counter()
         V, F, N, P, PN, fusion_info = self.fuse(views, segs, poses, intr)
         t3 = time.perf_counter()

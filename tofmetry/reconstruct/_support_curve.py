@@ -73,8 +73,10 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
     ``anchors``: per view None or ``(p, cov)``, its support plane known without the depth (the dot
     mat's, :class:`~tofmetry.reconstruct._mat_plane.DotPlane`); with enough of them the curve is whole
     (:func:`~tofmetry.calibrate.flat_support_curve`), its gain and curvature included. ``level``: the
-    curve levelled on the object's depths (always when it is not anchored); an anchored curve not
-    levelled moves the object by its level there (``object_offset_mm``).
+    curve levelled on the object's depths; a curve not levelled moves the object by its level there
+    (``object_offset_mm``): an anchored one by the whole range error the dots' planes show there, one
+    from the support alone by its part orthogonal to ``1``, ``Z`` and ``Z^2`` (what the views'
+    placements, which took their height from the measured support, leave the object off by).
 
     Returns
     -------
@@ -88,11 +90,14 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
         curve = flat_support_curve(z_mm, xy, step_mm=step_mm, smooth_mm=smooth_mm, anchors=anchors)
     except EstimationError as exc:
         return {"applied": False, "why": str(exc)}
-    # the object's own mean depth stays as the calibration left it: the support shows the curve's shape,
-    # not its level there (measured on a bar of draw 74: applied unlevelled, the curve moved its views
-    # 0.4-0.9 mm toward their cameras and the model's mean distance went 0.22 -> 0.39 mm)
+    # levelled, the object's own mean depth stays as the calibration left it (session 34, on a bar of draw 74:
+    # unlevelled, its mean distance went 0.22 -> 0.39 mm). Not levelled (the default since session 40): the
+    # views were placed by their measured support planes, which hold the curve's 1, Z and Z^2 parts; the object
+    # is off those placements by the rest, its level here (99 runs of draws 80-84: the model's mean signed
+    # deviation followed it, correlation -0.87; the ten largest levels unlevelled: mean |d| 1.45 -> 0.29 mm
+    # at best, two worse, bench/robustness/README.md)
     z_obj = np.concatenate([v.points[s.object_mask, 2] for v, s in zip(views, segs)]) * 1e3
-    levelled = level or not curve.anchored
+    levelled = level
     lv, slv = curve.mean_error(z_obj)
     if levelled:
         curve = curve.levelled(z_obj)
@@ -109,7 +114,9 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
     g, sg = curve.mean_gain(z_obj)
     out = {"applied": True, "object_gain_pct": round(100 * g, 4), "object_gain_sigma_pct": round(100 * sg, 4),
            "object_depth_mm": [round(float(np.percentile(z_obj, q)), 1) for q in (5, 95)]}
-    if curve.anchored:  # the level at the object's depths: taken off (levelled), or what moved the object
-        out |= {"levelled": levelled, "object_offset_mm": 0.0 if levelled else round(lv, 3),
-                "anchored_level_mm": round(lv, 3), "object_offset_sigma_mm": round(slv, 3)}
+    # the level at the object's depths: taken off (levelled), or what moved the object
+    out |= {"levelled": levelled, "object_offset_mm": 0.0 if levelled else round(lv, 3),
+            "object_level_mm": round(lv, 3), "object_offset_sigma_mm": round(slv, 3)}
+    if curve.anchored:
+        out["anchored_level_mm"] = round(lv, 3)
     return out | curve.to_dict()
