@@ -62,3 +62,51 @@ def test_a_range_wiggle_no_longer_scales_the_model(tmp_path):
     assert abs(s_on) < 0.2e-2, (s_off, s_on)  # the issue's scale target
     truth = read_json(scan / "truth.json")
     assert truth["views"] and with_.diagnostics["reliable"] is True
+
+
+def crest_sensor(z_crest_mm: float) -> ErrorModel:
+    """Noise and a single range wiggle along Z, at its crest (+2.5 mm) at ``z_crest_mm``."""
+    phase = np.pi / 2 - 2 * np.pi * z_crest_mm / PERIOD_MM
+    return ErrorModel.only("noise", "wiggling", wiggle_offset_mm=0.0, wiggle_slope_mm_per_m=0.0,
+                           wiggle_amps_mm=(2.5,), wiggle_phases=(float(phase % (2 * np.pi)),),
+                           wiggle_periods_m=(PERIOD_MM / 1e3,), wiggle_harmonics=(1,), wiggle_steep_mm=0.0,
+                           range_variable="z", range_apply="z")
+
+
+def mean_signed_mm(res, mat: DotMat, ref: Geometry) -> float:
+    from tofmetry.evaluate import distances_to_mesh
+
+    a = np.radians(mat.yaw_deg)
+    R = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    pts = res.mesh_vertices @ R.T
+    pts = pts[pts[:, 2] > 0.003]
+    d = distances_to_mesh(pts, ref.points, ref.faces).distance
+    return float(np.mean(d[np.abs(d) < 0.005])) * 1e3
+
+
+@pytest.mark.slow
+def test_the_curves_level_at_the_object_is_taken_off_it(tmp_path):
+    """The wiggle's crest where the object lies: every view reads it 2.5 mm too far. The mat placed the
+    views by their measured support planes, which the wiggle, averaged over 0.5-1.6 m of support, barely
+    moves; so the object lies about 2.5 mm too far along every line of sight (its surface sunk by the
+    share of that along its normals, about half). Levelled on the object (``calibration``), the curve
+    leaves it there; taken off whole (``support``; the default takes it off where the calibration warns
+    of its own error at the object's depths, and this scan has none), the surface comes back within the
+    noise and the wiggle's curvature over the object's depths (a few tenths of a millimetre)."""
+    obj = make_object("baluster", seed=3, size_m=0.25, painted=False)
+    mat = DotMat(seed=7, yaw_deg=20.0)
+    scan = datasets.scan(tmp_path / "scan", n_frames=3, mesh=(obj.vertices, obj.triangles), radius_m=0.85,
+                         n_views=8, elevation_deg=35.0, errors=crest_sensor(850.0), seed=4, mat=mat)
+    ref = Geometry(obj.vertices, obj.triangles, source="reference")
+    cfg = ReconstructionConfig()
+    cfg.registration.mat = DotMat(seed=7).to_dict()
+    old = cfg.model_copy(deep=True)
+    old.preprocess.support_curve_level = "calibration"
+    cfg.preprocess.support_curve_level = "support"
+    kept = reconstruct_scan(scan, None, config=old)
+    taken = reconstruct_scan(scan, None, config=cfg)
+    sc = taken.diagnostics["support_curve"]
+    assert sc["applied"] and not sc["levelled"] and sc["object_offset_mm"] > 1.0, sc
+    s_kept, s_taken = mean_signed_mm(kept, mat, ref), mean_signed_mm(taken, mat, ref)
+    assert s_kept < -0.6, s_kept  # sunk by the share of 2.5 mm along the normals
+    assert abs(s_taken) < 0.4 and abs(s_taken) < abs(s_kept) / 2, (s_kept, s_taken)

@@ -206,6 +206,16 @@ class ReconstructionPipeline:
             adv()
         return report
 
+    def level_from_support(self) -> bool:
+        """Whether the support curve's level at the object's depths is taken off the object
+        (``preprocess.support_curve_level``; 'auto': where the calibration predicts more than
+        ``registration.max_calibration_mm`` of its own error there, the warning's condition)."""
+        mode = self.cfg.preprocess.support_curve_level
+        if mode != "auto":
+            return mode == "support"
+        pc = calibration_central_mm(self.prediction_at_object) if self.cal is not None else None
+        return pc is not None and pc > self.cfg.registration.max_calibration_mm
+
     def anchored_support(self, views, segs, regs, intr, rc) -> dict | None:
         """On a dot mat whose dots gave at least three views their plane (:attr:`mat`'s ``dot_planes``),
         the support curve with those planes as anchors, subtracted now, whole, and the views placed
@@ -340,7 +350,7 @@ class ReconstructionPipeline:
         if support is None:  # the curve after the poses, levelled on the object; on a mat, its gain anchored
             gain = self.cfg.preprocess.support_anchor == "gain"
             support = self.correct_by_support(views, segs, intr, self.mat_anchors(names) if gain else None,
-                                              level=gain or self.cfg.preprocess.support_curve_level == "calibration")
+                                              level=gain or not self.level_from_support())
         t2b = time.perf_counter()
         V, F, N, P, PN, fusion_info = self.fuse(views, segs, poses, intr)
         t3 = time.perf_counter()

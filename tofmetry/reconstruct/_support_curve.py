@@ -91,7 +91,7 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
     except EstimationError as exc:
         return {"applied": False, "why": str(exc)}
     # levelled, the object's own mean depth stays as the calibration left it (session 34, on a bar of draw 74:
-    # unlevelled, its mean distance went 0.22 -> 0.39 mm). Not levelled (the default since session 40): the
+    # unlevelled, its mean distance went 0.22 -> 0.39 mm). Not levelled (by default where the calibration warns: the
     # views were placed by their measured support planes, which hold the curve's 1, Z and Z^2 parts; the object
     # is off those placements by the rest, its level here (99 runs of draws 80-84: the model's mean signed
     # deviation followed it, correlation -0.87; the ten largest levels unlevelled: mean |d| 1.45 -> 0.29 mm
