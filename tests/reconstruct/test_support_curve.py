@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from tofmetry._shared.dot_mat import DotMat
-from tofmetry.evaluate import scale_from_reference
+from tofmetry.evaluate import distances_to_mesh, scale_from_reference
 from tofmetry.io import read_json
 from tofmetry.io.mesh import Geometry
 from tofmetry.pipelines.reconstruct import reconstruct_scan
@@ -40,15 +40,20 @@ def model_scale(res, scan, mat: DotMat, ref: Geometry) -> float:
     return float(scale_from_reference(pts, ref)["scale_error"])
 
 
-@pytest.mark.slow
-def test_a_range_wiggle_no_longer_scales_the_model(tmp_path):
+def baluster_on_mat(tmp_path, errors: ErrorModel):
+    """A 0.25 m baluster on a dot mat, 8 views at 0.85 m and 35 deg: (scan folder, mat, reference, config)."""
     obj = make_object("baluster", seed=3, size_m=0.25, painted=False)
     mat = DotMat(seed=7, yaw_deg=20.0)
     scan = datasets.scan(tmp_path / "scan", n_frames=3, mesh=(obj.vertices, obj.triangles), radius_m=0.85,
-                         n_views=8, elevation_deg=35.0, errors=wiggle_sensor(850.0), seed=4, mat=mat)
-    ref = Geometry(obj.vertices, obj.triangles, source="reference")
-    base = ReconstructionConfig()
-    base.registration.mat = DotMat(seed=7).to_dict()
+                         n_views=8, elevation_deg=35.0, errors=errors, seed=4, mat=mat)
+    cfg = ReconstructionConfig()
+    cfg.registration.mat = DotMat(seed=7).to_dict()
+    return scan, mat, Geometry(obj.vertices, obj.triangles, source="reference"), cfg
+
+
+@pytest.mark.slow
+def test_a_range_wiggle_no_longer_scales_the_model(tmp_path):
+    scan, mat, ref, base = baluster_on_mat(tmp_path, wiggle_sensor(850.0))
     off = base.model_copy(deep=True)
     off.preprocess.support_curve = False
     without = reconstruct_scan(scan, None, config=off)
@@ -74,8 +79,6 @@ def crest_sensor(z_crest_mm: float) -> ErrorModel:
 
 
 def mean_signed_mm(res, mat: DotMat, ref: Geometry) -> float:
-    from tofmetry.evaluate import distances_to_mesh
-
     a = np.radians(mat.yaw_deg)
     R = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
     pts = res.mesh_vertices @ R.T
@@ -95,13 +98,7 @@ def test_the_curves_level_at_the_object_is_taken_off_it(tmp_path):
     truth, but past it: the placements' planes, fitted on support that is partly at the crest's depths
     too, had taken a share of it already (measured: -0.66 -> +0.49 mm; what each view's plane took is the
     next refinement)."""
-    obj = make_object("baluster", seed=3, size_m=0.25, painted=False)
-    mat = DotMat(seed=7, yaw_deg=20.0)
-    scan = datasets.scan(tmp_path / "scan", n_frames=3, mesh=(obj.vertices, obj.triangles), radius_m=0.85,
-                         n_views=8, elevation_deg=35.0, errors=crest_sensor(850.0), seed=4, mat=mat)
-    ref = Geometry(obj.vertices, obj.triangles, source="reference")
-    cfg = ReconstructionConfig()
-    cfg.registration.mat = DotMat(seed=7).to_dict()
+    scan, mat, ref, cfg = baluster_on_mat(tmp_path, crest_sensor(850.0))
     old = cfg.model_copy(deep=True)
     old.preprocess.support_curve_level = "calibration"
     cfg.preprocess.support_curve_level = "support"
