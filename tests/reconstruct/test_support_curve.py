@@ -31,13 +31,16 @@ def wiggle_sensor(z_steep_mm: float) -> ErrorModel:
                            range_variable="z", range_apply="z")
 
 
+def object_points(res, mat: DotMat) -> np.ndarray:
+    """The model's vertices in the truth's world (the model is in the mat's frame), the ground ring left out."""
+    a = np.radians(mat.yaw_deg)
+    mat_to_world = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    pts = res.mesh_vertices @ mat_to_world.T
+    return pts[pts[:, 2] > 0.003]
+
+
 def model_scale(res, scan, mat: DotMat, ref: Geometry) -> float:
-    a = np.radians(mat.yaw_deg)  # the truth's world -> the mat's frame (the model's)
-    mat_to_world = np.eye(4)
-    mat_to_world[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
-    pts = res.mesh_vertices @ mat_to_world[:3, :3].T
-    pts = pts[pts[:, 2] > 0.003]  # the object, not the ground ring
-    return float(scale_from_reference(pts, ref)["scale_error"])
+    return float(scale_from_reference(object_points(res, mat), ref)["scale_error"])
 
 
 def baluster_on_mat(tmp_path, errors: ErrorModel):
@@ -79,11 +82,7 @@ def crest_sensor(z_crest_mm: float) -> ErrorModel:
 
 
 def mean_signed_mm(res, mat: DotMat, ref: Geometry) -> float:
-    a = np.radians(mat.yaw_deg)
-    R = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
-    pts = res.mesh_vertices @ R.T
-    pts = pts[pts[:, 2] > 0.003]
-    d = distances_to_mesh(pts, ref.points, ref.faces).distance
+    d = distances_to_mesh(object_points(res, mat), ref.points, ref.faces).distance
     return float(np.mean(d[np.abs(d) < 0.005])) * 1e3
 
 

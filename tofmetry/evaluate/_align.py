@@ -62,6 +62,14 @@ AMBIGUOUS_RATIO = 1.25
 DISTINCT_DEG, DISTINCT_MM = 1.0, 5.0
 
 
+def _apart(T: np.ndarray, T_ref: np.ndarray, centre: np.ndarray) -> tuple[float, float]:
+    """How far the alignment ``T`` lies from ``T_ref`` (both (4, 4), model -> reference): the rotation
+    [deg] and the displacement [mm] of ``T T_ref^-1`` at ``centre`` (3,) [m, where ``T_ref`` puts the
+    model]; further than :data:`DISTINCT_DEG` or :data:`DISTINCT_MM`, the two are distinct."""
+    E = T @ np.linalg.inv(T_ref)
+    return rotation_angle_deg(E), displacement_at(E, centre) * 1e3
+
+
 def capped_misfit_mm(points: np.ndarray, tree: cKDTree, ref_pts: np.ndarray, ref_nrm: np.ndarray, T: np.ndarray,
                      cap_mm: float, near_mm: float = 4.0) -> float:
     """Mean distance [mm] of ``points`` (N, 3) [m], carried by ``T`` (4, 4), to reference samples
@@ -172,9 +180,8 @@ def align_to_reference(model_pts: np.ndarray, ref_pts: np.ndarray, ref_nrm: np.n
         scored.sort(key=lambda sk: sk[0], reverse=True)
         kept = []  # the best screen_keep that converged to distinct poses: duplicates must not crowd out the rest
         for _, Ts, k in scored:
-            if all(rotation_angle_deg(Ts @ np.linalg.inv(Tk)) > DISTINCT_DEG
-                   or displacement_at(Ts @ np.linalg.inv(Tk), transform_points(scr_centre[None], Tk)[0]) * 1e3
-                   > DISTINCT_MM for _, Tk in kept):
+            apart = (_apart(Ts, Tk, transform_points(scr_centre[None], Tk)[0]) for _, Tk in kept)
+            if all(deg > DISTINCT_DEG or mm > DISTINCT_MM for deg, mm in apart):
                 kept.append((k, Ts))
             if len(kept) == screen_keep:
                 break
@@ -199,8 +206,7 @@ def align_to_reference(model_pts: np.ndarray, ref_pts: np.ndarray, ref_nrm: np.n
     for key, m2, _, _, mis2 in done[1:]:
         if key[0] != done[0][0][0]:
             break
-        E = m2.transform @ np.linalg.inv(T)
-        deg, mm = rotation_angle_deg(E), displacement_at(E, centre) * 1e3
+        deg, mm = _apart(m2.transform, T, centre)
         if deg > DISTINCT_DEG or mm > DISTINCT_MM:
             res.runner_up = {"misfit_mm": round(mis2, 3), "deg": round(deg, 2), "mm": round(mm, 1)}
             res.ambiguous = bool(mis2 <= AMBIGUOUS_RATIO * mis)

@@ -347,7 +347,8 @@ class ReconstructionPipeline:
                 for v, sg, (pts, depth, plane) in zip(views, segs, before_fit):
                     v.points, v.depth_mm, sg.plane = pts, depth, plane
         poses = start if adj is None else adj.poses
-        if support is None:  # the curve after the poses, levelled on the object; on a mat, its gain anchored
+        if support is None:  # the curve after the poses, levelled on the object unless the calibration warns there
+            # (level_from_support); on a mat, its gain anchored
             gain = self.cfg.preprocess.support_anchor == "gain"
             support = self.correct_by_support(views, segs, intr, self.mat_anchors(names) if gain else None,
                                               level=gain or not self.level_from_support())

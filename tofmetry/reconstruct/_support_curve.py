@@ -97,9 +97,8 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
     # deviation followed it, correlation -0.87; the ten largest levels unlevelled: mean |d| 1.45 -> 0.29 mm
     # at best, two worse, bench/robustness/README.md)
     z_obj = np.concatenate([v.points[s.object_mask, 2] for v, s in zip(views, segs)]) * 1e3
-    levelled = level
     lv, slv = curve.mean_error(z_obj)
-    if levelled:
+    if level:
         curve = curve.levelled(z_obj)
 
     def along_rays(v: ViewData) -> tuple[np.ndarray, np.ndarray]:  # Z -> Z - e(Z)
@@ -115,7 +114,7 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
     out = {"applied": True, "object_gain_pct": round(100 * g, 4), "object_gain_sigma_pct": round(100 * sg, 4),
            "object_depth_mm": [round(float(np.percentile(z_obj, q)), 1) for q in (5, 95)]}
     # the level at the object's depths: taken off (levelled), or what moved the object
-    out |= {"levelled": levelled, "object_offset_mm": 0.0 if levelled else round(lv, 3),
+    out |= {"levelled": level, "object_offset_mm": 0.0 if level else round(lv, 3),
             "object_level_mm": round(lv, 3), "object_offset_sigma_mm": round(slv, 3)}
     if curve.anchored:
         out["anchored_level_mm"] = round(lv, 3)
