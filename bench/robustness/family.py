@@ -266,6 +266,19 @@ def judging_config():
     return EvaluationConfig(align=True, exclude_normal=(0.0, 0.0, -1.0))
 
 
+def mat_view_errors(pm, names: list[str], placed, true_poses) -> dict:
+    """name -> the mat placement's own error (rotation [deg], its part about the world's vertical,
+    the simulator's z [deg], the largest displacement of the object [mm]): each placement against
+    the truth, after the one alignment :func:`~tofmetry.evaluate.pose_errors` found (``pm``)."""
+    out = {}
+    for k, n in enumerate(names):
+        E = pm.alignment @ np.asarray(placed[k]) @ np.linalg.inv(true_poses[k])
+        w = np.array([E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]]) / 2.0  # small-angle axis * sin
+        out[n] = {"rot_deg": round(float(pm.rot_deg[k]), 4), "yaw_deg": round(float(np.degrees(w[2])), 4),
+                  "object_mm": round(float(pm.object_mm[k]), 3)}
+    return out
+
+
 def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, mesh_dir: Path | None = MESH_DIR,
              keep: bool = False, config=None, stations_mm=FAMILY_DISTANCES_MM, boards: bool = True,
              complete_to: float | None = None, turntable: float | None = None, turntable_jitter: float = 0.0,
@@ -339,7 +352,10 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
             pm = pose_errors(np.array([fixes[res.names[k]]["camera_to_mat"] for k in on]), true_poses[on],
                              d.object.vertices)
             row["mat_pose_errors"] = {"rot_deg": round(float(pm.rot_deg.max()), 4),
-                                      "object_mm": round(float(pm.object_mm.max()), 3), "views": len(on)}
+                                      "object_mm": round(float(pm.object_mm.max()), 3), "views": len(on),
+                                      "per_view": mat_view_errors(pm, [res.names[k] for k in on],
+                                                                  [fixes[res.names[k]]["camera_to_mat"] for k in on],
+                                                                  true_poses[on])}
     row.update(reliable=bool(res.diagnostics.get("reliable")), reasons=res.diagnostics["reliability"].get("reasons", []),
                warnings=res.diagnostics["reliability"].get("warnings", []),
                views_left_out=res.diagnostics.get("left_out") or {},

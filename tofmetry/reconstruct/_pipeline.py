@@ -341,7 +341,7 @@ class ReconstructionPipeline:
             centre = np.concatenate([v.points[s.object_mask] @ T[:3, :3].T + T[:3, 3]
                                      for v, s, T in zip(views, segs, start)]).mean(0)
             mat_kept = None if mat_unsure else departures(start, adj.poses, centre, rc.pose_gate_deg, rc.pose_gate_mm,
-                                                          names)
+                                                          names, self.mat.allowed_moves(centre))
             if mat_kept or mat_unsure:  # a fit not kept leaves the views' depth as it found it
                 adj = None
                 for v, sg, (pts, depth, plane) in zip(views, segs, before_fit):
