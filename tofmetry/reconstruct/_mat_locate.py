@@ -89,8 +89,8 @@ class MatFix:
     def sigma_at_mm(self, point_m: np.ndarray) -> float:
         """1-sigma of the placement's displacement of ``point_m`` (3,) (mat frame [m]) [mm]: the shift
         at the dots' centroid, and the rotation (turn and tilt) times the point's distance from it."""
-        c = np.r_[np.nan_to_num(self.centre_xy, nan=0.0), 0.0] if np.isfinite(self.centre_xy).all() else None
-        lever = 0.0 if c is None else float(np.linalg.norm(np.asarray(point_m, np.float64) - c))
+        c = np.r_[self.centre_xy, 0.0]
+        lever = float(np.linalg.norm(np.asarray(point_m, np.float64) - c)) if np.isfinite(c).all() else 0.0
         return float(np.hypot(self.sigma_mm, np.radians(self.rotation_sigma_deg) * lever * 1e3))
 
     def to_dict(self) -> dict:
@@ -381,13 +381,11 @@ def with_pooled_noise(fix: MatFix, pooled_mm: float, prior_dof: float = 6.0) -> 
     ``prior_dof`` = 6 (three dots' worth): over the 206 mat placements of family draw 86 the turn's
     error over its 1-sigma had an RMS of 1.05 with it (1.13 on the dots' own noise alone), and the
     two views of 3-5 dots fell within 2.6 sigma (13.6 before)."""
-    if not (fix.located and np.isfinite(fix.noise_mm) and np.isfinite(pooled_mm)):
+    if not (fix.located and np.isfinite(fix.noise_mm) and fix.noise_mm > 0 and np.isfinite(pooled_mm)):
         return fix
     s = float(np.sqrt((fix.noise_mm ** 2 * fix.residual_dof + prior_dof * pooled_mm ** 2)
                       / (fix.residual_dof + prior_dof)))
-    k = s / fix.noise_mm if fix.noise_mm > 0 else float("inf")
-    if not np.isfinite(k):
-        return fix
+    k = s / fix.noise_mm
     return replace(fix, sigma_deg=fix.sigma_deg * k, sigma_mm=fix.sigma_mm * k,
                    pattern_scale_sigma=fix.pattern_scale_sigma * k, noise_mm=s)
 
