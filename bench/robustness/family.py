@@ -44,6 +44,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from tofmetry.calibrate import DepthFitConfig, fit_depth_model, wall_sample
 from tofmetry.simulate.family import random_sensor
@@ -273,8 +274,8 @@ def mat_view_errors(pm, names: list[str], placed, true_poses) -> dict:
     out = {}
     for k, n in enumerate(names):
         E = pm.alignment @ np.asarray(placed[k]) @ np.linalg.inv(true_poses[k])
-        w = np.array([E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]]) / 2.0  # small-angle axis * sin
-        out[n] = {"rot_deg": round(float(pm.rot_deg[k]), 4), "yaw_deg": round(float(np.degrees(w[2])), 4),
+        yaw = np.degrees(Rotation.from_matrix(E[:3, :3]).as_rotvec()[2])
+        out[n] = {"rot_deg": round(float(pm.rot_deg[k]), 4), "yaw_deg": round(float(yaw), 4),
                   "object_mm": round(float(pm.object_mm[k]), 3)}
     return out
 
@@ -349,12 +350,11 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
         fixes = res.diagnostics["mat"]
         on = [k for k, n in enumerate(res.names) if fixes[n]["located"]]
         if len(on) >= 2:
-            pm = pose_errors(np.array([fixes[res.names[k]]["camera_to_mat"] for k in on]), true_poses[on],
-                             d.object.vertices)
+            placed = np.array([fixes[res.names[k]]["camera_to_mat"] for k in on])
+            pm = pose_errors(placed, true_poses[on], d.object.vertices)
             row["mat_pose_errors"] = {"rot_deg": round(float(pm.rot_deg.max()), 4),
                                       "object_mm": round(float(pm.object_mm.max()), 3), "views": len(on),
-                                      "per_view": mat_view_errors(pm, [res.names[k] for k in on],
-                                                                  [fixes[res.names[k]]["camera_to_mat"] for k in on],
+                                      "per_view": mat_view_errors(pm, [res.names[k] for k in on], placed,
                                                                   true_poses[on])}
     row.update(reliable=bool(res.diagnostics.get("reliable")), reasons=res.diagnostics["reliability"].get("reasons", []),
                warnings=res.diagnostics["reliability"].get("warnings", []),
