@@ -208,6 +208,9 @@ class RegistrationConfig(BaseModel):
     mat_scale_floor_pct: float = Field(0.1, ge=0, description="the dots' own systematic scale error [%] (1 sigma) in "
                                        "the mat's check of the depth scale (_mat_stage.pattern_scale): on exact depth "
                                        "they came out 0.09 +- 0.02 % small over 8 views of a vase")
+    mat_holds_scale: bool = Field(True, description="with a mat, the joint fit's change of the model's scale from the "
+                                  "placements is weighed against the placements' own scale uncertainty and the rest "
+                                  "taken off (tofmetry.reconstruct._mat_scale)")
     mat_range_curve: bool = Field(False, description="with a mat, the joint fit also estimates the range curve "
                                   "(range_curve_degree). Off: measured on 4 development scans (a baluster, a plaque, a "
                                   "vase, a dome), its 5 free coefficients let the views slide off the mat's placements "

@@ -30,6 +30,7 @@ from tofmetry.reconstruct._model_build import (
 )
 from tofmetry.reconstruct._mat_stage import (calibration_beyond_gate, departures, judge_placements, pattern_scale,
                                              pattern_scale_warning, place_views)
+from tofmetry.reconstruct._mat_scale import budget_held, held_poses
 from tofmetry.reconstruct._mat_tilt import MatDepthTilt, take_off_depth_tilt
 from tofmetry.reconstruct._preprocess import ViewData, prepare_view
 from tofmetry.reconstruct._support_curve import correct_by_support
@@ -264,6 +265,17 @@ class ReconstructionPipeline:
         self.place_on_mat(views, segs, regs, intr, "placing the views on the mat again (depth tilt taken off)")
         return mt
 
+    def hold_mat_scale(self, views, segs, start, poses, intr, adj: AdjustResult, names: list[str]):
+        """The joint fit's ``poses`` with their scale weighed against the mat's placements ``start``
+        (:func:`~tofmetry.reconstruct._mat_scale.held_poses`): (poses, ScaleHold)."""
+        rc = self.cfg.registration
+        fit = scale_budget_of(views, segs, poses, intr, median_object_depth_m(views, segs), None, 0.0, adj)(0.0, 0.0)
+        height_mm = calibration_central_mm(None if self.cal is None else self.cal.prediction) or rc.mat_prior_mm
+        return held_poses([v.points[s.object_mask] for v, s in zip(views, segs)],
+                          [v.normals[s.object_mask] for v, s in zip(views, segs)], start, poses,
+                          [self.mat.fixes.get(n) for n in names], (fit.get("poses") or {}).get("sigma", np.nan),
+                          adj.pose_covariance, rc.mat_prior_deg, height_mm * 1e-3)
+
     def place_on_mat(self, views, segs, regs, intr, what: str) -> None:
         """Every view placed on the dot mat (:func:`place_views`, into :attr:`mat`), its tilt weighed
         by the calibration's residual field (:meth:`mat_field`)."""
@@ -346,7 +358,9 @@ class ReconstructionPipeline:
                 adj = None
                 for v, sg, (pts, depth, plane) in zip(views, segs, before_fit):
                     v.points, v.depth_mm, sg.plane = pts, depth, plane
-        poses = start if adj is None else adj.poses
+        poses, hold = start if adj is None else adj.poses, None
+        if self.mat is not None and adj is not None and rc.mat_holds_scale:  # the fit may not bend the mat's scale
+            poses, hold = self.hold_mat_scale(views, segs, start, poses, intr, adj, names)
         if support is None:  # the curve after the poses, levelled on the object unless the calibration warns there
             # (level_from_support); on a mat, its gain anchored
             gain = self.cfg.preprocess.support_anchor == "gain"
@@ -420,14 +434,14 @@ class ReconstructionPipeline:
                                                                  "forward)", "from_first_camera": W.tolist()})
         diag = {"consistency": graph.consistency, "reliable": bool(verdict["reliable"]), "reliability": verdict,
                 "scale": scale_report(adj_d, pred, z_obj * 1e3,
-                                      scale_budget_of(views, segs, poses_fit, intr, z_obj, self.white_map,
-                                                      rc.amplitude_k_sigma_mm, adj),
+                                      budget_held(scale_budget_of(views, segs, poses_fit, intr, z_obj, self.white_map,
+                                                                  rc.amplitude_k_sigma_mm, adj), hold),
                                       rc.amplitude_k_sigma_mm if self.white_map is not None else None,
                                       rc.scale_floor_pct, support, object_depth_span_mm(views, segs))
                 | ({"mat_pattern": mat_scale} if self.mat is not None else {}),
                 "world": world, "slab": slab, "support_curve": support,
                 "views": {v.name: v.stats for v in views}, "fusion": fusion_info, "timings_s": self.timings,
-                "adjustment": adj_d, "left_out": self.left_out, "color": colour_diag, "turntable": self.turntable,
+                "adjustment": adj_d, "mat_scale_hold": None if hold is None else hold.to_dict(), "left_out": self.left_out, "color": colour_diag, "turntable": self.turntable,
                 "pattern": self.pattern, "mat": None if self.mat is None else self.mat.to_dict(),
                 "mat_depth_tilt": None if self.mat_tilt is None else self.mat_tilt.to_dict(),
                 "calibrated": self.cal is not None, "amplitude_corrected": self.white_map is not None, "intrinsics": intr.to_dict(),

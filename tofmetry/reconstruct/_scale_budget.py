@@ -125,16 +125,25 @@ def pose_scale_response(points_w: np.ndarray, normals_w: np.ndarray, view: np.nd
     (6 (n_views - 1),) relative scale per rad and per m of each increment, or None where scale and
     offset are not separable on this shape
     """
+    a = view_scale_rows(points_w, normals_w, view, n_views)
+    return None if a is None else a[1:].ravel()
+
+
+def view_scale_rows(points_w: np.ndarray, normals_w: np.ndarray, view: np.ndarray, n_views: int) -> np.ndarray | None:
+    """:func:`pose_scale_response` for every view, view 0 included: (n_views, 6) relative scale per
+    rad of the rotation vector and per m of the translation of each view's left increment (a common
+    increment of all views is a rigid motion: the rows sum to a zero scale for it). None where scale
+    and offset are not separable on this shape."""
     rows, _ = _scale_rows(points_w, normals_w)
-    return None if rows is None else _pose_rows(points_w, normals_w, rows[0], view, n_views)
+    return None if rows is None else _view_rows(points_w, normals_w, rows[0], view, n_views)
 
 
-def _pose_rows(points_w, normals_w, scale_row: np.ndarray, view, n_views: int) -> np.ndarray:
-    """:func:`pose_scale_response` from the scale fit's row (:func:`_scale_rows`)."""
+def _view_rows(points_w, normals_w, scale_row: np.ndarray, view, n_views: int) -> np.ndarray:
+    """:func:`view_scale_rows` from the scale fit's row (:func:`_scale_rows`)."""
     p, n = np.asarray(points_w, np.float64), np.asarray(normals_w, np.float64)
     a = np.zeros((n_views, 6))
     np.add.at(a, np.asarray(view), np.c_[np.cross(p, n), n] * scale_row[:, None])
-    return a[1:].ravel()
+    return a
 
 
 def scale_budget(points_cam: list[np.ndarray], normals_cam: list[np.ndarray], poses: np.ndarray, z_ref_m: float,
@@ -199,7 +208,7 @@ def scale_budget(points_cam: list[np.ndarray], normals_cam: list[np.ndarray], po
     out["correlation"] = corr
     if poses_free is not None:  # the poses' own uncertainty, independent of the terms above but for
         # the field's direct moves, whose correlation with the moves of the poses it causes is left out
-        out["poses"] = _pose_term(None if rows is None else _pose_rows(Pw, Nw, rows[0], view, len(poses)), P,
+        out["poses"] = _pose_term(None if rows is None else _view_rows(Pw, Nw, rows[0], view, len(poses))[1:].ravel(), P,
                                   poses_free, response)
         if np.isfinite(out["poses"]["sigma"]):
             out["sigma_poses_held"] = out["sigma"]
