@@ -48,3 +48,20 @@ def test_the_mat_measures_the_depth_tilt_the_walls_could_not_and_the_views_hold(
         E = np.asarray(v["camera_to_world"]) @ np.linalg.inv(truth[v["name"]])
         deg = np.degrees(np.arccos(np.clip((np.trace(E[:3, :3]) - 1) / 2, -1, 1)))
         assert deg < 0.25, (v["name"], deg)
+
+
+def test_the_scale_the_mat_holds_is_printed(capsys):
+    """``reconstruct --mat`` says what the mat held of the model's scale against the joint fit
+    (``diagnostics.mat_scale_hold``), and nothing where the fit was not weighed."""
+    from tofmetry.cli.model import _print_mat
+
+    fix = {"how": "dots", "n_dots": 20, "n_matched": 19, "rms_mm": 0.9, "sigma_deg": 0.04, "sigma_mm": 0.2,
+           "tilt_sigma_deg": 0.04, "pattern_scale_pct": 0.1, "pattern_scale_sigma_pct": 0.2}
+    hold = {"fit_scale_pct": 0.3832, "fit_sigma_pct": 0.1726, "mat_sigma_pct": 0.0412, "applied_pct": -0.3622,
+            "held_sigma_pct": 0.0401}
+    _print_mat({"00": fix}, {}, None, None, hold)
+    out = " ".join(capsys.readouterr().err.split())  # the console writes to stderr
+    assert "the mat holds the model's scale: the joint fit moved it +0.383 % (+-0.173 %)" in out
+    assert "-0.362 % applied, +-0.040 % left" in out
+    _print_mat({"00": fix}, {}, None, None, {"applied_pct": 0.0, "note": "scale and offset are not separable"})
+    assert "holds the model's scale" not in capsys.readouterr().err
