@@ -8,18 +8,7 @@ from tofmetry.reconstruct._mat_locate import MatFix
 from tofmetry.reconstruct._mat_scale import (ScaleHold, apply_increments, hold_scale, left_increments,
                                              placement_covariance)
 from tofmetry.reconstruct._scale_budget import view_scale_rows
-
-
-def _look_at(cam: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """Camera-to-world pose (4, 4) at ``cam`` looking at ``target`` (x right, y down, z forward)."""
-    z = target - cam
-    z /= np.linalg.norm(z)
-    x = np.cross(z, [0.0, 0.0, 1.0])
-    x /= np.linalg.norm(x)
-    T = np.eye(4)
-    T[:3, :3] = np.c_[x, np.cross(z, x), z]
-    T[:3, 3] = cam
-    return T
+from tofmetry.simulate.poses import look_at
 
 
 def _bust_views(n_views: int = 8, distance: float = 0.7, elevation_deg: float = 30.0):
@@ -43,7 +32,7 @@ def _bust_views(n_views: int = 8, distance: float = 0.7, elevation_deg: float = 
         az = 2 * np.pi * k / n_views
         cam = centre + distance * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
         seen = np.einsum("ij,ij->i", nrm, cam - pts) > 0.2 * np.linalg.norm(cam - pts, axis=1)
-        poses.append(_look_at(cam, centre))
+        poses.append(look_at(cam, centre))
         P.append(pts[seen])
         N.append(nrm[seen])
         V.append(np.full(seen.sum(), k))

@@ -132,6 +132,8 @@ def hold_scale(rows: np.ndarray | None, start: np.ndarray, fitted: np.ndarray, c
     C = fit_cov if fit_cov is not None and fit_cov.shape == (len(a), len(a)) and np.all(np.isfinite(fit_cov)) \
         else block_diag(*covariances[1:])
     g = C @ a
+    if not float(a @ g) > 0:  # no move of the views 1.. changes the scale: view 0 alone sees the object
+        return fitted, ScaleHold(s, fit_sigma, float(np.sqrt(mat_var)), note="no view but the first moves the scale")
     xi = np.zeros_like(rows)
     xi[1:] = (delta / float(a @ g) * g).reshape(-1, 6)
     held = float(1.0 / np.sqrt(1.0 / fit_sigma ** 2 + 1.0 / mat_var))
