@@ -26,8 +26,10 @@ import numpy as np
 from scipy.linalg import block_diag
 from scipy.spatial.transform import Rotation
 
+from tofmetry._shared.geometry import skew
+from tofmetry.reconstruct._adjust_terms import _exp_se3
 from tofmetry.reconstruct._mat_locate import MatFix
-from tofmetry.reconstruct._scale_budget import view_scale_rows
+from tofmetry.reconstruct._scale_budget import sampled_points, view_scale_rows
 
 
 @dataclass(frozen=True)
@@ -68,11 +70,9 @@ def left_increments(start: np.ndarray, fitted: np.ndarray) -> np.ndarray:
 
 
 def apply_increments(poses: np.ndarray, xi: np.ndarray) -> np.ndarray:
-    """``poses`` (V, 4, 4) moved by left increments ``xi`` (V, 6) (:func:`left_increments`)."""
-    E = np.tile(np.eye(4), (len(poses), 1, 1))
-    E[:, :3, :3] = Rotation.from_rotvec(xi[:, :3]).as_matrix()
-    E[:, :3, 3] = xi[:, 3:]
-    return np.einsum("vij,vjk->vik", E, poses)
+    """``poses`` (V, 4, 4) moved by left increments ``xi`` (V, 6) (:func:`left_increments`), as the
+    joint fit moves its poses."""
+    return np.array([_exp_se3(x) @ T for x, T in zip(xi, poses)])
 
 
 def placement_covariance(fix: MatFix | None, tilt_sigma_deg: float, height_sigma_m: float) -> np.ndarray:
@@ -95,8 +95,7 @@ def placement_covariance(fix: MatFix | None, tilt_sigma_deg: float, height_sigma
         c = np.r_[fix.centre_xy, 0.0]
     else:
         sw, sn, c = np.radians([tilt_sigma_deg] * 3), np.full(3, height_sigma_m), np.zeros(3)
-    cx = np.array([[0, -c[2], c[1]], [c[2], 0, -c[0]], [-c[1], c[0], 0]])
-    A = np.block([[np.eye(3), np.zeros((3, 3))], [cx, np.eye(3)]])  # a turn about c: t = c x w + shift
+    A = np.block([[np.eye(3), np.zeros((3, 3))], [skew(c), np.eye(3)]])  # a turn about c: t = c x w + shift
     return A @ np.diag(np.r_[sw, sn] ** 2) @ A.T
 
 
@@ -154,15 +153,9 @@ def held_poses(points_cam: list[np.ndarray], normals_cam: list[np.ndarray], star
     tilt_sigma_deg, height_sigma_m : :func:`placement_covariance`'s fallbacks
     max_points : points drawn (seeded) over all views
     """
-    sizes = [len(p) for p in points_cam]
-    total = int(sum(sizes))
-    if total < 10:
+    if sum(len(p) for p in points_cam) < 10:
         return fitted, ScaleHold(note="no object points")
-    take = np.sort(np.random.default_rng(0).choice(total, min(total, max_points), replace=False))
-    view = np.repeat(np.arange(len(sizes)), sizes)[take]
-    R, t = fitted[view, :3, :3], fitted[view, :3, 3]
-    P = np.einsum("nij,nj->ni", R, np.concatenate(points_cam)[take]) + t
-    N = np.einsum("nij,nj->ni", R, np.concatenate(normals_cam)[take])
+    _, view, _, _, P, N = sampled_points(points_cam, normals_cam, fitted, max_points)
     covs = np.array([placement_covariance(f, tilt_sigma_deg, height_sigma_m) for f in fixes])
     return hold_scale(view_scale_rows(P, N, view, len(fitted)), start, fitted, covs, fit_sigma, fit_cov)
 

@@ -146,6 +146,23 @@ def _view_rows(points_w, normals_w, scale_row: np.ndarray, view, n_views: int) -
     return a
 
 
+def sampled_points(points_cam: list[np.ndarray], normals_cam: list[np.ndarray], poses: np.ndarray,
+                   max_points: int) -> tuple[np.ndarray, ...]:
+    """At most ``max_points`` of the views' points drawn (seeded, the same draw every call), in
+    their cameras and in the world: ``(take, view, P, N, Pw, Nw)`` with ``take`` (M,) their indices
+    into the views' concatenated points, ``view`` (M,) the view of each, ``P``, ``N`` (M, 3) camera
+    frame and ``Pw``, ``Nw`` (M, 3) carried by ``poses`` (V, 4, 4) camera to world [m];
+    ``points_cam``, ``normals_cam`` as :func:`scale_budget` (at least one point in all)."""
+    sizes = [len(p) for p in points_cam]
+    total = int(sum(sizes))
+    take = np.sort(np.random.default_rng(0).choice(total, min(total, max_points), replace=False))
+    view = np.repeat(np.arange(len(sizes)), sizes)[take]
+    P = np.concatenate(points_cam)[take]
+    N = np.concatenate(normals_cam)[take]
+    R, t = poses[view, :3, :3], poses[view, :3, 3]
+    return take, view, P, N, np.einsum("nij,nj->ni", R, P) + t, np.einsum("nij,nj->ni", R, N)
+
+
 def scale_budget(points_cam: list[np.ndarray], normals_cam: list[np.ndarray], poses: np.ndarray, z_ref_m: float,
                  log_ratio: list[np.ndarray] | None, offset_sigma_m: float, gain_sigma: float,
                  k_sigma_m: float | None, max_points: int = 20_000, poses_free: PoseUncertainty | None = None) -> dict:
@@ -174,18 +191,9 @@ def scale_budget(points_cam: list[np.ndarray], normals_cam: list[np.ndarray], po
     ``n_points``; with ``poses_free``, ``poses`` (:func:`_pose_term`) is in the total too and
     ``sigma_poses_held`` is the total without it.
     """
-    sizes = [len(p) for p in points_cam]
-    total = int(sum(sizes))
-    if total == 0:
+    if sum(len(p) for p in points_cam) == 0:
         return {"sigma": float("nan"), "n_points": 0, "note": "no object points"}
-    rng = np.random.default_rng(0)
-    take = np.sort(rng.choice(total, min(total, max_points), replace=False))
-    view = np.repeat(np.arange(len(sizes)), sizes)[take]
-    P = np.concatenate(points_cam)[take]
-    N = np.concatenate(normals_cam)[take]
-    R, t = poses[view, :3, :3], poses[view, :3, 3]
-    Pw = np.einsum("nij,nj->ni", R, P) + t
-    Nw = np.einsum("nij,nj->ni", R, N)
+    take, view, P, N, Pw, Nw = sampled_points(points_cam, normals_cam, poses, max_points)
     z = P[:, 2]
     # a depth error delta moves a point along its ray by P delta / z: along the normal by (N . P / z) delta
     along = np.einsum("ij,ij->i", N, P) / z
