@@ -160,10 +160,11 @@ def test_cli_reconstruct_with_a_plan(ideal_scan, tmp_path):
     r = run.invoke(app, ["plan", "--size", f"{w:.3f},{d:.3f},{h:.3f}", "-o", str(tmp_path / "plan.json")])
     assert r.exit_code == 0, r.output
     r = run.invoke(app, ["reconstruct", str(ideal_scan), "--no-calibration", "-o", str(tmp_path / "rec"),
-                         "--plan", str(tmp_path / "plan.json"), "--allow-unreliable"])
+                         "--plan", str(tmp_path / "plan.json"), "--allow-unreliable", "--onto-views"])
     assert r.exit_code == 0, r.output
     out = " ".join(r.output.split())
     assert "plan: views taken: 8 views at" in out and "the planned ones" in out, out
+    assert "surface moved onto the views' points:" in out, out  # --onto-views, said
     pf = json.loads((tmp_path / "rec" / "poses.json").read_text())["diagnostics"]["plan"]
     assert pf["taken"]["layout"]["n_views"] == 8 and 0.0 < pf["taken"]["on_size"] <= 1.0
     assert pf["planned"]["n_views"] == pf["planned"]["layout"]["n_views"] >= 8

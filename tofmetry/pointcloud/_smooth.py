@@ -77,3 +77,54 @@ def project_to_local_planes(points: np.ndarray, k: int = 12, normals: np.ndarray
     if few is not None:
         out[few] = p[few]
     return out
+
+
+def move_onto_points(vertices: np.ndarray, normals: np.ndarray, points: np.ndarray, radius: float, band: float,
+                     min_points: int = 5, max_points: int = 48) -> tuple[np.ndarray, np.ndarray]:
+    """Each surface vertex moved along its normal onto the points that lie about it.
+
+    The points within ``radius`` of the vertex's normal line and ``band`` of the vertex along it (a
+    cylinder) are the surface's own samples there; the vertex moves by their median signed offset
+    along its normal. A fused surface whose zero level sits where the samples do not (a TSDF's
+    truncation band reaching past a rim, :mod:`tofmetry.reconstruct._model_build`) is put back
+    on them; the median keeps a second surface that enters the band, or an outlier, from pulling
+    it. On a convex edge the cylinder takes samples of the faces below the edge as well, so the
+    edge moves inward by about ``radius^2 / (4 R)`` where its radius of curvature ``R`` is small:
+    ``radius`` should be a sample spacing or two.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float [m]; normals : (V, 3) unit normals of the vertices
+    points : (N, 3) float [m], the same frame
+    radius, band : the cylinder's radius and half length [m] (> 0)
+    min_points : fewer samples in the cylinder: the vertex stays
+    max_points : the nearest this many points are searched (a denser cloud: the median of the nearest)
+
+    Returns
+    -------
+    (V, 3) float64 the moved vertices (a new array); (V,) float64 each vertex's move along its
+    normal [m], NaN where it stayed
+    """
+    v = np.asarray(vertices, np.float64)
+    nr = np.asarray(normals, np.float64)
+    p = np.asarray(points, np.float64)
+    for name, a in (("vertices", v), ("normals", nr), ("points", p)):
+        if a.ndim != 2 or a.shape[1] != 3:
+            raise InputError(f"move_onto_points: {name} must be (N, 3), found {a.shape}")
+    if nr.shape != v.shape:
+        raise InputError(f"move_onto_points: normals must be (V, 3) like the vertices {v.shape}, found {nr.shape}")
+    if not (radius > 0 and band > 0):
+        raise InputError(f"move_onto_points: radius and band must be > 0 [m], found {radius} and {band}")
+    if len(v) == 0 or len(p) == 0:
+        return v.copy(), np.full(len(v), np.nan)
+    dist, idx = cKDTree(p).query(v, int(max_points), distance_upper_bound=float(np.hypot(radius, band)), workers=-1)
+    found = np.isfinite(dist)
+    d = p[np.where(found, idx, 0)] - v[:, None, :]
+    along = np.einsum("vkj,vj->vk", d, nr)
+    inside = found & (np.einsum("vkj,vkj->vk", d, d) - along ** 2 < radius ** 2) & (np.abs(along) < band)
+    cnt = inside.sum(1)
+    srt = np.sort(np.where(inside, along, np.inf), axis=1)  # the samples first, in order
+    rows = np.arange(len(v))
+    med = 0.5 * (srt[rows, np.maximum(cnt - 1, 0) // 2] + srt[rows, cnt // 2])
+    move = np.where(cnt >= int(min_points), med, np.nan)
+    return v + np.nan_to_num(move)[:, None] * nr, move

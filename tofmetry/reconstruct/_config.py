@@ -529,6 +529,18 @@ class FusionConfig(BaseModel):
     (draw 80, 20 runs) completeness rose on 17 and fell on none; the price is at sharp thin edges:
     the max |d| of fandisks rose by up to 1.6 mm (1048786014 on the mat: 4.8 -> 6.4 mm), and the
     study's balustrade 1.9 -> 4.1 mm while its completeness went 0.789 -> 0.884.
+
+    The truncation's price at rims (2026-12-04, session 43): the band behind a face seen obliquely
+    reaches past a convex rim, and no view carves it (only the object's pixels are fused), so the
+    zero level sits outside the rim. A 16 mm slab with exact depth and poses: rim +0.45 mm, faces
+    +0.02 mm (``tests/reconstruct/test_fusion_rim.py``); the family's plaques at their true poses:
+    scale +0.21 / +0.16 % fused against -0.03 / +0.06 % for the views' own points. Carving with
+    the views' other pixels made it worse (+0.32 %). ``refine_radius_voxels`` moves each vertex
+    onto the median of the fused points about its normal (that slab: rim +0.10 mm, faces 0.00 mm).
+    On development draw 87 (20 runs on the mat) it tightened the surfaces (mean |d| better in 15,
+    median 0.330 -> 0.298 mm; std 0.387 -> 0.342 mm; p95 0.851 -> 0.820 mm) but moved the scales
+    toward what the depth itself reads, which the fattening had partly offset (median |scale|
+    0.068 -> 0.099 %, p90 0.152 -> 0.225 %), so it is not on by default.
     """
 
     voxel_mm: float | None = Field(None, description="TSDF voxel [mm]; None = 0.6 * z_median / f")
@@ -538,6 +550,12 @@ class FusionConfig(BaseModel):
     sigma_views_mm: float = Field(1.5, ge=0, description="what the views' depths disagree by at any range: poses and "
                                   "the calibration's residual between views [mm]")
     block_resolution: int = Field(8, description="voxels per block side")
+    refine_radius_voxels: float | None = Field(None, gt=0, description="move the fused surface's vertices along "
+                                               "their normals onto the median of the fused points within this many "
+                                               "voxels of their normal line (tofmetry.pointcloud.move_onto_points; 2 "
+                                               "measured); None (default): the TSDF's zero level as it is. Tighter "
+                                               "surfaces, a scale that follows the depth's own bias: class docstring")
+    refine_band_trunc: float = Field(0.5, gt=0, description="... and within this share of the truncation along it")
     poisson: bool = Field(False, description="also build a Poisson mesh of the fused cloud (density-trimmed)")
     poisson_depth: int = Field(9, description="Poisson octree depth")
     poisson_trim_quantile: float = Field(0.05, ge=0, lt=1, description="drop Poisson vertices of the lowest density quantile")

@@ -11,6 +11,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from tofmetry.errors import EstimationError
+from tofmetry.pointcloud import move_onto_points
 from tofmetry.reconstruct._config import TRUNCATION_RULE, ReconstructionConfig
 from tofmetry.reconstruct._fusion import TSDFFusion, crop_mesh, poisson_mesh
 from tofmetry.reconstruct._world import transform_plane
@@ -53,8 +54,44 @@ def fuse_views(views, segs, poses: np.ndarray, intr, cfg: ReconstructionConfig, 
             tsdf.integrate(fusion_depth(v, s, cfg), T)
             adv()
     V, F, N, P, PN = tsdf.extract(1.0)  # surface seen by a single view is kept (undersides, flanks)
-    return V, F, N, P, PN, {"voxel_mm": voxel, "trunc_mm": trunc, "median_object_depth_mm": z_med, "min_views": 1,
-                            "rule": "voxel = 0.6 * z / f; " + TRUNCATION_RULE}
+    info = {"voxel_mm": voxel, "trunc_mm": trunc, "median_object_depth_mm": z_med, "min_views": 1,
+            "rule": "voxel = 0.6 * z / f; " + TRUNCATION_RULE}
+    if fc.refine_radius_voxels is not None:
+        V, N, P, moved = onto_the_views(V, F, N, P, PN, views, segs, poses, cfg, voxel * fc.refine_radius_voxels * 1e-3,
+                                        trunc * fc.refine_band_trunc * 1e-3)
+        info["refined"] = moved
+    return V, F, N, P, PN, info
+
+
+def onto_the_views(V, F, N, P, PN, views, segs, poses: np.ndarray, cfg: ReconstructionConfig, radius_m: float,
+                   band_m: float) -> tuple:
+    """The fused mesh's vertices ``V`` (and cloud ``P``, normals ``PN``) moved onto the points the
+    views fused (:func:`~tofmetry.pointcloud.move_onto_points`, cylinders of ``radius_m`` and half
+    length ``band_m``), the mesh's normals computed again on the triangles ``F`` (the fusion's ``N``
+    where a vertex has no triangle of any area): (V, N, P, dict of the moves). Why:
+    :class:`~tofmetry.reconstruct._config.FusionConfig`."""
+    pts = np.concatenate([v.points[_fused_mask(s, cfg)] @ T[:3, :3].T + T[:3, 3] for v, s, T in zip(views, segs, poses)])
+    V, mv = move_onto_points(V, vertex_normals(V, F), pts, radius_m, band_m)
+    P, _ = move_onto_points(P, PN, pts, radius_m, band_m)
+    moved = mv[np.isfinite(mv)] * 1e3
+    info = {"radius_mm": round(radius_m * 1e3, 3), "band_mm": round(band_m * 1e3, 3),
+            "share_moved": round(float(len(moved)) / max(len(V), 1), 4),
+            "move_mm_p50": round(float(np.median(moved)), 4) if len(moved) else None,
+            "move_abs_mm_p90": round(float(np.percentile(np.abs(moved), 90)), 4) if len(moved) else None}
+    N_new = vertex_normals(V, F)
+    return V, np.where(np.any(N_new != 0, axis=1)[:, None], N_new, N), P, info
+
+
+def vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """(V, 3) area-weighted unit normals of a triangle mesh's vertices (zero where a
+    vertex has no triangle)."""
+    tri = V[F]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    N = np.zeros_like(V, dtype=np.float64)
+    for k in range(3):
+        np.add.at(N, F[:, k], fn)
+    n = np.linalg.norm(N, axis=1, keepdims=True)
+    return np.divide(N, n, out=np.zeros_like(N), where=n > 0)
 
 
 def fusion_depth(v, seg, cfg: ReconstructionConfig) -> np.ndarray:
@@ -64,8 +101,13 @@ def fusion_depth(v, seg, cfg: ReconstructionConfig) -> np.ndarray:
     if cfg.segment.keep_all:
         return d
     m = np.zeros(d.size, bool)
-    m[v.index[seg.object_mask | seg.ring_mask]] = True
+    m[v.index[_fused_mask(seg, cfg)]] = True
     return np.where(m.reshape(d.shape), d, 0.0)
+
+
+def _fused_mask(seg, cfg: ReconstructionConfig):
+    """Which of a view's points fusion takes: the object and its ground ring (all with ``keep_all``)."""
+    return slice(None) if cfg.segment.keep_all else seg.object_mask | seg.ring_mask
 
 
 def crop_mask(pts: np.ndarray, world_obj: np.ndarray, plane_w: np.ndarray | None, cfg: ReconstructionConfig) -> np.ndarray:
