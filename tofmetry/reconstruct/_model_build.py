@@ -14,6 +14,7 @@ from tofmetry.errors import EstimationError
 from tofmetry.pointcloud import move_onto_points
 from tofmetry.reconstruct._config import TRUNCATION_RULE, ReconstructionConfig
 from tofmetry.reconstruct._fusion import TSDFFusion, crop_mesh, poisson_mesh
+from tofmetry.reconstruct._o3d import vertex_normals
 from tofmetry.reconstruct._world import transform_plane
 
 
@@ -80,18 +81,6 @@ def onto_the_views(V, F, N, P, PN, views, segs, poses: np.ndarray, cfg: Reconstr
             "move_abs_mm_p90": round(float(np.percentile(np.abs(moved), 90)), 4) if len(moved) else None}
     N_new = vertex_normals(V, F)
     return V, np.where(np.any(N_new != 0, axis=1)[:, None], N_new, N), P, info
-
-
-def vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
-    """(V, 3) area-weighted unit normals of a triangle mesh's vertices (zero where a
-    vertex has no triangle)."""
-    tri = V[F]
-    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    N = np.zeros_like(V, dtype=np.float64)
-    for k in range(3):
-        np.add.at(N, F[:, k], fn)
-    n = np.linalg.norm(N, axis=1, keepdims=True)
-    return np.divide(N, n, out=np.zeros_like(N), where=n > 0)
 
 
 def fusion_depth(v, seg, cfg: ReconstructionConfig) -> np.ndarray:

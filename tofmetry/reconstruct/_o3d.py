@@ -30,6 +30,17 @@ def to_pcd(points: np.ndarray, normals: np.ndarray | None = None):
     return pcd
 
 
+def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(V, 3) unit normals of a triangle mesh's vertices [m, int] (Open3D's ``compute_vertex_normals``:
+    the sum of the adjacent triangles' normals; zero where a vertex has no triangle of any area)."""
+    import open3d as o3d
+
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(np.ascontiguousarray(vertices, np.float64)),
+                                     o3d.utility.Vector3iVector(np.ascontiguousarray(triangles, np.int32)))
+    mesh.compute_vertex_normals()
+    return np.asarray(mesh.vertex_normals).copy()
+
+
 def estimate_normals(points: np.ndarray, radius_m: float, max_nn: int = 30,
                      toward: np.ndarray | None = None) -> np.ndarray:
     """PCA normals (N, 3), oriented toward ``toward`` (a point, e.g. the camera centre) if given."""
