@@ -21,6 +21,10 @@ response to noise on this shape), one that appears in ``fused_true`` the fusion'
 ``--errors`` keeps only some error terms of the sensor (:func:`bench.robustness.drift.keep_errors`); without the
 amplitude bias the amplitude correction is switched off as well.
 
+Measured (2026-12-04, session 43): draw 88's plaques 745329806 -0.03 / +0.21 / +0.29 % and 974295433 +0.06 / +0.22 /
++0.36 %: on thin objects the fusion adds +0.16-0.24 % (the truncation band fattens the rim; ``FusionConfig``), and
+1811854792 +0.23 / +0.25 / +0.77 % (its poses).
+
 Measured (2026-12-02, session 32, with the stages above): the plaque 1118179638 (draw 72, 6 views at 0.80 m,
 its drawn path) +0.01 % at the true poses, +0.07 % fused there, +0.59 % through the chain: its scale error is the
 poses'. The plaque 1558612541 +0.29 / +0.19 / +0.71 %, the igea 412929893 +0.52 / +0.42 / +0.33 %. Before

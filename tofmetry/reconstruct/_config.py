@@ -536,7 +536,7 @@ class FusionConfig(BaseModel):
     +0.02 mm (``tests/reconstruct/test_fusion_rim.py``); the family's plaques at their true poses:
     scale +0.21 / +0.16 % fused against -0.03 / +0.06 % for the views' own points. Carving with
     the views' other pixels made it worse (+0.32 %). ``refine_radius_voxels`` moves each vertex
-    onto the median of the fused points about its normal (that slab: rim +0.10 mm, faces 0.00 mm).
+    onto the median of the fused points about its normal (that slab: rim +0.08 mm, faces 0.00 mm).
     On development draw 87 (20 runs on the mat) it tightened the surfaces (mean |d| better in 15,
     median 0.330 -> 0.298 mm; std 0.387 -> 0.342 mm; p95 0.851 -> 0.820 mm) but moved the scales
     toward what the depth itself reads, which the fattening had partly offset (median |scale|
