@@ -67,13 +67,13 @@ def fuse_views(views, segs, poses: np.ndarray, intr, cfg: ReconstructionConfig, 
 def onto_the_views(V, F, N, P, PN, views, segs, poses: np.ndarray, cfg: ReconstructionConfig, radius_m: float,
                    band_m: float) -> tuple:
     """The fused mesh's vertices ``V`` (and cloud ``P``, normals ``PN``) moved onto the points the
-    views fused (:func:`~tofmetry.pointcloud.move_onto_points`, cylinders of ``radius_m`` and half
-    length ``band_m``), the mesh's normals computed again on the triangles ``F`` (the fusion's ``N``
-    where a vertex has no triangle of any area): (V, N, P, dict of the moves). Why:
+    views fused (:func:`~tofmetry.pointcloud.move_onto_points` along the fusion's normals ``N``,
+    cylinders of ``radius_m`` and half length ``band_m``), the mesh's normals computed again on the
+    triangles ``F`` (``N`` where a vertex has no triangle of any area): (V, N, P, dict of the moves). Why:
     :class:`~tofmetry.reconstruct._config.FusionConfig`."""
     pts = np.concatenate([v.points[_fused_mask(s, cfg)] @ T[:3, :3].T + T[:3, 3] for v, s, T in zip(views, segs, poses)])
-    V, mv = move_onto_points(V, vertex_normals(V, F), pts, radius_m, band_m)
-    P, _ = move_onto_points(P, PN, pts, radius_m, band_m)
+    both, mv = move_onto_points(np.r_[V, P], np.r_[N, PN], pts, radius_m, band_m)  # one search for mesh and cloud
+    V, P, mv = both[:len(V)], both[len(V):], mv[:len(V)]
     moved = mv[np.isfinite(mv)] * 1e3
     info = {"radius_mm": round(radius_m * 1e3, 3), "band_mm": round(band_m * 1e3, 3),
             "share_moved": round(float(len(moved)) / max(len(V), 1), 4),
