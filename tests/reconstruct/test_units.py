@@ -218,8 +218,12 @@ def test_pose_graph_identity_chain():
 
 
 def test_amplitude_bias_model():
-    """Synthetic white frontal wall A = a0 * cos / range^2 at two distances -> a(u, v) = a0;
-    a surface at 1/6 of the white amplitude then reads k ln 6 = 12 mm long (study §3.3.1)."""
+    """Synthetic white frontal wall A = a0 * cos / range^2 at two distances -> a(u, v) = a0.
+    The depth calibration was fitted on that wall and took off what it read, so that wall at any
+    distance needs no correction at any pixel (off the axis it meets the ray obliquely, and its bias
+    there is inside the calibration); a frontal surface at 1/6 of its amplitude reads k ln 6 = 12 mm
+    long (study §3.3.1) at every pixel; a white surface facing the ray is brighter than the wall
+    off the axis by 1 / cos, and reads shorter by k ln(1 / cos)."""
     from tofmetry.reconstruct import (
         PAPER_K_MM_PER_LN,
         amplitude_bias_mm,
@@ -237,9 +241,12 @@ def test_amplitude_bias_model():
     wm = white_amplitude_map(irs, zs, intr)
     np.testing.assert_allclose(wm, a0, rtol=1e-9)
     z = np.full(intr.shape, 900.0)
-    white = a0 / (0.9 * norm) ** 2
-    b = amplitude_bias_mm(z, white / 6.0, wm, intr)
-    np.testing.assert_allclose(b, 12.0, atol=1e-9)
+    wall = a0 * (1 / norm) / (0.9 * norm) ** 2
+    np.testing.assert_allclose(amplitude_bias_mm(z, wall, wm, intr), 0.0, atol=1e-9)
+    np.testing.assert_allclose(amplitude_bias_mm(z, wall / 6.0, wm, intr), 12.0, atol=1e-9)
+    facing = amplitude_bias_mm(z, a0 / (0.9 * norm) ** 2, wm, intr)
+    np.testing.assert_allclose(facing, -PAPER_K_MM_PER_LN * np.log(norm), atol=1e-9)
+    assert facing.min() < -1.0  # the corners of the Kinect v2's 70 x 60 deg view
     assert PAPER_K_MM_PER_LN == pytest.approx(6.697, abs=1e-3)
 
 
@@ -255,7 +262,7 @@ def test_amplitude_correction_is_clipped_in_units_of_darkness_not_millimetres():
     a0 = 12000.0
     wm = np.full(intr.shape, a0)
     read = 900.0 + 11.4 * 2.5
-    ir = a0 / (read * 1e-3 * norm) ** 2 / np.exp(2.5)  # the amplitude at the depth the sensor reports
+    ir = a0 / norm / (read * 1e-3 * norm) ** 2 / np.exp(2.5)  # the amplitude at the depth the sensor reports
     stack = np.full((3,) + intr.shape, read, np.float32)
     for clip, expect in ((None, 900.0), (20.0, read - 20.0)):
         cfg = PreprocessConfig(amplitude_k_mm_per_ln=11.4, amplitude_max_mm=clip)

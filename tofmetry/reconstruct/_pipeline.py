@@ -95,7 +95,7 @@ class ReconstructionPipeline:
     calibration : tofmetry.calibrate.DepthCalibration or None (raw data)
     config : ReconstructionConfig
     progress : callable(description, total) -> context manager yielding ``advance(n=1)``
-    white_map : (H, W) white-frontal amplitude reference (enables the amplitude-bias correction)
+    white_map : (H, W) white amplitude reference at 1 m (:func:`white_amplitude_map`; enables the amplitude-bias correction)
     """
 
     def __init__(self, dataset, calibration=None, config: ReconstructionConfig | None = None, progress=None,

@@ -89,7 +89,7 @@ def prepare_view(stack: np.ndarray, intr: CameraIntrinsics, calibration=None, co
     intr : CameraIntrinsics of the depth camera (the calibration's when calibrated)
     calibration : tofmetry.calibrate.DepthCalibration or None
     ir : (H, W) mean amplitude (optional; kept for colouring, used by the amplitude correction)
-    white_map : (H, W) white-frontal amplitude at 1 m (:func:`tofmetry.reconstruct.white_amplitude_map`);
+    white_map : (H, W) white amplitude at 1 m (:func:`tofmetry.reconstruct.white_amplitude_map`);
         with ``ir``, the amplitude-dependent bias ``k ln(A_white / A)`` is subtracted
 
     Returns

@@ -364,7 +364,7 @@ def amplitude_bias_mm(rel_reflectance: np.ndarray, em: ErrorModel) -> np.ndarray
     Parameters
     ----------
     rel_reflectance : array
-        ``A / A_white``: amplitude relative to a white frontal surface at the same pixel
+        ``A / A_white``: amplitude relative to a white surface facing the ray (normal incidence) at the same pixel
         and range (1 for white, ~1/6 for black -> +12 mm).
     """
     r = np.clip(np.asarray(rel_reflectance, dtype=np.float64), 1e-3, None)
@@ -432,7 +432,8 @@ def vignetting(xy: np.ndarray, em: ErrorModel) -> np.ndarray:
 
 
 def white_amplitude(xy: np.ndarray, range_m: np.ndarray, em: ErrorModel) -> np.ndarray:
-    """Amplitude of a white frontal surface at ray length ``range_m`` [m] seen along ``xy``."""
+    """Amplitude of a white surface facing the ray (normal incidence) at ray length ``range_m`` [m] seen along
+    ``xy``; a fronto-parallel wall returns ``cos theta`` of it off the axis, and reads ``k ln(1 / cos theta)`` long."""
     r = np.maximum(np.asarray(range_m, dtype=np.float64), 1e-3)
     return em.amp_white_1m * vignetting(xy, em) / r ** 2
 

@@ -36,7 +36,7 @@ class Rendering:
     depth0 : (H, W) float64 [mm], the depth an ideal sensor delivers (centre hit, or the
         amplitude-weighted sub-pixel mean where the centre ray misses), 0 = nothing.
     amplitude : (H, W) float64, anti-aliased IR amplitude (mean of the sub-pixel amplitudes).
-    rel_reflectance : (H, W) float64, amplitude / amplitude of white frontal at that range.
+    rel_reflectance : (H, W) float64, amplitude / amplitude of a white surface facing the ray at that range.
     labels : (H, W) int32, scene label of the centre hit (-1 = no hit).
     refl_bias_mm : (H, W) float64, static extra bias of reflective samples [mm].
     reflective : (H, W) bool.
