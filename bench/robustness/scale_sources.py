@@ -21,6 +21,10 @@ response to noise on this shape), one that appears in ``fused_true`` the fusion'
 ``--errors`` keeps only some error terms of the sensor (:func:`bench.robustness.drift.keep_errors`); without the
 amplitude bias the amplitude correction is switched off as well.
 
+Measured (2026-12-04, session 44, after the amplitude correction's reference was fixed): draw 90's plaques 229085989
+-0.12 / -0.02 / +0.26 % (its poses') and 755125470 +0.07 / +0.20 / +0.26 % (offset -0.33 mm through the chain), its igea
+887220926 +0.87 / +0.29 / +0.27 % (its own points').
+
 Measured (2026-12-04, session 43): draw 88's plaques 745329806 -0.03 / +0.21 / +0.29 % and 974295433 +0.06 / +0.22 /
 +0.36 %: on thin objects the fusion adds +0.16-0.24 % (the truncation band fattens the rim; ``FusionConfig``), and
 1811854792 +0.23 / +0.25 / +0.77 % (its poses).
