@@ -13,7 +13,8 @@ reference ``A_white`` is therefore that wall's amplitude at the same pixel and r
 returning as much as the calibration wall needs no correction (:func:`amplitude_log_ratio`).
 Before 2026-12-04 the reference was a white surface facing the ray, and every surface off the axis
 was corrected once more by ``k ln(1 / cos theta)``: a bowl, short toward the corners (a dot mat
-seen in the lower image read 0.4-1.2 mm short, and the views placed on it 0.3-1.4 mm too far).
+seen in the lower image read 0.6-1.3 mm shorter than the object, and the views placed on it went up to 1.4 mm
+too far).
 
 Per pixel ``a(u, v) = A_wall * range^2 / cos_wall`` is constant (amplitude falls as 1 / range^2 and
 with the cosine of the incidence): :func:`white_amplitude_map`, the amplitude of a white surface
