@@ -540,7 +540,14 @@ class FusionConfig(BaseModel):
     On development draw 87 (20 runs on the mat) it tightened the surfaces (mean |d| better in 15,
     median 0.330 -> 0.298 mm; std 0.387 -> 0.342 mm; p95 0.851 -> 0.820 mm) but moved the scales
     toward what the depth itself reads, which the fattening had partly offset (median |scale|
-    0.068 -> 0.099 %, p90 0.152 -> 0.225 %), so it is not on by default.
+    0.068 -> 0.099 %, p90 0.152 -> 0.225 %), so it is not on by default. Tried (2026-12-05, session
+    45, development draw 89, 20 runs): the move less the mesh's own median offset in the same
+    cylinder (its response to its curvature, ``radius^2 / (4 R)`` inward on a convex patch), so that
+    only the offset between mesh and points moves it. The surfaces then tightened no more than
+    without the option (mean |d| median 0.284 -> 0.287 mm; 0.242 mm with the plain median), the
+    scales came out smaller in 17 of 18 (by up to 0.18 %; |scale| p90 0.181 -> 0.219 %), and on the 8
+    plaques of draws 88-90 the mean signed scale went +0.135 -> -0.014 % while 4 of 8 stayed beyond
+    0.2 %: the rim's fattening is a bias of thin objects, but their scatter is the poses'. Not kept.
     """
 
     voxel_mm: float | None = Field(None, description="TSDF voxel [mm]; None = 0.6 * z_median / f")

@@ -36,8 +36,10 @@ MAT_METHOD = "mat"
 #: a standard normal's 90th percentile of |x|: a placement's 1-sigma times this is its p90
 P90_Z = 1.645
 #: the joint fit moving a view by more than this many of its placement's sigmas (and beyond the pose
-#: gate) contradicts the placement (:func:`departures`)
-DEPARTURE_Z = 3.0
+#: gate) contradicts the placement (:func:`departures`). Not 3: on the family's stored mat draws
+#: (136 runs, 1457 placed views, against the truth) the placements' turn errors in their own sigmas
+#: had RMS 1.05, p99 2.8 and a maximum of 4.5, 0.8 % of them beyond 3 (:func:`departures`)
+DEPARTURE_Z = 5.0
 
 
 @dataclass
@@ -319,8 +321,13 @@ def departures(start: np.ndarray, end: np.ndarray, centre_m: np.ndarray, gate_de
     family); a fit that moves one farther has slid along what the object's points leave free (a
     smooth or symmetric object, or a depth residual the points cannot tell from a pose), and the
     placement is the better of the two. A view placed from few dots holds only to its own sigma:
-    the fit moving it within three of them refines it (family draw 86: three dots placed a fandisk's
-    view 0.69 deg off, +/- 0.27 deg, and the fit moved it 0.54 deg toward the truth)."""
+    the fit moving it within :data:`DEPARTURE_Z` of them refines it (family draw 86: three dots
+    placed a fandisk's view 0.69 deg off, +/- 0.27 deg, and the fit moved it 0.54 deg toward the
+    truth). Held-out draw 91 (2026-12-05) had two runs whose fit moved one view by 3.1 and 4.0 of its
+    placement's sigmas, both toward the truth; counted as departures at 3 sigmas they stood at the
+    placements and came out 0.60 deg / 4.1 mm and 0.38 deg / 3.6 mm off, yet reliable. At 5 sigmas
+    the rocker arm 780939817 came out 0.11 deg / 0.53 mm off (the fandisk's view, 5.4 sigmas off
+    along the sheet at the object, still departs)."""
     out = {}
     allowed = allowed or {}
     for n, A, B in zip(names, start, end):
