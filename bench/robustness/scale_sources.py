@@ -21,6 +21,11 @@ response to noise on this shape), one that appears in ``fused_true`` the fusion'
 ``--errors`` keeps only some error terms of the sensor (:func:`bench.robustness.drift.keep_errors`); without the
 amplitude bias the amplitude correction is switched off as well.
 
+Measured (2026-12-05, session 45): draw 92's dome 1716637505 +0.76 / +0.21 / +0.59 % (offsets -0.69 / -0.27 /
+-0.60 mm) and the development vase 1220163138 +1.52 / +1.50 / -0.52 % (offsets -0.44 / -0.48 / +0.76 mm): near a
+surface of revolution the fitted scale trades against the offset (correlation 0.97-0.98), and a few tenths of a
+millimetre of surface error that varies over the object swing the scale by a per cent either way.
+
 Measured (2026-12-04, session 44, after the amplitude correction's reference was fixed): draw 90's plaques 229085989
 -0.12 / -0.02 / +0.26 % (its poses') and 755125470 +0.07 / +0.20 / +0.26 % (offset -0.33 mm through the chain), its igea
 887220926 +0.87 / +0.29 / +0.27 % (its own points').
