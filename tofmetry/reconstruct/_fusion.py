@@ -8,6 +8,20 @@ bilinearly where the four source neighbours agree within ``jump_mm`` (one surfac
 from the nearest source pixel otherwise; target pixels whose source neighbourhood holds an
 invalid pixel get the nearest valid value only if that pixel is itself valid. Z is the same
 for both grids, so the resampling moves no point along the line of sight.
+
+The band behind the surface near a silhouette (:func:`silhouette_distance_px`, ``behind_per_edge``):
+a TSDF takes every voxel up to the truncation behind a pixel's surface for the inside of the object.
+Near the object's silhouette in a view the ray leaves the object again after a short chord, and the
+band then marks air beyond a convex rim as inside where no other view carves it (only the object's
+pixels are fused): a 16 mm slab at exact poses fused with its rim 0.49 mm outside its faces' level
+(``tests/reconstruct/test_fusion_rim.py``). The chord through a convex edge of 90 deg or blunter at a
+distance ``delta`` from the silhouette (across the ray) is at least ``2 delta``; the band behind a pixel
+is therefore cut to ``behind_per_edge * delta`` plus ``behind_min_voxels`` voxels (so that a surface seen
+only near silhouettes keeps voxels on both sides of its zero level) where that is shorter than the
+truncation. The slab then fuses with its rim 0.09 mm outside its faces' level; a sphere's seams
+(``tests/reconstruct/test_fusion_seams.py``) are unchanged. Open3D's integration has one symmetric band, so this one integrates the voxels itself, as
+Open3D's "customized integration" example does, with Open3D's own block activation and arithmetic
+(measured: with the cut switched off it reproduces Open3D's volume to float precision).
 """
 
 from __future__ import annotations
@@ -66,6 +80,35 @@ def undistort_depth(depth_mm: np.ndarray, intr: CameraIntrinsics, jump_mm: float
     return out.astype(np.float32)
 
 
+def silhouette_distance_px(depth_mm: np.ndarray, jump_mm: float = 10.0, grazing_step: float = 0.0) -> np.ndarray:
+    """Each valid pixel's distance to the nearest silhouette pixel (module docstring).
+
+    A silhouette pixel is a valid pixel with a neighbour (8-connected) that is invalid or farther by
+    more than ``jump_mm`` and more than ``grazing_step`` times its own depth: where the surface seen
+    ends and the ray beside it passes behind. The second bound keeps a surface seen at grazing
+    incidence whole (its neighbouring pixels differ by ``tan(incidence) z / f``): measured on a
+    rocker arm at 1.29 m (20 views, 3.5 mm pixels), its flanks counted as silhouettes with 10 mm alone
+    and the model kept 0.83 of the reference instead of 0.90.
+
+    Parameters
+    ----------
+    depth_mm : (H, W) float [mm] Z, 0 = invalid
+    jump_mm : [mm]; grazing_step : dimensionless (the fusion passes ``tan(80 deg) / fx``)
+
+    Returns
+    -------
+    (H, W) float32 [px]: 0 on silhouette and invalid pixels
+    """
+    d = np.asarray(depth_mm, np.float32)
+    valid = d > 0
+    far = cv2.dilate(np.where(valid, d, np.float32(1e9)), np.ones((3, 3), np.uint8))  # farthest neighbour
+    edge = valid & (far > d + np.maximum(jump_mm, d * grazing_step))
+    return cv2.distanceTransform(np.where(edge | ~valid, 0, 255).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+
+
+GRAZING = 5.67  # tan(80 deg): neighbours on one surface seen up to 80 deg off its normal differ by this * z / f
+
+
 def _o3d_K(intr: CameraIntrinsics) -> np.ndarray:
     """The camera matrix to hand Open3D's TSDF integration: the principal point moved by +0.5 px.
 
@@ -88,10 +131,14 @@ class TSDFFusion:
     intr : CameraIntrinsics of the depth maps (distortion handled by :func:`undistort_depth`)
     voxel_mm, trunc_mm : voxel size and truncation distance [mm]
     depth_max_mm : depth beyond this is not integrated
+    behind_per_edge : the band behind a pixel's surface is cut to this many times its distance to the
+        view's silhouette across the ray (module docstring); None: Open3D's symmetric band
+    edge_jump_mm : a depth step larger than this between neighbours is a silhouette [mm]
     """
 
     def __init__(self, intr: CameraIntrinsics, voxel_mm: float, trunc_mm: float, depth_max_mm: float = 3000.0,
-                 block_resolution: int = 8, block_count: int = 60_000):
+                 block_resolution: int = 8, block_count: int = 60_000, behind_per_edge: float | None = None,
+                 edge_jump_mm: float = 10.0, behind_min_voxels: float = 2.0):
         import open3d as o3d
         import open3d.core as o3c
 
@@ -99,6 +146,7 @@ class TSDFFusion:
         self.voxel_m = voxel_mm * 1e-3
         self.trunc_mult = trunc_mm / voxel_mm
         self.depth_max_m = depth_max_mm * 1e-3
+        self.behind_per_edge, self.edge_jump_mm, self.behind_min_voxels = behind_per_edge, edge_jump_mm, behind_min_voxels
         self._K = o3c.Tensor(_o3d_K(intr), dtype=o3c.float64)
         self.vbg = o3d.t.geometry.VoxelBlockGrid(
             attr_names=("tsdf", "weight"), attr_dtypes=(o3c.float32, o3c.float32), attr_channels=((1), (1)),
@@ -124,8 +172,49 @@ class TSDFFusion:
         img = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(d)))
         ext = o3c.Tensor(np.linalg.inv(pose), dtype=o3c.float64)
         coords = self.vbg.compute_unique_block_coordinates(img, K, ext, 1000.0, self.depth_max_m, self.trunc_mult)
-        self.vbg.integrate(coords, img, K, ext, 1000.0, self.depth_max_m, self.trunc_mult)
+        if self.behind_per_edge is None:
+            self.vbg.integrate(coords, img, K, ext, 1000.0, self.depth_max_m, self.trunc_mult)
+        else:
+            self._integrate_cut(coords, d, np.array(intr.K, np.float64), np.linalg.inv(pose))
         self.n_integrated += 1
+
+    def _integrate_cut(self, coords, d: np.ndarray, K: np.ndarray, ext: np.ndarray) -> None:
+        """Open3D's integration (projection to the pixel ``floor(u + 1/2)``, sdf = depth - z, kept from
+        minus the band behind, clipped at the truncation in front, running mean with weight 1) with the
+        band behind each pixel cut near the silhouette (module docstring).
+
+        Parameters
+        ----------
+        coords : Open3D block coordinates to update; d : (H, W) float32 [mm] undistorted Z, 0 = skip;
+        K : (3, 3) pinhole camera matrix [px]; ext : (4, 4) world -> camera [m]
+        """
+        hashmap = self.vbg.hashmap()
+        new_buf, inserted = hashmap.activate(coords)
+        fresh = new_buf.numpy()[inserted.numpy()]
+        for name in ("tsdf", "weight"):  # a block's voxels are not cleared when its slot is handed out
+            self.vbg.attribute(name).numpy().reshape(self.vbg.attribute(name).shape[0], -1)[fresh] = 0.0
+        buf, _ = hashmap.find(coords)
+        xyz_w, flat = self.vbg.voxel_coordinates_and_flattened_indices(buf)
+        xyz = xyz_w.numpy().astype(np.float64) @ ext[:3, :3].T + ext[:3, 3]
+        z = xyz[:, 2]
+        front = z > 0
+        zs = np.where(front, z, 1.0)
+        u = np.floor(K[0, 0] * xyz[:, 0] / zs + K[0, 2] + 0.5).astype(np.int64)
+        v = np.floor(K[1, 1] * xyz[:, 1] / zs + K[1, 2] + 0.5).astype(np.int64)
+        H, W = d.shape
+        idx = np.flatnonzero(front & (u >= 0) & (v >= 0) & (u < W) & (v < H))
+        u, v = u[idx], v[idx]
+        reading = d[v, u].astype(np.float64) * 1e-3
+        trunc = self.trunc_mult * self.voxel_m
+        behind = np.minimum(trunc, self.behind_per_edge * silhouette_distance_px(d, self.edge_jump_mm, GRAZING / K[0, 0])[v, u]
+                            * reading / K[0, 0] + self.behind_min_voxels * self.voxel_m)
+        sdf = reading - z[idx]
+        keep = (reading > 0) & (reading <= self.depth_max_m) & (sdf >= -behind)
+        j = flat.numpy()[idx[keep]]
+        tsdf = self.vbg.attribute("tsdf").reshape((-1,)).numpy()  # views of the grid's own buffers
+        weight = self.vbg.attribute("weight").reshape((-1,)).numpy()
+        tsdf[j] = (tsdf[j] * weight[j] + np.minimum(sdf[keep], trunc) / trunc) / (weight[j] + 1.0)
+        weight[j] += 1.0
 
     def extract(self, min_weight: float = 1.0) -> tuple:
         """Zero-level surface where every voxel of a cell has an integration weight >= ``min_weight``.

@@ -49,7 +49,9 @@ def fuse_views(views, segs, poses: np.ndarray, intr, cfg: ReconstructionConfig, 
     z_med = median_object_depth_m(views, segs) * 1e3
     voxel = fc.voxel_for(z_med, intr.fx)
     trunc = fc.trunc_for(z_med, voxel)
-    tsdf = TSDFFusion(intr, voxel, trunc, depth_max_mm=cfg.preprocess.max_mm, block_resolution=fc.block_resolution)
+    tsdf = TSDFFusion(intr, voxel, trunc, depth_max_mm=cfg.preprocess.max_mm, block_resolution=fc.block_resolution,
+                      behind_per_edge=fc.behind_per_edge, edge_jump_mm=fc.edge_jump_mm,
+                      behind_min_voxels=fc.behind_min_voxels)
     with progress("TSDF fusion", len(views)) as adv:
         for v, s, T in zip(views, segs, poses):
             tsdf.integrate(fusion_depth(v, s, cfg), T)

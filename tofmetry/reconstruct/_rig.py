@@ -160,7 +160,8 @@ class RigReconstruction(ReconstructionPipeline):
         voxel = fc.voxel_for(z_med, f)
         trunc = fc.trunc_for(z_med, voxel)
         tsdf = TSDFFusion(self.sensors[0].intrinsics, voxel, trunc, depth_max_mm=self.cfg.preprocess.max_mm,
-                          block_resolution=fc.block_resolution)
+                          block_resolution=fc.block_resolution, behind_per_edge=fc.behind_per_edge,
+                          edge_jump_mm=fc.edge_jump_mm, behind_min_voxels=fc.behind_min_voxels)
         with self.progress("TSDF fusion", len(views)) as adv:
             for v, seg, T, s in zip(views, segs, poses, self.sensors):
                 tsdf.integrate(fusion_depth(v, seg, self.cfg), T, s.intrinsics)
