@@ -59,11 +59,12 @@ def test_the_band_cut_at_the_silhouette_keeps_the_rim_at_the_faces_level():
     """Exact poses. Open3D's band (the rule's truncation, 7.3 mm at 0.7 m) puts the rim 0.49 mm out
     (measured; the band behind a face seen obliquely reaches past the rim and no view carves it)
     and the faces on their samples (-0.05 mm). With the band behind each pixel cut to 3 times its
-    distance to the silhouette (``fusion.behind_per_edge = 3``, an option) the rim lies at the faces'
+    distance to the silhouette (``fusion.behind_per_edge = 3``, the default) the rim lies at the faces'
     level (measured -0.07 and -0.07 mm): within 0.1 mm of each other, about a tenth of a voxel
     (1.15 mm), and the faces within 0.1 mm of their samples."""
     views, segs, poses = slab_views()
-    cfg = ReconstructionConfig()  # Open3D's band (the default)
+    cfg = ReconstructionConfig()
+    cfg.fusion.behind_per_edge = None  # Open3D's band
     whole = face_offsets_mm(fuse_views(views, segs, poses, INTR, cfg, _no_progress)[0])
     cfg.fusion.behind_per_edge = 3.0
     cut = face_offsets_mm(fuse_views(views, segs, poses, INTR, cfg, _no_progress)[0])
@@ -117,6 +118,7 @@ def test_the_fused_rim_is_put_back_on_the_views_points():
     noise over ~30 samples, ~34 000 vertices); the fusion reports the moves."""
     views, segs, poses = slab_views()
     cfg = ReconstructionConfig()
+    cfg.fusion.behind_per_edge = None
     V = fuse_views(views, segs, poses, INTR, cfg, _no_progress)[0]
     before = face_offsets_mm(V)
     cfg.fusion.refine_radius_voxels = 2.0
