@@ -72,3 +72,30 @@ def test_copies_of_one_basin_do_not_crowd_a_distinct_alignment_out_of_the_screen
     res = align_to_reference(model, ref, nrm, coarse=True, seeds=0, extra_candidates=cands, screen_keep=2)
     assert res.runner_up is not None and res.runner_up["deg"] > 170
     assert res.ambiguous and res.retried and res.misfit_mm < 1.0
+
+
+def test_the_full_stages_start_where_the_screening_converged(monkeypatch):
+    """Hypotheses 3-6 deg off a bar's pose and one turned end for end, two kept after screening: the
+    full ICP stages start from the screened poses (within 0.5 deg of the truth, and of its turn), not
+    from the hypotheses again (the plain bar is ambiguous, so a second pass follows). A plaque whose only kept
+    hypothesis of the right basin went 6 mm off from its own start, while its copies that had screened
+    to the same pose were dropped as duplicates, came out turned end for end (measured)."""
+    from tofmetry.evaluate import _align
+    from tofmetry._shared.geometry import rotation_angle_deg
+
+    V, F = _box((0.30, 0.05, 0.04))
+    ref, nrm, _ = sample_mesh(V, F, 0.003, seed=1)
+    model = ref + np.random.default_rng(6).normal(0, 0.0005, ref.shape)
+    starts, icp = [], _align.icp
+
+    def recording_icp(src, tgt, tgt_nrm, init, max_dist_m, **kw):
+        if kw.get("max_iter") == 30 and abs(max_dist_m - 0.010) < 1e-12:  # a full first stage
+            starts.append(rotation_angle_deg(np.asarray(init)))
+        return icp(src, tgt, tgt_nrm, init, max_dist_m, **kw)
+
+    monkeypatch.setattr(_align, "icp", recording_icp)
+    cands = [_yawed(a) for a in (3.0, 4.0, 5.0, 6.0, 183.0)]
+    res = align_to_reference(model, ref, nrm, coarse=True, seeds=0, extra_candidates=cands, screen_keep=2)
+    assert len(starts) >= 2 and min(starts[:2]) < 0.5 and max(starts[:2]) > 179.0, starts  # the first pass's two
+    assert rotation_angle_deg(res.transform) < 0.2 and res.coarse_transform is not None
+    assert min(rotation_angle_deg(res.coarse_transform @ np.linalg.inv(c)) for c in cands[:4] + [np.eye(4)]) < 1e-9

@@ -115,8 +115,10 @@ def align_to_reference(model_pts: np.ndarray, ref_pts: np.ndarray, ref_nrm: np.n
         radius, 5 mm voxel clouds, 15 iterations, then 10 at the second radius) and only the best
         ``screen_keep`` that converged to distinct poses (:data:`DISTINCT_DEG`, :data:`DISTINCT_MM`:
         36 yaw hypotheses fall into a few basins, and copies of one must not crowd out the others) get
-        the full first stage (measured on the simulated balustrade with the support-plane prior: 16
-        candidates, ICP time 20 s -> ~7 s, same alignment within 0.1 mm). If the screened alignment
+        the full stages (measured on the simulated balustrade with the support-plane prior: 16
+        candidates, ICP time 20 s -> ~7 s, same alignment within 0.1 mm), starting where their
+        screening converged (a plaque's copies of the right pose were dropped and the hypothesis it
+        was kept for went 6 mm off from its own start; ``coarse_transform`` stays the hypothesis). If the screened alignment
         fails, it is retried without screening and with at least 3 RANSAC runs; if it is ambiguous,
         it is retried with at least 3 RANSAC runs and ``max(3 screen_keep, 12)`` kept, the lower
         misfit winning (``retried``). The candidates left go through every ICP stage and are ranked,
@@ -185,17 +187,23 @@ def align_to_reference(model_pts: np.ndarray, ref_pts: np.ndarray, ref_nrm: np.n
                 kept.append((k, Ts))
             if len(kept) == screen_keep:
                 break
-        candidates = [candidates[k] for k, _ in kept]
+        # the full stages start where the screening converged, not from the hypothesis again: its copies were
+        # dropped as duplicates of that pose (measured: a plaque whose centroid-match hypothesis screened to the
+        # right pose, 0.41 mm, then went 6 mm off from the hypothesis itself at the finer sampling, and the
+        # plaque turned end for end, 1.14 mm, won)
+        candidates, screened_from = [Ts for _, Ts in kept], [candidates[k] for k, _ in kept]
+    else:
+        screened_from = list(candidates)
     tree = cKDTree(r_fine)
     done = []
-    for T0 in candidates:  # every remaining candidate through all the stages, ranked at the end
+    for T0, T_hyp in zip(candidates, screened_from):  # every remaining candidate through all the stages, ranked at the end
         T, st = T0, []
         for r in icp_radii_mm:
             m = icp(m_fine, r_fine, r_nrm, T, r * 1e-3, max_iter=30)
             T = m.transform
             st.append({"max_dist_mm": r, "fitness": m.fitness, "inlier_rmse_mm": m.inlier_rmse_m * 1e3})
         mis = capped_misfit_mm(m_fine, tree, r_fine, r_nrm, T, cap)
-        done.append(((passes(T), -mis), m, T0, st, mis))
+        done.append(((passes(T), -mis), m, T_hyp, st, mis))
     done.sort(key=lambda c: c[0], reverse=True)
     _, m, T_init, stages, mis = done[0]
     T = m.transform
