@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from tofmetry.evaluate import align_to_reference, sample_mesh
+from tofmetry._shared.geometry import rotation_angle_deg
+from tofmetry.evaluate import _align, align_to_reference, sample_mesh
 from tofmetry.evaluate._align import capped_misfit_mm
 
 
@@ -80,9 +81,6 @@ def test_the_full_stages_start_where_the_screening_converged(monkeypatch):
     from the hypotheses again (the plain bar is ambiguous, so a second pass follows). A plaque whose only kept
     hypothesis of the right basin went 6 mm off from its own start, while its copies that had screened
     to the same pose were dropped as duplicates, came out turned end for end (measured)."""
-    from tofmetry.evaluate import _align
-    from tofmetry._shared.geometry import rotation_angle_deg
-
     V, F = _box((0.30, 0.05, 0.04))
     ref, nrm, _ = sample_mesh(V, F, 0.003, seed=1)
     model = ref + np.random.default_rng(6).normal(0, 0.0005, ref.shape)
