@@ -116,8 +116,8 @@ def sources_case(seed: int, work: Path, mat: bool = False, errors: str = "all", 
            "points_true": _scale(pts[above], ref)}
     # fused at the true poses, cropped to the object as the pipeline crops (the true ground is z = 0) and
     # judged as the family judges a model (aligned, the reference's underside left out)
-    V, F, N, P, PN, _ = fuse_views(views, segs, W, intr, cfg_views, _no_progress)
-    V, F = crop_model(V, F, N, P, PN, pts, np.array([0.0, 0.0, 1.0, 0.0]), cfg_views)[:2]
+    V, F, N, P, PN, info = fuse_views(views, segs, W, intr, cfg_views, _no_progress)
+    V, F = crop_model(V, F, N, P, PN, pts, np.array([0.0, 0.0, 1.0, 0.0]), cfg_views, info["crop_margin_mm"])[:2]
     ev_true = evaluate_model(Geometry(V, F, source="fused at the true poses"), ref, judging_config())
     row["fused_true"] = _scale(ev_true.points, ref) | {"mean_signed_mm": round(ev_true.stats_trimmed.mean_signed_mm, 3)}
     res = reconstruct_scan(scan_dir, cal, None, config=cfg_views, white_map=white)  # the boards' coefficient, fitted once

@@ -58,7 +58,7 @@ def fuse_views(views, segs, poses: np.ndarray, intr, cfg: ReconstructionConfig, 
             adv()
     V, F, N, P, PN = tsdf.extract(1.0)  # surface seen by a single view is kept (undersides, flanks)
     info = {"voxel_mm": voxel, "trunc_mm": trunc, "median_object_depth_mm": z_med, "min_views": 1,
-            "rule": "voxel = 0.6 * z / f; " + TRUNCATION_RULE}
+            "crop_margin_mm": fc.crop_margin_for(z_med, intr.fx), "rule": "voxel = 0.6 * z / f; " + TRUNCATION_RULE}
     if fc.refine_radius_voxels is not None:
         V, N, P, moved = onto_the_views(V, F, N, P, PN, views, segs, poses, cfg, voxel * fc.refine_radius_voxels * 1e-3,
                                         trunc * fc.refine_band_trunc * 1e-3)
@@ -101,24 +101,49 @@ def _fused_mask(seg, cfg: ReconstructionConfig):
     return slice(None) if cfg.segment.keep_all else seg.object_mask | seg.ring_mask
 
 
-def crop_mask(pts: np.ndarray, world_obj: np.ndarray, plane_w: np.ndarray | None, cfg: ReconstructionConfig) -> np.ndarray:
-    """(N,) bool: ``pts`` (N, 3) [m] within ``cfg.fusion.crop_margin_mm`` of the segmented object
-    points ``world_obj`` (M, 3) [m] and above the support plane ``plane_w`` (4,) (None: no plane)."""
+def crop_mask(pts: np.ndarray, world_obj: np.ndarray, plane_w: np.ndarray | None, cfg: ReconstructionConfig,
+              margin_mm: float | None = None, normals: np.ndarray | None = None) -> np.ndarray:
+    """(N,) bool: ``pts`` (N, 3) [m] near the segmented object points ``world_obj`` (M, 3) [m] and above
+    the support plane ``plane_w`` (4,) (None: no plane).
+
+    Near: within ``cfg.fusion.crop_margin_mm`` of a point, or, with ``normals`` (N, 3) unit, within
+    ``margin_mm`` [mm] of one that lies within ``crop_margin_mm`` of the tangent plane there: the
+    views' points are farther apart than the floor on a surface seen obliquely from afar (the
+    fusion's ``crop_margin_mm``, :meth:`FusionConfig.crop_margin_for`), but a surface the fusion put
+    off the points along its normal stays cropped. The wider margin holds only higher above the
+    plane than ``cfg.segment.min_height_mm`` plus itself: below, the fused ground ring meets the
+    object and the TSDF blends the two (measured: a rocker arm's model kept a blend 5-6 mm above the
+    ground, 6-8 mm off the object)."""
     if cfg.segment.keep_all:
         return np.ones(len(pts), bool)
-    d, _ = cKDTree(world_obj).query(pts, distance_upper_bound=cfg.fusion.crop_margin_mm * 1e-3, workers=-1)
+    floor = cfg.fusion.crop_margin_mm * 1e-3
+    tree = cKDTree(world_obj)
+    d, _ = tree.query(pts, distance_upper_bound=floor, workers=-1)
     keep = np.isfinite(d)
-    if plane_w is not None:
-        keep &= pts @ plane_w[:3] + plane_w[3] > 0.5 * cfg.segment.min_height_mm * 1e-3
+    height = None if plane_w is None else pts @ plane_w[:3] + plane_w[3]
+    wide = ~keep
+    if height is not None and margin_mm is not None:
+        wide &= height > (cfg.segment.min_height_mm + margin_mm) * 1e-3
+    if normals is not None and margin_mm is not None and margin_mm * 1e-3 > floor and wide.any():
+        far = np.flatnonzero(wide)
+        dd, ii = tree.query(pts[far], k=8, distance_upper_bound=margin_mm * 1e-3, workers=-1)
+        found = np.isfinite(dd)
+        q = world_obj[np.where(found, ii, 0)] - pts[far][:, None, :]
+        along = np.abs(np.einsum("nkj,nj->nk", q, normals[far]))
+        keep[far] = np.any(found & (along <= floor), axis=1)
+    if height is not None:
+        keep &= height > 0.5 * cfg.segment.min_height_mm * 1e-3
     return keep
 
 
-def crop_model(V, F, N, P, PN, world_obj: np.ndarray, plane_w: np.ndarray | None, cfg: ReconstructionConfig) -> tuple:
-    """The fused mesh (V, F, N) and cloud (P, PN) cropped to the object (:func:`crop_mask`), and the
-    Poisson mesh of the cropped cloud (cropped as well; None when switched off)."""
-    V, F, used = crop_mesh(V, F, crop_mask(V, world_obj, plane_w, cfg))
+def crop_model(V, F, N, P, PN, world_obj: np.ndarray, plane_w: np.ndarray | None, cfg: ReconstructionConfig,
+               margin_mm: float | None = None) -> tuple:
+    """The fused mesh (V, F, N) and cloud (P, PN) cropped to the object (:func:`crop_mask`, within
+    ``margin_mm``: the fusion's ``crop_margin_mm`` where it gives one), and the Poisson mesh of the
+    cropped cloud (cropped as well; None when switched off)."""
+    V, F, used = crop_mesh(V, F, crop_mask(V, world_obj, plane_w, cfg, margin_mm, N))
     N = N[used]
-    keep_p = crop_mask(P, world_obj, plane_w, cfg)
+    keep_p = crop_mask(P, world_obj, plane_w, cfg, margin_mm, PN)
     P, PN = P[keep_p], PN[keep_p]
     if len(F) == 0 or len(P) == 0:
         raise EstimationError("fusion produced an empty model after cropping to the object")

@@ -297,9 +297,10 @@ class ReconstructionPipeline:
         """TSDF fusion of the views at ``poses`` (:func:`fuse_views`)."""
         return fuse_views(views, segs, poses, intr, self.cfg, self.progress)
 
-    def crop_model(self, V, F, N, P, PN, world_obj: np.ndarray, plane_w: np.ndarray | None) -> tuple:
+    def crop_model(self, V, F, N, P, PN, world_obj: np.ndarray, plane_w: np.ndarray | None,
+                   margin_mm: float | None = None) -> tuple:
         """The fused model cropped to the object (:func:`~tofmetry.reconstruct._model_build.crop_model`)."""
-        return crop_model(V, F, N, P, PN, world_obj, plane_w, self.cfg)
+        return crop_model(V, F, N, P, PN, world_obj, plane_w, self.cfg, margin_mm)
 
     def working_range_mm(self) -> list[float]:
         """Depth range [mm] kept by the preprocessing (working range within the calibrated span)."""
@@ -372,7 +373,7 @@ class ReconstructionPipeline:
         world_obj = np.concatenate([
             v.points[s.object_mask] @ T[:3, :3].T + T[:3, 3] for v, s, T in zip(views, segs, poses)])
         plane_w = world_plane(segs[0].plane, poses[0])
-        V, F, N, P, PN, poisson = self.crop_model(V, F, N, P, PN, world_obj, plane_w)
+        V, F, N, P, PN, poisson = self.crop_model(V, F, N, P, PN, world_obj, plane_w, fusion_info["crop_margin_mm"])
         W, poses_fit = np.eye(4), poses  # poses_fit: in the frame of the joint fit's increments
         if self.cfg.world_frame == "support" and plane_w is not None and self.mat is None:
             W = support_plane_frame(plane_w, world_obj, poses[0])

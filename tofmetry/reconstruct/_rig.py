@@ -167,7 +167,8 @@ class RigReconstruction(ReconstructionPipeline):
                 tsdf.integrate(fusion_depth(v, seg, self.cfg), T, s.intrinsics)
                 adv()
         return (*tsdf.extract(1.0), {"voxel_mm": voxel, "trunc_mm": trunc, "median_object_depth_mm": z_med,
-                                     "min_views": 1, "rule": "voxel = 0.6 * z / f (mean f of the sensors); " + TRUNCATION_RULE})
+                                     "min_views": 1, "crop_margin_mm": fc.crop_margin_for(z_med, f),
+                                     "rule": "voxel = 0.6 * z / f (mean f of the sensors); " + TRUNCATION_RULE})
 
     def rig_check(self, views, segs, poses) -> tuple[list, list, list]:
         """Check the rig against the data, pair by pair: the ICP correction of one view's object points
@@ -221,7 +222,7 @@ class RigReconstruction(ReconstructionPipeline):
                                     for v, s, T in zip(views, segs, poses)])
         k = next((k for k, s in enumerate(segs) if s.plane is not None), None)
         plane_w = None if k is None else transform_plane(segs[k].plane, poses[k])
-        V, F, N, P, PN, poisson = self.crop_model(V, F, N, P, PN, world_obj, plane_w)
+        V, F, N, P, PN, poisson = self.crop_model(V, F, N, P, PN, world_obj, plane_w, fusion_info["crop_margin_mm"])
         t4 = time.perf_counter()
         colours, colour_diag = None, None
         if self.cfg.color:
