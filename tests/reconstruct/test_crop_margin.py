@@ -28,7 +28,9 @@ def oblique_view() -> tuple[list, list, np.ndarray, np.ndarray]:
     win[v0 - HALF_PX:v0 + HALF_PX + 1, u0 - HALF_PX:u0 + HALF_PX + 1] = True
     depth = np.where(win, z * 1e3, 0.0)
     m = depth > 0
-    view = SimpleNamespace(depth_mm=depth, points=RAYS[m] * depth[m, None] * 1e-3, index=np.flatnonzero(m))
+    cos_i = np.abs(RAYS[m] @ n) / np.linalg.norm(RAYS[m], axis=1)
+    view = SimpleNamespace(depth_mm=depth, points=RAYS[m] * depth[m, None] * 1e-3, index=np.flatnonzero(m),
+                           cos_incidence=cos_i)
     seg = SimpleNamespace(object_mask=np.ones(m.sum(), bool), ring_mask=np.zeros(m.sum(), bool))
     return [view], [seg], np.eye(4)[None], n
 

@@ -109,6 +109,37 @@ def silhouette_distance_px(depth_mm: np.ndarray, jump_mm: float = 10.0, grazing_
     return cv2.distanceTransform(np.where(edge | ~valid, 0, 255).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
 
 
+def undistort_weight(weight: np.ndarray, intr: CameraIntrinsics) -> np.ndarray:
+    """A per-pixel weight map (H, W) carried onto the undistorted pinhole grid (nearest source
+    pixel, as :func:`undistort_depth` takes a depth where its neighbours disagree): (H, W) float32."""
+    w = np.asarray(weight, np.float32)
+    if not intr.has_distortion:
+        return w
+    mu, mv = undistort_maps(intr)
+    return cv2.remap(w, mu, mv, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+
+
+def incidence_weight(cos_incidence: np.ndarray, power: float, floor: float = 0.05) -> np.ndarray:
+    """Fusion weight of depth samples seen at incidence i: ``max(cos i, floor) ** power``.
+
+    A time-of-flight pixel's amplitude falls as cos i, its noise variance grows as 1 / cos i, and its
+    footprint along the surface spans ``tan i`` times the pixel's width in depth, which a curved
+    surface turns into a bias; the weighted mean leans on the view that sees a surface most
+    frontally where several do (``FusionConfig.incidence_weight_power``).
+
+    Parameters
+    ----------
+    cos_incidence : (N,) float, cosine of the angle between the ray and the surface normal
+    power : >= 0 (0: every sample weighs 1)
+
+    Returns
+    -------
+    (N,) float64 in (0, 1]
+    """
+    c = np.clip(np.asarray(cos_incidence, np.float64), floor, 1.0)
+    return c ** float(power)
+
+
 GRAZING = 5.67  # tan(80 deg): neighbours on one surface seen up to 80 deg off its normal differ by this * z / f
 
 
@@ -153,12 +184,14 @@ class TSDFFusion:
         self.behind_per_edge, self.edge_jump_mm, self.behind_min_voxels = behind_per_edge, edge_jump_mm, behind_min_voxels
         self._K = o3c.Tensor(_o3d_K(intr), dtype=o3c.float64)
         self.vbg = o3d.t.geometry.VoxelBlockGrid(
-            attr_names=("tsdf", "weight"), attr_dtypes=(o3c.float32, o3c.float32), attr_channels=((1), (1)),
+            attr_names=("tsdf", "weight", "wsum"), attr_dtypes=(o3c.float32, o3c.float32, o3c.float32),
+            attr_channels=((1), (1), (1)),
             voxel_size=self.voxel_m, block_resolution=block_resolution, block_count=block_count,
             device=o3c.Device("CPU:0"))
         self.n_integrated = 0
 
-    def integrate(self, depth_mm: np.ndarray, pose: np.ndarray, intr: CameraIntrinsics | None = None) -> None:
+    def integrate(self, depth_mm: np.ndarray, pose: np.ndarray, intr: CameraIntrinsics | None = None,
+                  weight: np.ndarray | None = None) -> None:
         """Integrate one depth map.
 
         Parameters
@@ -166,6 +199,10 @@ class TSDFFusion:
         depth_mm : (H, W) float [mm] Z with the distortion of ``intr`` (0 = skip pixel)
         pose : (4, 4) camera-to-world [m]
         intr : the depth map's intrinsics when they are not the volume's (another sensor of a rig)
+        weight : (H, W) float in (0, 1], each pixel's weight in the voxels' weighted mean (None: 1;
+            :func:`incidence_weight`). The count of views that saw a voxel, which ``extract``'s
+            threshold reads, still grows by 1, so a surface one view sees keeps whatever its weight.
+            Only the cut integration (``behind_per_edge``) takes it; Open3D's own weighs every pixel 1.
         """
         import open3d as o3d
         import open3d.core as o3c
@@ -180,10 +217,11 @@ class TSDFFusion:
         if self.behind_per_edge is None:
             self.vbg.integrate(coords, img, K, ext, 1000.0, self.depth_max_m, self.trunc_mult)
         else:
-            self._integrate_cut(coords, d, np.array(intr.K, np.float64), world_to_cam)
+            w = None if weight is None else undistort_weight(weight, intr)
+            self._integrate_cut(coords, d, np.array(intr.K, np.float64), world_to_cam, w)
         self.n_integrated += 1
 
-    def _integrate_cut(self, coords, d: np.ndarray, K: np.ndarray, ext: np.ndarray) -> None:
+    def _integrate_cut(self, coords, d: np.ndarray, K: np.ndarray, ext: np.ndarray, w: np.ndarray | None = None) -> None:
         """Open3D's integration (projection to the pixel ``floor(u + 1/2)``, sdf = depth - z, kept from
         minus the band behind, clipped at the truncation in front, running mean with weight 1) with the
         band behind each pixel cut near the silhouette (module docstring).
@@ -191,12 +229,13 @@ class TSDFFusion:
         Parameters
         ----------
         coords : Open3D block coordinates to update; d : (H, W) float32 [mm] undistorted Z, 0 = skip;
-        K : (3, 3) pinhole camera matrix [px]; ext : (4, 4) world -> camera [m]
+        K : (3, 3) pinhole camera matrix [px]; ext : (4, 4) world -> camera [m]; w : (H, W) float32
+        pixel weights on the same grid as ``d`` (None: 1)
         """
         hashmap = self.vbg.hashmap()
         new_buf, inserted = hashmap.activate(coords)
         fresh = new_buf.numpy()[inserted.numpy()]
-        for name in ("tsdf", "weight"):  # a block's voxels are not cleared when its slot is handed out
+        for name in ("tsdf", "weight", "wsum"):  # a block's voxels are not cleared when its slot is handed out
             self.vbg.attribute(name).numpy().reshape(self.vbg.attribute(name).shape[0], -1)[fresh] = 0.0
         buf, _ = hashmap.find(coords)
         xyz_w, flat = self.vbg.voxel_coordinates_and_flattened_indices(buf)
@@ -218,7 +257,10 @@ class TSDFFusion:
         j = flat.numpy()[idx[keep]]
         tsdf = self.vbg.attribute("tsdf").reshape((-1,)).numpy()  # views of the grid's own buffers
         weight = self.vbg.attribute("weight").reshape((-1,)).numpy()
-        tsdf[j] = (tsdf[j] * weight[j] + np.minimum(sdf[keep], trunc) / trunc) / (weight[j] + 1.0)
+        wsum = self.vbg.attribute("wsum").reshape((-1,)).numpy()
+        wk = np.ones(len(j)) if w is None else w[v[keep], u[keep]].astype(np.float64)
+        tsdf[j] = (tsdf[j] * wsum[j] + wk * np.minimum(sdf[keep], trunc) / trunc) / (wsum[j] + wk)
+        wsum[j] += wk
         weight[j] += 1.0
 
     def extract(self, min_weight: float = 1.0) -> tuple:

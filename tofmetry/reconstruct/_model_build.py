@@ -13,7 +13,7 @@ from scipy.spatial import cKDTree
 from tofmetry.errors import EstimationError
 from tofmetry.pointcloud import move_onto_points
 from tofmetry.reconstruct._config import TRUNCATION_RULE, ReconstructionConfig
-from tofmetry.reconstruct._fusion import TSDFFusion, crop_mesh, poisson_mesh
+from tofmetry.reconstruct._fusion import TSDFFusion, crop_mesh, incidence_weight, poisson_mesh
 from tofmetry.reconstruct._o3d import vertex_normals
 from tofmetry.reconstruct._world import transform_plane
 
@@ -54,7 +54,7 @@ def fuse_views(views, segs, poses: np.ndarray, intr, cfg: ReconstructionConfig, 
                       behind_min_voxels=fc.behind_min_voxels)
     with progress("TSDF fusion", len(views)) as adv:
         for v, s, T in zip(views, segs, poses):
-            tsdf.integrate(fusion_depth(v, s, cfg), T)
+            tsdf.integrate(fusion_depth(v, s, cfg), T, weight=fusion_weight(v, cfg))
             adv()
     V, F, N, P, PN = tsdf.extract(1.0)  # surface seen by a single view is kept (undersides, flanks)
     info = {"voxel_mm": voxel, "trunc_mm": trunc, "median_object_depth_mm": z_med, "min_views": 1,
@@ -94,6 +94,18 @@ def fusion_depth(v, seg, cfg: ReconstructionConfig) -> np.ndarray:
     m = np.zeros(d.size, bool)
     m[v.index[_fused_mask(seg, cfg)]] = True
     return np.where(m.reshape(d.shape), d, 0.0)
+
+
+def fusion_weight(v, cfg: ReconstructionConfig) -> np.ndarray | None:
+    """Each pixel's weight (H, W) in the fusion's mean: ``cos(incidence) ** cfg.fusion.incidence_weight_power``
+    where view ``v`` has a point, 1 elsewhere (:func:`~tofmetry.reconstruct._fusion.incidence_weight`);
+    None when the power is 0."""
+    power = cfg.fusion.incidence_weight_power
+    if power == 0:
+        return None
+    w = np.ones(v.depth_mm.size)
+    w[v.index] = incidence_weight(v.cos_incidence, power)
+    return w.reshape(v.depth_mm.shape)
 
 
 def _fused_mask(seg, cfg: ReconstructionConfig):

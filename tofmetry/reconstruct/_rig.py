@@ -30,7 +30,7 @@ from tofmetry.errors import InputError, SensorMismatchError
 from tofmetry.reconstruct._colour import colour_model
 from tofmetry.reconstruct._config import TRUNCATION_RULE
 from tofmetry.reconstruct._fusion import TSDFFusion
-from tofmetry.reconstruct._model_build import fusion_depth, median_object_depth_m
+from tofmetry.reconstruct._model_build import fusion_depth, fusion_weight, median_object_depth_m
 from tofmetry.reconstruct._pipeline import ReconstructionPipeline, ReconstructionResult
 from tofmetry.reconstruct._world import transform_plane
 
@@ -164,7 +164,7 @@ class RigReconstruction(ReconstructionPipeline):
                           edge_jump_mm=fc.edge_jump_mm, behind_min_voxels=fc.behind_min_voxels)
         with self.progress("TSDF fusion", len(views)) as adv:
             for v, seg, T, s in zip(views, segs, poses, self.sensors):
-                tsdf.integrate(fusion_depth(v, seg, self.cfg), T, s.intrinsics)
+                tsdf.integrate(fusion_depth(v, seg, self.cfg), T, s.intrinsics, weight=fusion_weight(v, self.cfg))
                 adv()
         return (*tsdf.extract(1.0), {"voxel_mm": voxel, "trunc_mm": trunc, "median_object_depth_mm": z_med,
                                      "min_views": 1, "crop_margin_mm": fc.crop_margin_for(z_med, f),
