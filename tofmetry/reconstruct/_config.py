@@ -613,9 +613,11 @@ class FusionConfig(BaseModel):
                                           "(tofmetry.reconstruct._fusion's docstring; the rim of a thin object is "
                                           "not fattened); None: Open3D's own integration, the whole band")
     incidence_weight_power: float = Field(1.0, ge=0, le=4, description="each depth sample weighs "
-                                          "cos(incidence) ** this in the fusion's mean, so the view that sees a "
-                                          "surface most frontally leads where several see it (0: every sample "
-                                          "weighs 1); the count of views a surface needs is unchanged")
+                                          "cos(incidence) ** this in the fusion's mean; at 1 every view has an equal "
+                                          "share of a surface along its normal (0: every sample weighs 1, and the "
+                                          "most oblique view leads); the count of views a surface needs is "
+                                          "unchanged. Only the cut integration takes it: with behind_per_edge None "
+                                          "Open3D's own integration weighs every sample 1")
     edge_jump_mm: float = Field(10.0, gt=0, description="a depth step larger than this between neighbouring pixels "
                                 "is a silhouette [mm]")
     behind_min_voxels: float = Field(2.0, gt=0, description="the cut band is never shorter than this many voxels "

@@ -124,8 +124,9 @@ def incidence_weight(cos_incidence: np.ndarray, power: float, floor: float = 0.0
 
     A time-of-flight pixel's amplitude falls as cos i, its noise variance grows as 1 / cos i, and its
     footprint along the surface spans ``tan i`` times the pixel's width in depth, which a curved
-    surface turns into a bias; the weighted mean leans on the view that sees a surface most
-    frontally where several do (``FusionConfig.incidence_weight_power``).
+    surface turns into a bias. A view's projective signed distance is the normal distance over
+    cos i, so unweighted the most oblique view leads the mean; at power 1 every view has an equal
+    share along the normal (``FusionConfig.incidence_weight_power``).
 
     Parameters
     ----------
