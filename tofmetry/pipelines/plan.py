@@ -166,7 +166,7 @@ def plan_acquisition(*, size: tuple[float, float, float] | None = None, mesh: st
     settings["turn_about_vertical"] = turn
     warnings = [w for w in (calibrated_range_warning(obj, distance_m, cal),
                             None if completed is None or not completed.params["added_at"] else ADDED_VIEWS_WARNING,
-                            yaw_free_warning(turn)) if w]
+                            yaw_free_warning(turn), short_overlap_warning(best, ranked, aim)) if w]
     if warnings:
         settings["warnings"] = warnings
     run = PlanRun(obj, intr, best, ranked, asked, settings, completed)
@@ -174,6 +174,20 @@ def plan_acquisition(*, size: tuple[float, float, float] | None = None, mesh: st
         refuse_existing(output, force)
         atomic_write_json(Path(output), run.to_dict())
     return run
+
+
+def short_overlap_warning(best: Proposal | None, ranked: list[Proposal], aim: float,
+                          min_overlap: float = 0.5) -> str | None:
+    """What a user is told when no set of views reaches the completeness aimed at with successive
+    views sharing ``min_overlap`` of the surface, but the first listed reaches it with less (a low
+    ring and zenithal views, :func:`tofmetry.plan.propose`); None otherwise."""
+    if best is not None or not ranked or ranked[0].prediction.completeness < aim:
+        return None
+    p = ranked[0].prediction
+    return (f"{ranked[0].name} is predicted to reach {p.completeness:.1%}, but successive views share as little as "
+            f"{p.min_overlap:.2f} of the surface (below {min_overlap:g}), too little for the views to register on "
+            "each other alone: stand the object on a printed dot mat (tofmetry mat; reconstruct --mat places every "
+            "view on it) or scan it on a turntable and declare its step (reconstruct --turntable-step)")
 
 
 def yaw_free_warning(turn: dict) -> str | None:

@@ -54,6 +54,15 @@ and, for an object at least twice as long as wide, stripes (views along both lon
 both ends); the proposal is the one with the fewest views that reaches the target completeness
 with every successive overlap above ``min_overlap`` (ties: the one that reaches the target even if
 every grazing surface is lost, the low end of its range; then the higher completeness).
+Where no candidate reaches the target's completeness, rings at 15 deg are tried as well, with 3, 4
+or 6 zenithal views at 55 or 65 deg; a set that reaches the completeness is then put first even where
+its ring-to-zenithal overlap is short of ``min_overlap`` (on a dot mat the placements register such
+views; without one, the pairwise chain may not). A low ring sees what faces partly down: the
+underside of a rocker arm's arms, which rings at 20 deg and above see at 72 deg or more (session 47:
+of what the plan's best ring left on a rocker arm at 1.34 m, a ring at 5 deg sees 68 %, at 12 deg
+31 %, at 26 deg or more 6 %). On the family's rocker arms (2026-12-05, draw 95's 812651352 at
+1.21 m) the best set at 20-45 deg predicted 0.907 and achieved 0.887, short of the 0.928 aimed at; a
+ring of 8 at 15 deg plus 6 views at 55 deg predicts 0.934.
 Rings of 6 views are no longer proposed: on the family (``bench/robustness``, draw 47, 2026-11-30)
 the same 20 objects and sensors were scanned along their drawn paths and along the plan's
 proposals; where the plan proposed a ring of 6 (10 objects), 1 run came out right and reliable
@@ -95,6 +104,12 @@ SINGLE_VIEW_KEEP = 0.9
 #: predicted - achieved completeness [points], p5 and p95 over 291 right, reliable family runs
 #: (``bench/robustness``, draws 50-71, 2026-12-02, with :data:`GRAZING_KEEP` and :data:`SINGLE_VIEW_KEEP`)
 PREDICTION_ERROR_PTS = (-2.4, 2.8)
+#: elevations [deg] of the proposals' rings
+RING_ELEVATIONS_DEG = (20.0, 30.0, 45.0)
+#: elevations [deg] of the rings also tried when none at :data:`RING_ELEVATIONS_DEG` reaches the target
+LOW_RING_ELEVATIONS_DEG = (15.0,)
+#: elevations [deg] of the zenithal views that go with the low rings
+LOW_RING_ZENITHAL_DEG = (55.0, 65.0)
 
 
 def aim_for(target: float) -> float:
@@ -377,20 +392,24 @@ def stripes(obj: PlanObject, per_side: int, distance_m: float, elevation_deg: fl
     return out
 
 
-def candidates(obj: PlanObject, distance_m: float) -> list[tuple[str, list, dict]]:
-    """The proposal family (module docstring): (name, poses, params)."""
+def candidates(obj: PlanObject, distance_m: float, elevations_deg=RING_ELEVATIONS_DEG, zenithal_deg=(65.0,),
+               n_zenithal=(2, 3, 4), with_stripes: bool = True) -> list[tuple[str, list, dict]]:
+    """The proposal family (module docstring): (name, poses, params); rings at ``elevations_deg``
+    [deg], each alone and with ``n_zenithal`` views at each of ``zenithal_deg`` [deg], and stripes
+    (``with_stripes``) for an elongated object."""
     t = obj.centre_m
     out = []
-    for el in (20.0, 30.0, 45.0):
+    for el in elevations_deg:
         for n in (8, 10, 12, 16):
             out.append((f"ring {n} @ {el:.0f} deg", ring(n, distance_m, el, t), {"kind": "ring", "n": n, "elevation_deg": el}))
-            for m in (2, 3, 4):
-                out.append((f"ring {n} @ {el:.0f} deg + {m} zenithal @ 65 deg",
-                            ring(n, distance_m, el, t) + ring(m, distance_m, 65.0, t, 180.0 / n),
-                            {"kind": "ring+zenithal", "n": n, "elevation_deg": el, "n_zenithal": m,
-                             "zenithal_elevation_deg": 65.0}))
+            for ze in zenithal_deg:
+                for m in n_zenithal:
+                    out.append((f"ring {n} @ {el:.0f} deg + {m} zenithal @ {ze:.0f} deg",
+                                ring(n, distance_m, el, t) + ring(m, distance_m, ze, t, 180.0 / n),
+                                {"kind": "ring+zenithal", "n": n, "elevation_deg": el, "n_zenithal": m,
+                                 "zenithal_elevation_deg": ze}))
     ext = np.sort(obj.extent_m[:2])
-    if ext[1] >= 2.0 * ext[0]:
+    if with_stripes and ext[1] >= 2.0 * ext[0]:
         for k in (3, 4, 5):
             for el in (30.0, 45.0):
                 out.append((f"stripes {k} per side @ {el:.0f} deg", stripes(obj, k, distance_m, el),
@@ -406,16 +425,25 @@ def propose(obj: PlanObject, intr: CameraIntrinsics, target: float = 0.9, distan
     -------
     (the proposal or None when no candidate reaches ``target``, all candidates best first)
     """
-    out = []
-    for name, poses, params in candidates(obj, distance_m):
-        out.append(Proposal(name, poses, predict(obj, poses, intr, **kw), params))
-    ok = [p for p in out if p.prediction.completeness >= target and p.prediction.min_overlap >= min_overlap]
+    def judged(cands) -> list[Proposal]:
+        return [Proposal(name, poses, predict(obj, poses, intr, **kw), params) for name, poses, params in cands]
+
+    def complete_enough(p: Proposal) -> bool:
+        return p.prediction.completeness >= target
+
+    def reaches(p: Proposal) -> bool:
+        return complete_enough(p) and p.prediction.min_overlap >= min_overlap
+
+    out = judged(candidates(obj, distance_m))
+    if not any(complete_enough(p) for p in out):  # what faces down (under a rocker arm's arms) wants a lower ring
+        out += judged(candidates(obj, distance_m, LOW_RING_ELEVATIONS_DEG, LOW_RING_ZENITHAL_DEG, (3, 4, 6), False))
+    ok = [p for p in out if reaches(p)]
 
     def safe(p: Proposal) -> float:  # the completeness it reaches even if every grazing surface is lost, up to the target
         return min(p.prediction.completeness_range[0], target)
 
-    rank = sorted(out, key=lambda p: (-(p.prediction.completeness >= target and p.prediction.min_overlap >= min_overlap),
-                                      p.prediction.n_views if p.prediction.completeness >= target else 0,
+    rank = sorted(out, key=lambda p: (-reaches(p), -complete_enough(p),
+                                      p.prediction.n_views if complete_enough(p) else 0,
                                       -safe(p), -p.prediction.completeness))
     best = min(ok, key=lambda p: (p.prediction.n_views, -safe(p), -p.prediction.completeness)) if ok else None
     return best, rank
