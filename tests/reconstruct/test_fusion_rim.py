@@ -64,10 +64,12 @@ def test_the_band_cut_at_the_silhouette_keeps_the_rim_at_the_faces_level():
     and the faces on their samples (-0.05 mm). With the band behind each pixel cut to 3 times its
     distance to the silhouette (``fusion.behind_per_edge = 3``, the default) the rim lies at the faces'
     level (measured +0.04 and -0.05 mm): within 0.1 mm of each other, about a tenth of a voxel
-    (1.15 mm), and the faces within 0.1 mm of their samples."""
+    (1.15 mm), and the faces within 0.1 mm of their samples. Read at the nearest pixel, as Open3D reads
+    it; read bilinearly where the depth is smooth (the default) at +0.06 and -0.02 mm."""
     views, segs, poses = slab_views()
     cfg = ReconstructionConfig()
     cfg.fusion.incidence_weight_power = 0.0  # every sample weighs 1: the band's own effect
+    cfg.fusion.interpolate_depth = False  # Open3D's reading of the depth
     cfg.fusion.behind_per_edge = None  # Open3D's band
     whole = face_offsets_mm(fuse_views(views, segs, poses, INTR, cfg, _no_progress)[0])
     cfg.fusion.behind_per_edge = 3.0
@@ -79,8 +81,9 @@ def test_the_band_cut_at_the_silhouette_keeps_the_rim_at_the_faces_level():
 def test_the_incidence_weights_give_the_rim_back_part_of_the_band():
     """The default weights (``fusion.incidence_weight_power = 1``) lean on the views that see a surface
     frontally; near the rim those are the faces' views, whose band behind the faces outweighs the rim's
-    own oblique readings: the rim comes out 0.21 mm off the faces' level (measured; 0.09 unweighted,
-    0.54 with Open3D's band), less than a quarter of a voxel (1.15 mm)."""
+    own oblique readings: the rim comes out 0.23 mm off the faces' level (measured with the depth read
+    bilinearly where smooth, the default; 0.08 unweighted; at the nearest pixel 0.21 and 0.09; 0.54 with
+    Open3D's band), about a fifth of a voxel (1.15 mm)."""
     views, segs, poses = slab_views()
     off = face_offsets_mm(fuse_views(views, segs, poses, INTR, ReconstructionConfig(), _no_progress)[0])
     assert 0.0 < off["rim"] - off["faces"] < 0.29 and abs(off["faces"]) < 0.1, off
@@ -91,14 +94,15 @@ def test_the_cut_band_is_open3ds_integration_where_it_does_not_cut():
     undistortion, pixels with no source): away from it nothing is cut, and the voxels integrated by
     hand give Open3D's own volume from two views: the same vertices to float precision but where a
     voxel projects within rounding of a pixel's border (Open3D projects in single precision) and reads
-    the neighbouring pixel (measured: 163 of 18 594 vertices moved, by at most 1.5 mm)."""
+    the neighbouring pixel (measured: 163 of 18 594 vertices moved, by at most 1.5 mm). Both read the
+    nearest pixel here (``interpolate=False``)."""
     n = np.array([0.3, 0.2, -1.0]) / np.linalg.norm([0.3, 0.2, -1.0])
     z = (n @ [0.0, 0.0, 0.7]) / (RAYS @ n) * 1e3  # Z [mm] of the plane n . X = n . (0, 0, 0.7 m)
     shifted = np.eye(4)
     shifted[:3, 3] = [0.05, -0.02, 0.01]
     meshes = []
     for c in (None, 3.0):
-        f = TSDFFusion(INTR, 4.0, 16.0, behind_per_edge=c)
+        f = TSDFFusion(INTR, 4.0, 16.0, behind_per_edge=c, interpolate=False)
         f.integrate(z, np.eye(4))
         f.integrate(z, shifted)  # the same depth from a camera moved: another wall, crossing the first
         meshes.append(f.extract(1.0)[0])

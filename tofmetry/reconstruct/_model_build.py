@@ -51,7 +51,7 @@ def fuse_views(views, segs, poses: np.ndarray, intr, cfg: ReconstructionConfig, 
     trunc = fc.trunc_for(z_med, voxel)
     tsdf = TSDFFusion(intr, voxel, trunc, depth_max_mm=cfg.preprocess.max_mm, block_resolution=fc.block_resolution,
                       behind_per_edge=fc.behind_per_edge, edge_jump_mm=fc.edge_jump_mm,
-                      behind_min_voxels=fc.behind_min_voxels)
+                      behind_min_voxels=fc.behind_min_voxels, interpolate=fc.interpolate_depth, kink_mm=fc.kink_mm)
     with progress("TSDF fusion", len(views)) as adv:
         for v, s, T in zip(views, segs, poses):
             tsdf.integrate(fusion_depth(v, s, cfg), T, weight=fusion_weight(v, cfg))

@@ -161,7 +161,7 @@ class RigReconstruction(ReconstructionPipeline):
         trunc = fc.trunc_for(z_med, voxel)
         tsdf = TSDFFusion(self.sensors[0].intrinsics, voxel, trunc, depth_max_mm=self.cfg.preprocess.max_mm,
                           block_resolution=fc.block_resolution, behind_per_edge=fc.behind_per_edge,
-                          edge_jump_mm=fc.edge_jump_mm, behind_min_voxels=fc.behind_min_voxels)
+                          edge_jump_mm=fc.edge_jump_mm, behind_min_voxels=fc.behind_min_voxels, interpolate=fc.interpolate_depth, kink_mm=fc.kink_mm)
         with self.progress("TSDF fusion", len(views)) as adv:
             for v, seg, T, s in zip(views, segs, poses, self.sensors):
                 tsdf.integrate(fusion_depth(v, seg, self.cfg), T, s.intrinsics, weight=fusion_weight(v, self.cfg))
