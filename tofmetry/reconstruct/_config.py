@@ -629,9 +629,9 @@ class FusionConfig(BaseModel):
                                           "unchanged. Only the cut integration takes it: with behind_per_edge None "
                                           "Open3D's own integration weighs every sample 1")
     interpolate_depth: bool = Field(True, description="the cut integration reads each voxel's depth bilinearly "
-                                    "between the four pixels around its projection where they are one surface, not "
-                                    "at the nearest pixel, whose depth is off by up to half a pixel's step on an "
-                                    "oblique surface (tofmetry.reconstruct._fusion.interpolated_reading)")
+                                    "between the four pixels around its projection where the depth is smooth "
+                                    "(kink_mm), not at the nearest pixel, whose depth is off by up to half a pixel's "
+                                    "step on an oblique surface (tofmetry.reconstruct._fusion_reading)")
     kink_mm: float = Field(4.0, gt=0, description="... but only where the depth's second difference along u and v "
                            "stays within this at the four pixels: a step or a crease keeps the nearest pixel's "
                            "reading, where a bilinear one would bridge two surfaces [mm]")

@@ -49,9 +49,7 @@ def fuse_views(views, segs, poses: np.ndarray, intr, cfg: ReconstructionConfig, 
     z_med = median_object_depth_m(views, segs) * 1e3
     voxel = fc.voxel_for(z_med, intr.fx)
     trunc = fc.trunc_for(z_med, voxel)
-    tsdf = TSDFFusion(intr, voxel, trunc, depth_max_mm=cfg.preprocess.max_mm, block_resolution=fc.block_resolution,
-                      behind_per_edge=fc.behind_per_edge, edge_jump_mm=fc.edge_jump_mm,
-                      behind_min_voxels=fc.behind_min_voxels, interpolate=fc.interpolate_depth, kink_mm=fc.kink_mm)
+    tsdf = fusion_volume(intr, voxel, trunc, cfg)
     with progress("TSDF fusion", len(views)) as adv:
         for v, s, T in zip(views, segs, poses):
             tsdf.integrate(fusion_depth(v, s, cfg), T, weight=fusion_weight(v, cfg))
@@ -94,6 +92,15 @@ def fusion_depth(v, seg, cfg: ReconstructionConfig) -> np.ndarray:
     m = np.zeros(d.size, bool)
     m[v.index[_fused_mask(seg, cfg)]] = True
     return np.where(m.reshape(d.shape), d, 0.0)
+
+
+def fusion_volume(intr, voxel_mm: float, trunc_mm: float, cfg: ReconstructionConfig) -> TSDFFusion:
+    """The empty TSDF volume (voxel and truncation [mm]) with ``cfg.fusion``'s band cut and depth
+    reading, for depth maps of intrinsics ``intr`` (the first sensor's in a rig)."""
+    fc = cfg.fusion
+    return TSDFFusion(intr, voxel_mm, trunc_mm, depth_max_mm=cfg.preprocess.max_mm, block_resolution=fc.block_resolution,
+                      behind_per_edge=fc.behind_per_edge, edge_jump_mm=fc.edge_jump_mm,
+                      behind_min_voxels=fc.behind_min_voxels, interpolate=fc.interpolate_depth, kink_mm=fc.kink_mm)
 
 
 def fusion_weight(v, cfg: ReconstructionConfig) -> np.ndarray | None:

@@ -29,8 +29,7 @@ from scipy.spatial import cKDTree
 from tofmetry.errors import InputError, SensorMismatchError
 from tofmetry.reconstruct._colour import colour_model
 from tofmetry.reconstruct._config import TRUNCATION_RULE
-from tofmetry.reconstruct._fusion import TSDFFusion
-from tofmetry.reconstruct._model_build import fusion_depth, fusion_weight, median_object_depth_m
+from tofmetry.reconstruct._model_build import fusion_depth, fusion_volume, fusion_weight, median_object_depth_m
 from tofmetry.reconstruct._pipeline import ReconstructionPipeline, ReconstructionResult
 from tofmetry.reconstruct._world import transform_plane
 
@@ -159,9 +158,7 @@ class RigReconstruction(ReconstructionPipeline):
         f = float(np.mean([s.intrinsics.fx for s in self.sensors]))
         voxel = fc.voxel_for(z_med, f)
         trunc = fc.trunc_for(z_med, voxel)
-        tsdf = TSDFFusion(self.sensors[0].intrinsics, voxel, trunc, depth_max_mm=self.cfg.preprocess.max_mm,
-                          block_resolution=fc.block_resolution, behind_per_edge=fc.behind_per_edge,
-                          edge_jump_mm=fc.edge_jump_mm, behind_min_voxels=fc.behind_min_voxels, interpolate=fc.interpolate_depth, kink_mm=fc.kink_mm)
+        tsdf = fusion_volume(self.sensors[0].intrinsics, voxel, trunc, self.cfg)
         with self.progress("TSDF fusion", len(views)) as adv:
             for v, seg, T, s in zip(views, segs, poses, self.sensors):
                 tsdf.integrate(fusion_depth(v, seg, self.cfg), T, s.intrinsics, weight=fusion_weight(v, self.cfg))
