@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tofmetry.reconstruct._mat_locate import plane_frame
+from tofmetry.reconstruct._mat_dots import plane_frame
 from tofmetry.reconstruct._mat_plane import dot_centres, plane_from_dots
 from tofmetry.sensor import KINECT_V2, CameraIntrinsics
 

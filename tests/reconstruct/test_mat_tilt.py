@@ -10,7 +10,8 @@ from tofmetry.io import read_json
 from tofmetry.pipelines.reconstruct import ScanDataset
 from tofmetry.reconstruct import ReconstructionConfig
 from tofmetry.reconstruct._adjust_field import DepthFieldPrior
-from tofmetry.reconstruct._mat_locate import MatFix, albedo_image, locate_on_mat
+from tofmetry.reconstruct._mat_dots import albedo_image
+from tofmetry.reconstruct._mat_locate import MatFix, locate_on_mat
 from tofmetry.reconstruct._mat_plane import matched_dots, tilted_normal, view_dot_plane
 from tofmetry.reconstruct._mat_stage import MatPlacement
 from tofmetry.reconstruct._mat_tilt import combined_tilt, depth_plane_tilt_cov, retilted_fix

@@ -2,7 +2,7 @@
 
 Low views see the mat at grazing incidence: its dots shrink to a few rows of pixels, the object
 hides many, and fewer than the dot matching needs come out round and whole
-(:func:`~tofmetry.reconstruct._mat_locate.seen_dots`). The pattern is still there, smeared along the
+(:func:`~tofmetry.reconstruct._mat_dots.seen_dots`). The pattern is still there, smeared along the
 view. Here every support pixel takes part: its ray cut with the support plane puts its relative log
 albedo on a metric grid of the plane (:func:`plane_image`), around the object's footprint (the mat
 lies under the object); the printed layout is rasterised on the same grid; and the rotation and the
@@ -19,8 +19,8 @@ import numpy as np
 from scipy import fft, ndimage
 
 from tofmetry._shared.dot_mat import DotMat, dot_mask
-from tofmetry.reconstruct._mat_locate import (MatFix, contrast, fix_from_matches, guided_match, plane_frame,
-                                               rotation_2d, seen_dots)
+from tofmetry.reconstruct._mat_dots import plane_frame, seen_dots
+from tofmetry.reconstruct._mat_locate import MatFix, contrast, fix_from_matches, guided_match, rotation_2d
 
 
 def plane_image(alb: np.ndarray, rays: np.ndarray, plane: np.ndarray, centre_xy: np.ndarray, half_m: float,

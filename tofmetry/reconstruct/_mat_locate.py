@@ -9,10 +9,9 @@ registrations, whatever the object's shape (a vase of revolution, a thin plaque,
 2. **The dots**: on the support, the relative log IR albedo (:func:`~tofmetry.reconstruct._photometric.log_albedo`)
    splits toner from paper (a pixel darker than the paper around it by half their contrast is toner);
    each dark blob wholly surrounded by paper is a dot.
-   Its pixels' rays are cut with the support plane (not their measured points: a ToF camera reads
-   dark toner a few millimetres farther than the paper, which would shift every dot away from the
-   camera), and the dot's centre and radius are the centroid and second moments of those cuts
-   [m, in the plane]. Blobs that are not round (dots printed over each other) are left out.
+   Its pixels' rays are cut with the support plane, and the dot's centre and radius are taken on
+   it (:mod:`~tofmetry.reconstruct._mat_dots`). Blobs that are not round (dots
+   printed over each other) are left out.
 3. **The match**: pairs of seen dots against pairs of printed dots of the same spacing and radii;
    each pair of pairs gives a rigid motion of the plane, scored by the seen dots it brings within
    ``match_mm`` of a printed dot of their radius; the best is refitted on its matches
@@ -27,10 +26,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from tofmetry._shared.dot_mat import DotMat
+from tofmetry.reconstruct._mat_dots import plane_frame, seen_dots
 
 
 @dataclass
@@ -113,112 +112,6 @@ def rotation_2d(theta_rad: float) -> np.ndarray:
     """(2, 2) rotation by ``theta_rad`` (counter-clockwise in x, y)."""
     c, s = np.cos(theta_rad), np.sin(theta_rad)
     return np.array([[c, -s], [s, c]])
-
-
-def plane_frame(plane: np.ndarray) -> np.ndarray:
-    """(4, 4) camera to a frame of the support plane: z its normal (toward the camera), x the camera's
-    x projected on it, origin the foot of the camera centre."""
-    n = np.asarray(plane[:3], np.float64)
-    n = n / np.linalg.norm(n)
-    x = np.array([1.0, 0.0, 0.0]) - n[0] * n
-    if np.linalg.norm(x) < 1e-6:
-        x = np.array([0.0, 1.0, 0.0]) - n[1] * n
-    x /= np.linalg.norm(x)
-    R = np.stack([x, np.cross(n, x), n])
-    o = -float(plane[3]) * n
-    G = np.eye(4)
-    G[:3, :3], G[:3, 3] = R, -R @ o
-    return G
-
-
-def albedo_image(index: np.ndarray, shape: tuple[int, int], ground: np.ndarray, log_alb: np.ndarray) -> np.ndarray:
-    """(H, W) relative log IR albedo of the support's pixels (NaN elsewhere), median-filtered 3 x 3
-    over them (the speckle of a grazing, far support)."""
-    H, W = shape
-    g = ground & np.isfinite(log_alb)
-    img = np.full(H * W, np.nan)
-    img[index[g]] = log_alb[g]
-    img = img.reshape(H, W)
-    pad = np.pad(img, 1, mode="edge")
-    stack = np.sort(np.stack([pad[a:a + H, b:b + W] for a in range(3) for b in range(3)]), axis=0)  # NaN last
-    cnt = np.isfinite(stack).sum(0)
-    lo = np.take_along_axis(stack, np.maximum((cnt - 1) // 2, 0)[None], 0)[0]
-    hi = np.take_along_axis(stack, np.maximum(cnt // 2, 0)[None], 0)[0]
-    med = (lo + hi) / 2
-    med[~np.isfinite(img)] = np.nan
-    return med
-
-
-def dot_moments(ray: np.ndarray, nrm: np.ndarray, d: float, G: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A dot's centre (2,) and second moments (2, 2) on the plane ``nrm . p + d = 0`` [m], in its frame
-    ``G`` (:func:`plane_frame`): its pixels' rays ``ray`` (M, 3) cut with the plane, each pixel weighing
-    its footprint there (far pixels cover more: ``Z^3 / (n . ray)``)."""
-    q = ray * (-d / (ray @ nrm))[:, None]  # the rays cut with the plane
-    xy = q @ G[:2, :3].T + G[:2, 3]
-    w = q[:, 2] ** 2 / np.abs(ray @ nrm) * q[:, 2]
-    w = w / w.sum()
-    c = w @ xy
-    return c, (xy - c).T @ ((xy - c) * w[:, None])
-
-
-def seen_dots(alb: np.ndarray, rays: np.ndarray, plane: np.ndarray, contrast: float, min_pixels: int = 6,
-              max_elongation: float = 1.4, paper_window: int = 31, with_rays: bool = False) -> tuple:
-    """The printed dots one view sees on its support (module docstring, step 2).
-
-    Parameters
-    ----------
-    alb : (H, W) relative log IR albedo of the support's pixels, NaN elsewhere (:func:`albedo_image`)
-    rays : (H, W, 2) each pixel's normalised ray (x, y): the point is ``Z (x, y, 1)``
-    plane : (4,) support plane (unit normal toward the camera, ``n . p + d = 0``) [m], camera frame
-    contrast : ``ln(paper / toner)`` of the mat's albedos; a pixel darker than the paper around it
-        (the brightest within ``paper_window`` px) by more than half of it is toner
-    min_pixels, max_elongation : a dot covers at least this many pixels, and its second moments in the
-        plane differ by at most this ratio of axes (dots printed over each other are left out)
-
-    with_rays : also return each dot's pixels' rays
-
-    Returns
-    -------
-    centres : (K, 2) in :func:`plane_frame`'s x, y [m]; radii : (K,) [m]; with ``with_rays``, then
-    per dot (M, 3) its pixels' rays ``(x, y, 1)``
-    """
-    H, W = alb.shape
-    known = np.isfinite(alb)
-    empty = (np.zeros((0, 2)), np.zeros(0)) + (([],) if with_rays else ())
-    if known.sum() < 100:
-        return empty
-    paper = ndimage.maximum_filter(np.where(known, alb, -np.inf), size=paper_window, mode="nearest")
-    dark = known & (alb < paper - contrast / 2)
-    bright = known & ~dark
-    lab, n = ndimage.label(dark)
-    if n == 0:
-        return empty
-    nrm = np.asarray(plane[:3], np.float64)
-    G = plane_frame(plane)
-    centres, radii, kept = [], [], []
-    for k, sl in enumerate(ndimage.find_objects(lab), start=1):
-        if sl is None:
-            continue
-        r0, r1 = max(sl[0].start - 1, 0), min(sl[0].stop + 1, H)
-        c0, c1 = max(sl[1].start - 1, 0), min(sl[1].stop + 1, W)
-        if r0 == 0 or c0 == 0 or r1 == H or c1 == W:
-            continue  # touches the image's border: not wholly seen
-        blob = ndimage.binary_fill_holes(lab[r0:r1, c0:c1] == k)  # pixels without depth inside a dark dot
-        if blob.sum() < min_pixels:
-            continue
-        rim = ndimage.binary_dilation(blob) & ~blob
-        if not bright[r0:r1, c0:c1][rim].all():
-            continue  # not wholly on paper: the object, a hole or the sheet's edge next to it
-        rr, cc = np.nonzero(blob)
-        ray = np.column_stack([rays[rr + r0, cc + c0], np.ones(len(rr))])
-        c, cov = dot_moments(ray, nrm, float(plane[3]), G)
-        lam = np.linalg.eigvalsh(cov)
-        if lam[0] <= 0 or np.sqrt(lam[1] / lam[0]) > max_elongation:
-            continue
-        centres.append(c)
-        radii.append(np.sqrt(2.0 * lam.sum()))
-        kept.append(ray)
-    return (np.array(centres).reshape(-1, 2), np.array(radii)) + ((kept,) if with_rays else ())
 
 
 def _rigid_2d(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -305,7 +198,8 @@ def match_dots(seen_c: np.ndarray, seen_r: np.ndarray, mat: DotMat, match_mm: fl
 
 def locate_on_mat(alb: np.ndarray, rays: np.ndarray, plane: np.ndarray | None, mat: DotMat, min_matched: int = 6,
                   match_mm: float = 4.0, min_share: float = 0.5) -> MatFix:
-    """One view's camera pose on the mat (module docstring); ``alb``, ``rays``, ``plane`` as :func:`seen_dots`.
+    """One view's camera pose on the mat (module docstring); ``alb``, ``rays``, ``plane`` as
+    :func:`~tofmetry.reconstruct._mat_dots.seen_dots`.
 
     A view is placed when at least ``min_matched`` of the dots it sees, and at least ``min_share`` of
     them, match the layout. Measured: a view of 41 dots of another mat's layout matched 6 by chance

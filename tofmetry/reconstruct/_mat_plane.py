@@ -28,7 +28,8 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from tofmetry._shared.dot_mat import DotMat
-from tofmetry.reconstruct._mat_locate import MatFix, contrast, dot_moments, guided_match, plane_frame, seen_dots
+from tofmetry.reconstruct._mat_dots import dot_moments, plane_frame, seen_dots
+from tofmetry.reconstruct._mat_locate import MatFix, contrast, guided_match
 
 
 #: relative 1-sigma added to a dot plane's distance: the pixels a dot's rim cuts bias its centre,
@@ -49,7 +50,7 @@ class DotPlane:
     inverse_depth_cov : (3, 3) their covariance [1/m^2]
     n_dots : matched dots that entered the fit; rms_mm : their residual RMS [mm]
     tilt : (2,) the plane's turn from the depth's support plane about the x and y axes of that
-        plane's :func:`~tofmetry.reconstruct._mat_locate.plane_frame` [rad]; tilt_cov : (2, 2) its
+        plane's :func:`~tofmetry.reconstruct._mat_dots.plane_frame` [rad]; tilt_cov : (2, 2) its
         covariance from the fit [rad^2]
     """
 
@@ -71,8 +72,8 @@ class DotPlane:
 
 def dot_centres(dot_rays: list[np.ndarray], plane: np.ndarray) -> np.ndarray:
     """The centres (K, 2) of dots on ``plane`` (4,), from each dot's pixels' rays (M, 3), in
-    :func:`~tofmetry.reconstruct._mat_locate.plane_frame`'s x, y [m], as
-    :func:`~tofmetry.reconstruct._mat_locate.seen_dots` computes them (:func:`~tofmetry.reconstruct._mat_locate.dot_moments`)."""
+    :func:`~tofmetry.reconstruct._mat_dots.plane_frame`'s x, y [m], as
+    :func:`~tofmetry.reconstruct._mat_dots.seen_dots` computes them (:func:`~tofmetry.reconstruct._mat_dots.dot_moments`)."""
     n, G = np.asarray(plane[:3], np.float64), plane_frame(plane)
     return np.array([dot_moments(r, n, float(plane[3]), G)[0] for r in dot_rays]).reshape(-1, 2)
 
@@ -91,7 +92,8 @@ def plane_from_dots(dot_rays: list[np.ndarray], printed_xy: np.ndarray, plane0: 
 
     Parameters
     ----------
-    dot_rays : per matched dot, (M, 3) its pixels' rays ``(x, y, 1)``
+    dot_rays : per matched dot, (M, 3) its pixels' rays ``(x, y, 1)``, or (M, 4) with their weights
+        (:func:`~tofmetry.reconstruct._mat_dots.dot_moments`)
     printed_xy : (K, 2) their printed centres on the sheet [m]
     plane0 : (4,) the start, the depth's support plane (unit normal toward the camera) [m]
     R, t : (2, 2), (2,) the in-plane motion ``sheet = R c + t`` of the centres cut on ``plane0``
@@ -144,8 +146,8 @@ def plane_from_dots(dot_rays: list[np.ndarray], printed_xy: np.ndarray, plane0: 
 def matched_dots(alb: np.ndarray, rays: np.ndarray, plane: np.ndarray, fix: MatFix, mat: DotMat,
                  min_dots: int = 8) -> tuple | None:
     """The dots one placed view sees (``alb``, ``rays``, ``plane`` as
-    :func:`~tofmetry.reconstruct._mat_locate.seen_dots`), matched to the layout near where its
-    placement ``fix`` puts them: (per dot its pixels' rays (M, 3), radii (K,) [m], R (2, 2), t (2,),
+    :func:`~tofmetry.reconstruct._mat_dots.seen_dots`), matched to the layout near where its
+    placement ``fix`` puts them: (per dot its pixels' rays and weights (M, 4), radii (K,) [m], R (2, 2), t (2,),
     matched (K,), -1: none), or None when fewer than ``min_dots`` are seen or match."""
     if not fix.located:
         return None

@@ -20,8 +20,8 @@ from tofmetry._shared.geometry import displacement_at, rotation_angle_deg
 from tofmetry._shared.dot_mat import DotMat
 from tofmetry.reconstruct._config import RegistrationConfig
 from tofmetry.reconstruct._mat_dense import locate_by_pattern
-from tofmetry.reconstruct._mat_locate import (MatFix, albedo_image, locate_on_mat, plane_frame, pooled_dot_noise,
-                                              with_pooled_noise)
+from tofmetry.reconstruct._mat_dots import albedo_image, plane_frame
+from tofmetry.reconstruct._mat_locate import MatFix, locate_on_mat, pooled_dot_noise, with_pooled_noise
 from tofmetry.reconstruct._adjust_field import DepthFieldPrior
 from tofmetry.reconstruct._mat_plane import matched_dots, view_dot_plane
 from tofmetry.reconstruct._mat_tilt import (combined_tilt, depth_plane_tilt_cov, largest_sigma, retilted_fix,

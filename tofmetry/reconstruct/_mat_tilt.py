@@ -27,7 +27,8 @@ import numpy as np
 
 from tofmetry._shared.dot_mat import DotMat
 from tofmetry.reconstruct._adjust_field import DepthFieldPrior
-from tofmetry.reconstruct._mat_locate import MatFix, fix_from_matches, guided_match, plane_frame
+from tofmetry.reconstruct._mat_dots import plane_frame
+from tofmetry.reconstruct._mat_locate import MatFix, fix_from_matches, guided_match
 from tofmetry.reconstruct._mat_plane import DotPlane, dot_centres, tilted_normal
 from tofmetry.reconstruct._preprocess import correct_views
 
@@ -117,7 +118,8 @@ def retilted_fix(fix: MatFix, plane: np.ndarray, dot_rays: list[np.ndarray], rad
     Parameters
     ----------
     fix : the view's placement on ``plane``; plane : (4,) the depth's support plane [m], camera frame
-    dot_rays : per dot seen, (M, 3) its pixels' rays; radii : (K,) their radii on ``plane`` [m]
+    dot_rays : per dot seen, (M, 3) its pixels' rays, or (M, 4) with their weights
+        (:func:`~tofmetry.reconstruct._mat_dots.dot_moments`); radii : (K,) their radii on ``plane`` [m]
     tilt, tilt_cov : the turn [rad] and its covariance [rad^2] (:attr:`DotPlane.tilt` convention)
     mat : the mat's layout
 
@@ -128,7 +130,7 @@ def retilted_fix(fix: MatFix, plane: np.ndarray, dot_rays: list[np.ndarray], rad
     """
     sigma = float(np.degrees(largest_sigma(tilt_cov)))
     n0 = np.asarray(plane[:3], np.float64)
-    cut = np.concatenate([r * (-float(plane[3]) / (r @ n0))[:, None] for r in dot_rays])
+    cut = np.concatenate([r[:, :3] * (-float(plane[3]) / (r[:, :3] @ n0))[:, None] for r in dot_rays])
     n1 = tilted_normal(n0, float(tilt[0]), float(tilt[1]))
     turned = np.r_[n1, -float(n1 @ cut.mean(0))]
     c = dot_centres(dot_rays, turned)
