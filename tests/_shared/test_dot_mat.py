@@ -45,3 +45,14 @@ def test_the_mask_is_the_image():
     on, dot = dot_mask(m, x, y, pixel_m=px)
     assert on.all()
     assert (dot == (img[i, j] == 0)).mean() > 0.98  # cells on a dot's rim may fall either way
+
+
+def test_overlapping_dots_are_those_whose_discs_meet():
+    """Against every pair by brute force, on the default layout (a third of the sheet covered at
+    random: most dots touch another) and on a sparse one."""
+    for mat in (DotMat(seed=4), DotMat(seed=9, cover=0.05)):
+        c, r = mat.dots()
+        gap = np.linalg.norm(c[:, None] - c[None], axis=2) - r[:, None] - r[None]
+        np.fill_diagonal(gap, np.inf)
+        np.testing.assert_array_equal(mat.overlapping(), (gap < 0).any(1))
+    assert 0 < DotMat(seed=9, cover=0.05).overlapping().mean() < DotMat(seed=4).overlapping().mean()

@@ -21,6 +21,7 @@ from dataclasses import asdict, dataclass
 from functools import lru_cache
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from tofmetry.errors import InputError
 
@@ -86,6 +87,17 @@ class DotMat:
         k = max(1, int(round(self.cover * w * h / mean_area)))
         c = rng.uniform([-w / 2, -h / 2], [w / 2, h / 2], size=(k, 2))
         return c, rng.uniform(r0, r1, size=k)
+
+    def overlapping(self) -> np.ndarray:
+        """(K,) bool, the printed dots (:meth:`dots`) whose disc meets another's: printed over each
+        other they read as one blob whose centre lies between theirs, 2.9 mm RMS from either on the
+        family's scans, where the dots printed apart read 0.3-0.8 mm."""
+        c, r = self.dots()
+        out = np.zeros(len(c), bool)
+        i, j = cKDTree(c).query_pairs(2.0 * float(np.max(r)), output_type="ndarray").T
+        meet = np.linalg.norm(c[i] - c[j], axis=1) < r[i] + r[j]
+        out[i[meet]] = out[j[meet]] = True
+        return out
 
 
 def _sheet_coords(mat: DotMat, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -9,12 +9,14 @@ camera); the dot's centre and radius are the centroid and second moments of thos
 With ``sub_pixel`` (:func:`seen_dots`; off by default) the centre weighs each pixel of the blob grown
 by one by the share of it the toner covers (:func:`toner_share`). On noise-free grazing views of one
 dot it is 0.07-0.14 mm RMS off the printed centre where the blob's centroid is 0.56-1.17 mm
-(``tests/reconstruct/test_mat_locate.py``). On the virtual sensor's scans it is not: on a plaque's
-239 dots at 0.83 m, 0.91 mm against 1.01 mm along the view and 0.73 against 0.81 mm across, and
-over 40 family draws (session 50's development draw 95 and held-out draw 100) the placements'
-rotation came out better on 28 of 40 but their displacement at the object worse on 25 of 40, and
-the models neither better nor worse. What else moves the simulator's dots by a millimetre is not
-known yet, so the blob's centroid stays the default.
+(``tests/reconstruct/test_mat_locate.py``). On the virtual sensor's scans (a plaque's 239 dots at
+0.83 m, session 50), of the dots printed apart from the others, 0.31-0.60 mm against 0.68-0.78 mm.
+But the placements it gives sit farther out along the view: on four development draws, with the
+overlapping dots left out (:meth:`~tofmetry._shared.dot_mat.DotMat.overlapping`), the dots'
+residual RMS fell from 0.72-1.22 to 0.48-0.82 mm while the views' common displacement of the object
+toward the camera grew by 0.03-0.23 mm. On 40 family draws before that rule, the placements'
+rotation was better on 28 and their displacement at the object worse on 25, the models neither
+better nor worse. Until that shift is understood the blob's centroid stays the default.
 
 Frames: pixel (u, v); camera x right, y down, z forward; the plane frame (:func:`plane_frame`) has
 z along the plane's normal toward the camera and its origin at the foot of the camera centre.

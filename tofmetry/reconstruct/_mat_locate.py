@@ -15,7 +15,10 @@ registrations, whatever the object's shape (a vase of revolution, a thin plaque,
 3. **The match**: pairs of seen dots against pairs of printed dots of the same spacing and radii;
    each pair of pairs gives a rigid motion of the plane, scored by the seen dots it brings within
    ``match_mm`` of a printed dot of their radius; the best is refitted on its matches
-   (least squares, twice).
+   (least squares, twice). A seen dot that matches a printed dot overlapping another is left out
+   of the fit (:data:`OVERLAPPING`): the two read as one blob whose centre lies between theirs
+   (2.9 mm RMS off on a plaque's scan, where the dots printed apart read 0.3-0.8 mm). On four
+   development draws leaving them out lowered the dots' residual RMS from 1.27-1.50 to 0.72-1.22 mm.
 
 The result is the camera's pose in the mat's frame (z up, origin at the sheet's centre, x along its
 width) with the dots' residuals, their count and the in-plane uncertainty they imply.
@@ -123,6 +126,17 @@ def _rigid_2d(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return R, cb - R @ ca
 
 
+#: ``matched`` of a seen dot that matches a printed dot overlapping another (:meth:`DotMat.overlapping`):
+#: seen and matched, but left out of every fit (its blob's centre lies between the two dots')
+OVERLAPPING = -2
+
+
+def _apart(matched: np.ndarray, overlapping: np.ndarray) -> np.ndarray:
+    """``matched`` (K,) with the seen dots matched to an overlapping printed dot set to :data:`OVERLAPPING`."""
+    hit = (matched >= 0) & overlapping[np.maximum(matched, 0)]
+    return np.where(hit, OVERLAPPING, matched)
+
+
 def match_dots(seen_c: np.ndarray, seen_r: np.ndarray, mat: DotMat, match_mm: float = 4.0,
                radius_mm: float = 3.0, max_pairs: int = 600) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The rigid motion of the plane that takes the seen dots onto the printed ones (module docstring, step 3).
@@ -136,7 +150,8 @@ def match_dots(seen_c: np.ndarray, seen_r: np.ndarray, mat: DotMat, match_mm: fl
 
     Returns
     -------
-    R : (2, 2); t : (2,) [m] (``mat = R @ seen + t``); matched : (K,) index of the printed dot, -1 where none
+    R : (2, 2); t : (2,) [m] (``mat = R @ seen + t``); matched : (K,) index of the printed dot, -1 where
+    none, :data:`OVERLAPPING` where it is one printed over another (left out of the fit)
     """
     C, Rad = mat.dots()
     K = len(seen_c)
@@ -185,14 +200,16 @@ def match_dots(seen_c: np.ndarray, seen_r: np.ndarray, mat: DotMat, match_mm: fl
     best = int(np.argmax(ok.sum(1)))
     R = rotation_2d(th[best])
     tt = t[best]
-    matched = np.where(ok[best], j[best], -1)
+    overlapping = mat.overlapping()
+    matched = _apart(np.where(ok[best], j[best], -1), overlapping)
     for _ in range(2):  # refit on the matches, match again
         m = matched >= 0
         if m.sum() < 3:
             break
         R, tt = _rigid_2d(seen_c[m], C[matched[m]])
         d, j = tree.query(seen_c @ R.T + tt, distance_upper_bound=tol)
-        matched = np.where(np.isfinite(d) & (np.abs(Rad[np.minimum(j, len(C) - 1)] - seen_r) <= rtol), j, -1)
+        matched = _apart(np.where(np.isfinite(d) & (np.abs(Rad[np.minimum(j, len(C) - 1)] - seen_r) <= rtol), j, -1),
+                         overlapping)
     return R, tt, matched
 
 
@@ -212,7 +229,7 @@ def locate_on_mat(alb: np.ndarray, rays: np.ndarray, plane: np.ndarray | None, m
                                                     f"(at least {min_matched} needed): is the mat in view?")
     R, t, matched = match_dots(c, r, mat, match_mm)
     m = matched >= 0
-    if m.sum() < max(min_matched, min_share * len(c)):
+    if m.sum() < max(min_matched, min_share * (len(c) - int(np.sum(matched == OVERLAPPING)))):
         return MatFix(False, n_dots=len(c), n_matched=int(m.sum()),
                       reason=f"{int(m.sum())} of the {len(c)} dots seen match the mat's layout (at least "
                              f"{min_matched} and {100 * min_share:.0f} % needed): another mat, or its description "
@@ -287,8 +304,10 @@ def with_pooled_noise(fix: MatFix, pooled_mm: float, prior_dof: float = 6.0) -> 
 def guided_match(c: np.ndarray, r: np.ndarray, R: np.ndarray, t: np.ndarray, mat: DotMat, match_mm: float = 6.0,
                  radius_mm: float = 4.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Seen dots ``c``, ``r`` matched near where an approximate motion (``sheet = R @ c + t``) puts
-    them, and the motion refitted on them (twice); returns (R, t, matched (K,), -1: none)."""
+    them, and the motion refitted on them (twice); returns (R, t, matched (K,), -1: none,
+    :data:`OVERLAPPING`: one printed over another, left out)."""
     C, Rad = mat.dots()
+    overlapping = mat.overlapping()
     tree = cKDTree(C)
     matched = np.full(len(c), -1)
     for _ in range(2):
@@ -297,7 +316,8 @@ def guided_match(c: np.ndarray, r: np.ndarray, R: np.ndarray, t: np.ndarray, mat
         d, j = tree.query(c @ R.T + t, distance_upper_bound=match_mm * 1e-3)
         ok = np.isfinite(d)
         ok[ok] &= np.abs(Rad[j[ok]] - r[ok]) <= radius_mm * 1e-3
-        matched = np.where(ok, j, -1)
+        matched = _apart(np.where(ok, j, -1), overlapping)
+        ok = matched >= 0
         if ok.sum() < 3:
             break
         R, t = _rigid_2d(c[ok], C[j[ok]])
