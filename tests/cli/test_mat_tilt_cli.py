@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 from typer.testing import CliRunner
 
@@ -22,8 +24,8 @@ def test_the_mat_measures_the_depth_tilt_the_walls_could_not_and_the_views_hold(
     2.8), is the depth's effective tilt where the mat lies: its x part the deformation's plane over the
     image (11.1), its y part also the range and amplitude errors along the oblique support (the
     deformation's plane alone: -7.2), which the placements need taken off as well. The mm are not
-    judged: this 5-station calibration leaves the depth 1.3 % long at the mat, which the run warns of
-    (the dots' size)."""
+    judged: this 5-station calibration leaves the depth about 1.3 % long at the mat, which the run warns
+    of (the dots' size)."""
     em = ErrorModel().with_(wiggle_amps_mm=(4.5, 0.0, 0.0), deform_tilt_mm_1m=(12.0, -8.0))
     vase = make_object("vase", seed=5, size_m=0.25, painted=False)
     mat = DotMat(seed=12, yaw_deg=35.0)
@@ -35,7 +37,11 @@ def test_the_mat_measures_the_depth_tilt_the_walls_could_not_and_the_views_hold(
     assert r.exit_code in (0, 3), r.output
     out = " ".join(r.output.split())
     assert "the dots measure the depth's tilt across the image" in out, out
-    assert "come out 1.3" in out and "larger than printed" in out  # the scale the calibration leaves, said
+    # the scale the calibration leaves, said: 1.3 % (the run's own reading before session 50; 1.42 +- 0.08 % since
+    # the dots printed over another are left out), within 3 of its sigmas
+    said = re.search(r"come out ([0-9.]+) % \+/- ([0-9.]+) % larger than printed", out)
+    assert said, out
+    assert abs(float(said[1]) - 1.3) < 3 * float(said[2]), said[0]
     doc = read_json(tmp_path / "rec" / "poses.json")
     mt = doc["diagnostics"]["mat_depth_tilt"]
     assert mt["n_views"] == 8 and mt["prior_sigma_mm"] == 10.0
