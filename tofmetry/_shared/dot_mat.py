@@ -90,8 +90,8 @@ class DotMat:
 
     def overlapping(self) -> np.ndarray:
         """(K,) bool, the printed dots (:meth:`dots`) whose disc meets another's: printed over each
-        other they read as one blob whose centre lies between theirs, 2.9 mm RMS from either on the
-        family's scans, where the dots printed apart read 0.3-0.8 mm."""
+        other they read as one blob whose centre lies between theirs: 2.9 mm RMS from either on a
+        family plaque's scan (session 50), where its dots printed apart read 0.3-0.8 mm."""
         c, r = self.dots()
         out = np.zeros(len(c), bool)
         i, j = cKDTree(c).query_pairs(2.0 * float(np.max(r)), output_type="ndarray").T

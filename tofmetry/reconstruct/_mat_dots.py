@@ -92,7 +92,7 @@ def toner_share(alb: np.ndarray, blob: np.ndarray, contrast: float, grow: int = 
     ----------
     alb : (h, w) relative log IR albedo of a window around the dot (NaN where not support)
     blob : (h, w) bool, the dot's thresholded pixels, at least ``grow + 1`` pixels from the window's border
-    contrast : ``ln(paper / toner)`` (:func:`contrast`)
+    contrast : ``ln(paper / toner)`` (:func:`~tofmetry.reconstruct._mat_locate.contrast`)
     grow : the paper's level is the median of the ring ``grow + 1`` pixels out
     """
     edge = ndimage.binary_dilation(blob)

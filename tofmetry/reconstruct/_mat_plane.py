@@ -73,7 +73,8 @@ class DotPlane:
 def dot_centres(dot_rays: list[np.ndarray], plane: np.ndarray) -> np.ndarray:
     """The centres (K, 2) of dots on ``plane`` (4,), from each dot's pixels' rays (M, 3), in
     :func:`~tofmetry.reconstruct._mat_dots.plane_frame`'s x, y [m], as
-    :func:`~tofmetry.reconstruct._mat_dots.seen_dots` computes them (:func:`~tofmetry.reconstruct._mat_dots.dot_moments`)."""
+    :func:`~tofmetry.reconstruct._mat_dots.seen_dots` computes them
+    (:func:`~tofmetry.reconstruct._mat_dots.dot_moments`)."""
     n, G = np.asarray(plane[:3], np.float64), plane_frame(plane)
     return np.array([dot_moments(r, n, float(plane[3]), G)[0] for r in dot_rays]).reshape(-1, 2)
 
