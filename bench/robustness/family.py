@@ -291,7 +291,7 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
     views turned about the vertical through the object by N(0, jitter) [deg] each, as a manual
     turntable's steps are off); ``mat``: the object stands on a printed dot mat (:func:`draw_mat`);
     returns one JSON-able row."""
-    from tofmetry.evaluate import evaluate_model, pose_errors, scale_from_reference
+    from tofmetry.evaluate import evaluate_model, pose_errors
     from tofmetry.io import read_json
     from tofmetry.io.mesh import Geometry
     from tofmetry.pipelines.reconstruct import reconstruct_scan
@@ -381,14 +381,23 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
     try:
         ev = evaluate_model(model, ref, judging_config(), poses=doc)
         st = ev.stats_trimmed
-        sc = scale_from_reference(ev.points, ref)
+        # the model's scale and surface offset against the reference, as `tofmetry evaluate` reports them
+        # (evaluate.model_scale); the size error is the scale with no offset, defined on every shape (a pebble, a
+        # box: where the two cannot be told apart, scale_error_pct is NaN); a uniform offset o reads in it as o / R
+        sc = ev.scale if ev.scale and "error" not in ev.scale else {}
+
+        def r4(key, nd=4):
+            v = sc.get(key)
+            return float("nan") if v is None else round(v, nd)
+
         row.update(mean_mm=round(st.mean_abs_mm, 3), std_mm=round(st.std_signed_mm, 3),
                    p95_mm=round(st.percentiles_abs_mm["p95"], 3), max_mm=round(st.max_abs_mm, 3),
                    completeness=round(ev.completeness["5"]["completeness"], 4),
                    completeness_observed=round((ev.completeness_observed or {}).get("5", {}).get("completeness",
                                                                                             float("nan")), 4),
-                   scale_error_pct=round(100 * sc["scale_error"], 4), scale_sigma_pct=round(100 * sc["sigma"], 4),
-                   offset_mm=round(sc["offset_mm"], 3), mean_signed_mm=round(st.mean_signed_mm, 3))
+                   scale_error_pct=r4("scale_error_pct"), scale_sigma_pct=r4("sigma_pct"),
+                   offset_mm=r4("offset_mm", 3), mean_signed_mm=round(st.mean_signed_mm, 3),
+                   size_error_pct=r4("size_error_pct"))
     except Exception as exc:  # noqa: BLE001
         row["eval_error"] = f"{type(exc).__name__}: {exc}"[:400]
     row.update(plan_check(d, row.get("completeness")))
@@ -479,7 +488,8 @@ def summarize(rows: list[dict]) -> dict:
     for tag, group in (("reliable", rel), ("all", ok)):
         out[tag] = {k: _dist(group, k, k == "completeness" or k == "completeness_observed")
                     for k in ("rot_deg", "object_mm", "camera_mm", "mean_mm", "mean_signed_mm", "std_mm", "p95_mm",
-                              "max_mm", "completeness", "completeness_observed", "scale_error_pct", "plan_error_pts",
+                              "max_mm", "completeness", "completeness_observed", "scale_error_pct", "size_error_pct",
+                              "plan_error_pts",
                               "reconstruct_s")}
     return out
 
@@ -597,7 +607,8 @@ def main(argv=None) -> int:
                      f"{'reliable' if r['reliable'] else 'UNRELIABLE'} rot {r['rot_deg']:.3f} deg obj {r['object_mm']:.2f} "
                      f"mm cam {r['camera_mm']:.2f} mm; mean {r.get('mean_mm', float('nan')):.2f} p95 "
                      f"{r.get('p95_mm', float('nan')):.2f} max {r.get('max_mm', float('nan')):.2f} compl "
-                     f"{r.get('completeness', float('nan')):.3f} (plan {r.get('plan_completeness', float('nan')):.3f}) scale {r.get('scale_error_pct', float('nan')):+.3f} %; "
+                     f"{r.get('completeness', float('nan')):.3f} (plan {r.get('plan_completeness', float('nan')):.3f}) scale {r.get('scale_error_pct', float('nan')):+.3f} % "
+                     f"(size {r.get('size_error_pct', float('nan')):+.3f} %); "
                      f"gain {(r.get('adjustment') or {}).get('depth_gain', float('nan')) * 100:+.3f} %; {r['reconstruct_s']:.0f} s" + ("" if r["reliable"] else f"; {'; '.join(r['reasons'])[:300]}")),
                   flush=True)
     finally:

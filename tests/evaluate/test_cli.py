@@ -36,6 +36,10 @@ def test_cli_evaluate_writes_outputs(files):
     assert m["stats"]["mean_abs_mm"] < 0.6  # 0.5 mm offset; ICP may take up to ~0.1 mm of it
     for f in ("histogram.png", "deviation_render.png", "deviation.ply"):
         assert (files / "ev" / f).is_file()
+    # the model is the reference pushed 0.5 mm outward, at its own scale
+    sc = m["scale"]
+    assert sc["separable"] and abs(sc["scale_error_pct"]) < 0.03 and abs(sc["offset_mm"] - 0.5) < 0.05, sc
+    assert "scale against the reference: " in " ".join(r.output.split())
 
 
 def test_cli_evaluate_reference_in_mm(files):
@@ -62,3 +66,17 @@ def test_cli_evaluate_never_replaces_without_force(files):
     r = CliRunner().invoke(app, args + ["--force"])
     assert r.exit_code == 0, r.output
     assert "stats" in json.loads((out / "metrics.json").read_text())
+
+
+def test_the_reconstructions_predicted_scale_sits_beside_the_measured_one():
+    from tofmetry.pipelines.evaluate import predicted_scale
+
+    doc = {"scale": {"predicted_scale_sigma_pct": 0.1}}
+    assert predicted_scale({"scale_error_pct": -0.15}, doc) == {"predicted_sigma_pct": 0.1,
+                                                               "within_2_predicted_sigma": True}
+    assert predicted_scale({"scale_error_pct": 0.25}, doc)["within_2_predicted_sigma"] is False
+    # a shape that cannot tell the scale from an offset, and a reconstruction that predicted nothing
+    assert predicted_scale({"scale_error_pct": None}, doc)["within_2_predicted_sigma"] is None
+    assert predicted_scale({"scale_error_pct": 0.1}, {"scale": None}) == {"predicted_sigma_pct": None,
+                                                                         "within_2_predicted_sigma": None}
+

@@ -86,3 +86,29 @@ def test_scale_and_offset_are_told_apart():
     assert abs(r["scale_error"] - 0.003) < 2e-4, r
     assert abs(r["offset_mm"] - 0.4) < 0.05, r
     assert r["sigma"] < 1e-3 and r["n"] > 1000
+
+
+def _sphere(radius_m=0.1, n=20000, seed=3):
+    import open3d as o3d
+
+    mesh = o3d.geometry.TriangleMesh.create_sphere(radius=radius_m, resolution=60)
+    ref = Geometry(np.asarray(mesh.vertices), np.asarray(mesh.triangles), source="sphere")
+    d = np.random.default_rng(seed).normal(size=(n, 3))
+    return ref, radius_m * d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def test_on_a_sphere_scale_and_offset_are_not_separable_but_the_size_is_measured():
+    """A sphere scaled by 1.002 and pushed 0.3 mm outward: the scale and the offset cannot be told
+    apart (NaN with a note), and the size error with no offset is their sum, 0.2 % + 0.3 mm / R."""
+    R = 0.1
+    ref, s = _sphere(R)
+    # the points lie on the true sphere; the facetted mesh lies inside it by up to R (1 - cos(pi / 60)) ~ 0.14 mm
+    # on the faces' centres, so the reference's own size is measured first, with the same fit
+    base = scale_from_reference(s, ref, offset=False)["scale_error"]
+    m = s * 1.002 + 0.0003 * s / R
+    both = scale_from_reference(m, ref)
+    assert np.isnan(both["scale_error"]) and "not separable" in both["note"], both
+    size = scale_from_reference(m, ref, offset=False)
+    expected = (1 + base) * (1.002 + 0.0003 / R) - 1
+    assert abs(size["scale_error"] - expected) < 2e-5, (size, expected)
+    assert size["offset_mm"] == 0.0 and size["sigma"] < 1e-4

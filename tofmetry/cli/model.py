@@ -37,7 +37,8 @@ def reconstruct(
     onto_views: bool = typer.Option(
         False, "--onto-views", help="Move the fused surface onto the views' own points (each vertex along its normal "
         "to the median of the points within 2 voxels of it): tighter surfaces, and thin rims without the fattening "
-        "of the TSDF's truncation band; the scale then follows what the depth itself reads (README, 'Session 43')."),
+        "of the TSDF's truncation band; the scale then follows what the depth itself reads "
+        "(docs/history/object-models.md, 'Session 43')."),
     max_mm: float = typer.Option(2500.0, help="Farthest depth kept [mm]."),
     global_adjust: bool = typer.Option(True, "--global-adjust/--no-global-adjust",
                                        help="Refine all poses jointly after the pose graph (multi-view ICP)."),
@@ -433,6 +434,7 @@ def evaluate(
     if res.completeness_observed is not None and res.completeness_observed.get("5"):
         console.print(f"observed-surface completeness at 5 mm {res.completeness_observed['5']['completeness']:.1%} "
                       f"({res.observed['observed_share']:.1%} of the reference surface seen by a registered camera)")
+    _print_scale(res.scale)
     if res.alignment is not None:
         a = res.alignment
         console.print(f"alignment: fitness {a.fitness:.3f}, inlier RMSE {a.inlier_rmse_mm:.2f} mm, mean misfit "
@@ -445,6 +447,16 @@ def evaluate(
     if run.plan is not None:
         console.print(f"plan: {run.plan['summary']}")
     console.print(f"wrote {output}")
+
+
+def _print_scale(sc: dict | None) -> None:
+    """One line: the model's scale against the reference (evaluate's ``scale``), or why there is none."""
+    from tofmetry.pipelines.evaluate import scale_summary
+
+    if sc:
+        line = scale_summary(sc)
+        warn = "error" in sc or sc.get("within_2_predicted_sigma") is False
+        console.print(f"[yellow]{line}[/yellow]" if warn else line)
 
 
 def plan(

@@ -25,7 +25,7 @@ from tofmetry.evaluate._evaluate import (
 )
 from tofmetry.evaluate._figures import deviation_colors, histogram_figure, render_figure
 from tofmetry.evaluate._output import write_evaluation
-from tofmetry.evaluate._poses import PoseErrors, pose_errors, scale_from_reference
+from tofmetry.evaluate._poses import PoseErrors, model_scale, pose_errors, scale_from_reference
 from tofmetry.evaluate._stats import (
     DeviationStats,
     check_units,
@@ -58,6 +58,7 @@ __all__ = [
     "render_figure",
     "sample_mesh",
     "scale_from_reference",
+    "model_scale",
     "sharp_edge_samples",
     "view_cosines",
     "write_evaluation",

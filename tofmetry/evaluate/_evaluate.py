@@ -21,6 +21,7 @@ from tofmetry.evaluate._distance import (
     sample_mesh,
     sharp_edge_samples,
 )
+from tofmetry.evaluate._poses import model_scale
 from tofmetry.evaluate._stats import (
     DeviationStats,
     check_units,
@@ -65,6 +66,8 @@ class EvaluationConfig(BaseModel):
                                               "incidence below this [deg] (the reconstruction drops grazing pixels at 80)")
     observed_occlusion_tol_mm: float = Field(3.0, ge=0, description="a reference sample is occluded for a camera when "
                                              "the reference mesh is hit more than this before it along the ray [mm]")
+    measure_scale: bool = Field(True, description="against a mesh reference, also fit the model's scale and surface "
+                                "offset (evaluate._poses.model_scale); off: the result's scale is None")
     seed: int = 0
 
 
@@ -83,6 +86,8 @@ class EvaluationResult:
         camera of the reconstruction (None without poses)
     observed : diagnostics of the visibility test (share seen, cameras, rule) or None
     alignment : AlignmentResult or None
+    scale : the model's scale and surface offset against a mesh reference
+        (:func:`~tofmetry.evaluate.model_scale`), None against a cloud or with ``measure_scale`` off
     """
 
     points: np.ndarray
@@ -97,6 +102,7 @@ class EvaluationResult:
     info: dict = field(default_factory=dict)
     completeness_observed: dict | None = None
     observed: dict | None = None
+    scale: dict | None = None
 
     def to_dict(self) -> dict:
         c = self.config
@@ -116,6 +122,7 @@ class EvaluationResult:
             "completeness_excluded": {"normal": c.exclude_normal, "angle_deg": c.exclude_angle_deg},
             "completeness_observed": self.completeness_observed,
             "observed_surface": self.observed,
+            "scale": self.scale,
             "alignment": None if self.alignment is None else self.alignment.to_dict(),
             "color_scale": {"map": "RdBu_r (diverging)", "min_mm": -c.color_scale_mm, "max_mm": c.color_scale_mm,
                             "saturating": True},
@@ -246,5 +253,6 @@ def evaluate_model(model: Geometry, reference: Geometry, config: EvaluationConfi
                             "carried into the reference frame by the alignment (no truth used)"}
     info = {"alignment_prior": prior, "n_model_samples": len(mod_pts), "n_reference_samples": len(ref_q),
             "model": model.source, "reference": reference.source}
+    scale = model_scale(mod_pts, reference) if reference.is_mesh and cfg.measure_scale else None
     return EvaluationResult(mod_pts, cp.distance, on_edge, stats_all, stats_trim, comp, alignment, comparison, cfg, info,
-                            comp_obs, obs_info)
+                            comp_obs, obs_info, scale)

@@ -40,6 +40,42 @@ def read_transform(path: str | os.PathLike) -> np.ndarray:
     return T
 
 
+def predicted_scale(scale: dict, poses_doc: dict) -> dict:
+    """The reconstruction's predicted scale uncertainty (``poses.json`` -> ``scale``) beside the scale
+    measured against the reference (:func:`tofmetry.evaluate.model_scale`).
+
+    Returns
+    -------
+    dict: ``predicted_sigma_pct`` (1 sigma, None when the reconstruction gave none) and
+    ``within_2_predicted_sigma`` (the measured scale error within twice it; None when either is
+    missing or the shape cannot tell the scale from a surface offset)
+    """
+    pred = (poses_doc.get("scale") or {}).get("predicted_scale_sigma_pct") if isinstance(poses_doc, dict) else None
+    pred = float(pred) if isinstance(pred, (int, float)) and np.isfinite(pred) and pred > 0 else None
+    measured = scale.get("scale_error_pct")
+    within = None if pred is None or measured is None else bool(abs(measured) <= 2 * pred)
+    return {"predicted_sigma_pct": pred, "within_2_predicted_sigma": within}
+
+
+def scale_summary(scale: dict) -> str:
+    """One sentence on the model's scale against the reference (:func:`tofmetry.evaluate.model_scale`,
+    with :func:`predicted_scale` where the reconstruction's poses.json was given)."""
+    if "error" in scale:
+        return f"scale against the reference: not measured ({scale['error']})"
+    if scale["separable"]:
+        line = (f"scale against the reference: {scale['scale_error_pct']:+.3f} +- {scale['sigma_pct']:.3f} % "
+                f"(surface offset {scale['offset_mm']:+.2f} +- {scale['offset_sigma_mm']:.2f} mm)")
+    else:
+        line = (f"scale against the reference: this shape cannot tell a scale from a surface offset (correlation "
+                f"{scale['correlation']:+.3f}); its size, both read as a scale: {scale['size_error_pct']:+.3f} +- "
+                f"{scale['size_sigma_pct']:.3f} %")
+    if scale.get("predicted_sigma_pct") is not None:
+        line += f"; the reconstruction predicted +-{scale['predicted_sigma_pct']:.2f} % (1 sigma)"
+        if scale.get("within_2_predicted_sigma") is False:
+            line += ": the measured scale is beyond 2 of its sigmas"
+    return line
+
+
 @dataclass
 class EvaluationRun:
     """Result of :func:`evaluate_files`: the evaluation and the files written (name -> path:
@@ -85,8 +121,11 @@ def evaluate_files(model: str | os.PathLike, reference: str | os.PathLike, outpu
     if plan is not None and not r.is_mesh:
         raise InputError(f"evaluate --plan: the reference {reference} holds no triangles; the plan needs a mesh")
     init = read_transform(init_transform) if init_transform is not None else None
-    cams = None if poses is None else CameraViews.from_document(read_json(poses, "poses"), str(poses))
+    poses_doc = None if poses is None else read_json(poses, "poses")
+    cams = None if poses is None else CameraViews.from_document(poses_doc, str(poses))
     res = evaluate_model(m, r, config or EvaluationConfig(), init=init, poses=cams)
+    if poses_doc is not None and res.scale is not None and "error" not in res.scale:
+        res.scale.update(predicted_scale(res.scale, poses_doc))
     check = None
     if plan_doc is not None:
         T = np.eye(4) if res.alignment is None else res.alignment.transform

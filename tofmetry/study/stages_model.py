@@ -9,7 +9,7 @@ import numpy as np
 from tofmetry._shared.study_constants import AMPLITUDE_BIAS_MM_PER_LN
 from tofmetry.evaluate import EvaluationConfig
 from tofmetry.pipelines import load_calibration
-from tofmetry.pipelines.evaluate import evaluate_files
+from tofmetry.pipelines.evaluate import evaluate_files, scale_summary
 from tofmetry.pipelines.amplitude_slope import MODEL_SIGMA_MM_PER_LN, AmplitudeSlope
 from tofmetry.pipelines.reconstruct import reconstruct_scan, white_map_from_wall, with_measured_amplitude_slope
 from tofmetry.reconstruct import ReconstructionConfig
@@ -142,7 +142,9 @@ def stage_model(ctx: StudyContext, out: StageOutcome) -> None:
                       "p95_mm": st["percentiles_abs_mm"]["p95"], "share_within_5mm": sw.get("5", sw.get("5.0")),
                       "completeness": ed["completeness"], "completeness_observed": ed.get("completeness_observed"),
                       "observed_surface": ed.get("observed_surface"), "stats_untrimmed": ed["stats"],
-                      "edge_trimming": ed["edge_trimming"]})
+                      "edge_trimming": ed["edge_trimming"], "scale": ed.get("scale")})
+        if ed.get("scale"):
+            out.paragraphs.append(f"{label}: {scale_summary(ed['scale'])}.")
         comp_obs = ed.get("completeness_observed") or {}
         table.append(_stats_row(f"{label}, edge-trimmed", st, ed["completeness"], comp_obs))
         table.append(_stats_row(f"{label}, all points", ed["stats"], ed["completeness"], comp_obs))
