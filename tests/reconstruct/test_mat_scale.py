@@ -104,3 +104,12 @@ def test_a_fit_the_placements_cannot_check_is_left_as_it_is():
     assert abs(h.applied) < 0.05 * abs(h.fit_scale)  # the fit's 0.01 % against placements' far larger sigma
     got, h2 = hold_scale(None, truth, fitted, covs, 1e-4, None)
     assert got is fitted and h2.note and isinstance(h2, ScaleHold)
+
+
+def test_a_placement_with_no_dots_centroid_has_a_finite_covariance_about_the_sheets_middle():
+    """A view placed by the whole pattern has sigmas but no matched dots; a NaN centre there had made
+    the whole scan's scale hold 'unknown' (every rocker arm seen by a low ring)."""
+    fix = MatFix(True, n_dots=0, n_matched=0, sigma_deg=0.3, sigma_mm=1.5, how="pattern")
+    C = placement_covariance(fix, 0.5, 0.4e-3)
+    assert np.all(np.isfinite(C))
+    np.testing.assert_allclose(np.diag(C)[3:], [1.5e-3 ** 2, 1.5e-3 ** 2, 0.4e-3 ** 2], rtol=1e-12)

@@ -180,5 +180,6 @@ def locate_by_pattern(alb: np.ndarray, rays: np.ndarray, plane: np.ndarray, foot
         return fix_from_matches(c, R, t, matched, mat, plane, "pattern+dots")
     S = np.eye(4)
     S[:2, :2], S[:2, 3] = d["R"], d["t"]
+    # its sigmas hold about the middle of the patch it correlated: the object's footprint, on the sheet
     return MatFix(True, S @ plane_frame(plane), len(c), int((matched >= 0).sum()), float("nan"), pattern_sigma[0],
-                  pattern_sigma[1], how="pattern")
+                  pattern_sigma[1], how="pattern", centre_xy=d["R"] @ np.asarray(footprint_xy, np.float64) + d["t"])
