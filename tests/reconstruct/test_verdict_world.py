@@ -10,6 +10,7 @@ from tofmetry.reconstruct._calibration_support import (
     calibration_gain_sigma,
     extrapolated_points,
     extrapolation_error_mm,
+    extrapolation_scale_sigma,
     extrapolation_warning,
     local_prediction,
 )
@@ -223,6 +224,16 @@ def test_extrapolation_error_and_warning():
     stats = {"00": {"object_points": 1000, "object_points_extrapolated": 300}, "01": {"object_points": 1000}}
     w = extrapolation_warning(stats, pred, (767.0, 4491.0))
     assert w.startswith("15 %") and "(767-4491 mm)" in w and "7.0 mm" in w
+    # the scale's 1-sigma it adds: 15 % of the points, where the correction drifts by 7 mm over one 250 mm spacing
+    xs = extrapolation_scale_sigma(stats, pred)
+    assert xs["share"] == 0.15 and xs["spacing_mm"] == 250.0 and np.isclose(xs["sigma_pct"], 100 * 0.15 * 7.0 / 250.0)
+    assert "+-0.42 % (1 sigma)" in w
+    assert extrapolation_scale_sigma({"00": {"object_points": 1000, "object_points_extrapolated": 0}}, pred) is None
+    base = scale_report({"gain_estimated": False}, {"interpolation": {"central_abs_mm": {"predicted": 0.5}}}, 1000.0)
+    more = scale_report({"gain_estimated": False}, {"interpolation": {"central_abs_mm": {"predicted": 0.5}}}, 1000.0,
+                        extrapolation=xs)
+    assert np.isclose(more["predicted_scale_sigma_pct"], np.hypot(base["predicted_scale_sigma_pct"], xs["sigma_pct"]))
+    assert "beyond the calibration's stations" in more["source"]
     assert extrapolation_warning({"00": {"object_points": 1000, "object_points_extrapolated": 50}}, pred, (767, 4491)) is None
 
 

@@ -18,7 +18,8 @@ from tofmetry.reconstruct._adjust_circle import off_axis_reason
 from tofmetry.reconstruct._adjust_result import AdjustResult
 from tofmetry.reconstruct._adjust_stage import joint_adjustment, scale_budget_of
 from tofmetry.reconstruct._calibration_support import (calibration_central_mm, depth_field_prior, extrapolated_points,
-                                                     extrapolation_warning, local_prediction)
+                                                     extrapolation_scale_sigma, extrapolation_warning,
+                                                     local_prediction)
 from tofmetry.reconstruct._colour import colour_model
 from tofmetry.reconstruct._config import ReconstructionConfig
 from tofmetry.reconstruct._model_build import (
@@ -438,7 +439,9 @@ class ReconstructionPipeline:
                                       budget_held(scale_budget_of(views, segs, poses_fit, intr, z_obj, self.white_map,
                                                                   rc.amplitude_k_sigma_mm, adj), hold),
                                       rc.amplitude_k_sigma_mm if self.white_map is not None else None,
-                                      rc.scale_floor_pct, support, object_depth_span_mm(views, segs))
+                                      rc.scale_floor_pct, support, object_depth_span_mm(views, segs),
+                                      None if self.cal is None or self.cal.support is None else
+                                      extrapolation_scale_sigma({v.name: v.stats for v in views}, pred))
                 | ({"mat_pattern": mat_scale} if self.mat is not None else {}),
                 "world": world, "slab": slab, "support_curve": support,
                 "views": {v.name: v.stats for v in views}, "fusion": fusion_info, "timings_s": self.timings,

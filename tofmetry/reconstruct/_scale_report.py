@@ -27,7 +27,7 @@ OBJECT_SUPPORT_OFFSET_MM = 0.6
 
 def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z_ref_mm: float,
                  budget=None, k_sigma_mm: float | None = None, floor_pct: float = 0.0,
-                 support: dict | None = None, depth_span_mm=None) -> dict:
+                 support: dict | None = None, depth_span_mm=None, extrapolation: dict | None = None) -> dict:
     """The model's predicted scale and surface-offset uncertainty from the depth chain.
 
     A range offset ``e`` left by the calibration moves every point along its ray: the surfaces
@@ -51,12 +51,12 @@ def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z
     :func:`~tofmetry.reconstruct._scale_budget.scale_budget`: the same errors, and the amplitude
     bias's uncertainty, propagated on the model's own geometry (poses held). The prediction is
     the larger of the two (``rule_scale_sigma_pct``, ``budget_scale_sigma_pct``): the budget sees
-    which surfaces face the cameras, which on elongated or flat parts makes the scale far more
-    sensitive than the rule says; the rule's ``g / 2`` stands for the views re-registering, which
-    the budget does not model. Neither counts the registration's own errors or the fusion's. On
-    2026-11-25's family (README), before the gain inherited ``k``'s uncertainty both undershot
-    the measured scale error (1.55 sigma at the median); with it the measured error was 0.41 sigma
-    at the median, 5 of 5 reliable runs within 1.645 sigma.
+    which surfaces face the cameras, which on elongated or flat parts makes the scale far more sensitive
+    than the rule says; the rule's ``g / 2`` stands for the views re-registering, which the budget does
+    not model. Neither counts the registration's own errors or the fusion's. On 2026-11-25's family
+    (docs/history/object-models.md), before the gain inherited ``k``'s uncertainty both undershot the
+    measured scale error (1.55 sigma at the median); with it the measured error was 0.41 sigma at the
+    median, 5 of 5 reliable runs within 1.645 sigma.
 
     Where the gain was not estimated but the joint fit estimated its range curve
     (``adjustment.range_curve``), the curve's RMS over the object's depths (:func:`curve_residual_mm`)
@@ -70,11 +70,11 @@ def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z
     before the fusion (:func:`~tofmetry.reconstruct._support_curve.correct_by_support`). Where it was
     applied, the wiggle between the calibration's stations is gone from the model and the gain left
     is (a) the curve's own uncertainty over the object's depths (``object_gain_sigma_pct``, from the
-    views' jackknife) and (b) the part of the calibration's residual in ``1, Z, Z^2`` over the
-    support's span, which a plane cannot show: ``sqrt(2) e / span`` (the residual ``e`` at both ends
-    of the span, of either sign). Measured (README, session 34): on draw 74 with two draw-73 sensors,
-    15 of 16 reliable runs with a scale within 1 sigma, all within 2 (median sigma 0.25 -> 0.18 %); on
-    held-out draw 75, 12 of 13 within 1 sigma, all within 2.
+    views' jackknife) and (b) the part of the calibration's residual in ``1, Z, Z^2`` over the support's
+    span, which a plane cannot show: ``sqrt(2) e / span`` (the residual ``e`` at both ends of the span, of
+    either sign). Measured (docs/history/object-models.md, session 34): on draw 74 with two draw-73
+    sensors, 15 of 16 reliable runs with a scale within 1 sigma, all within 2 (median sigma 0.25 ->
+    0.18 %); on held-out draw 75, 12 of 13 within 1 sigma, all within 2.
 
     ``floor_pct`` [%], the modelling chain's own scale error (registration, fusion, meshing; a
     configured figure, :attr:`RegistrationConfig.scale_floor_pct`), is added in quadrature to the
@@ -82,6 +82,10 @@ def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z
 
     ``depth_span_mm``: (lo, hi) depths Z the object's points span [mm], the lever of the gain a
     calibration can leave (:func:`~tofmetry.reconstruct._calibration_support.calibration_gain_sigma`).
+
+    ``extrapolation``: where part of the object lies beyond the calibration's stations, the scale
+    1-sigma its extrapolation adds (:func:`~tofmetry.reconstruct._calibration_support.extrapolation_scale_sigma`),
+    in quadrature (``extrapolation_scale_sigma_pct``).
 
     Returns
     -------
@@ -159,6 +163,13 @@ def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z
             out["source"] = src + ", propagated on the model's geometry" + (
                 "" if "amplitude" not in b else " with the amplitude bias's uncertainty") + (
                 "" if "sigma_poses_held" not in b else ", and the poses' own uncertainty")
+    if extrapolation and extrapolation.get("sigma_pct", 0) > 0:
+        out["extrapolation"] = extrapolation
+        out["extrapolation_scale_sigma_pct"] = float(extrapolation["sigma_pct"])
+        out["predicted_scale_sigma_pct"] = float(np.hypot(out["predicted_scale_sigma_pct"], extrapolation["sigma_pct"]))
+        out["source"] += (f"; {100 * extrapolation['share']:.0f} % of the object's points lie beyond the calibration's "
+                          f"stations, where its correction drifts by up to {extrapolation['error_mm']:.1f} mm per "
+                          f"{extrapolation['spacing_mm']:.0f} mm of depth: +-{extrapolation['sigma_pct']:.2f} %")
     if floor_pct > 0:
         out["chain_floor_pct"] = float(floor_pct)
         out["predicted_scale_sigma_pct"] = float(np.hypot(out["predicted_scale_sigma_pct"], floor_pct))
