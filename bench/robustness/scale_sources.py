@@ -42,7 +42,7 @@ the fused vertices within 0.75 object sizes of the centre, the ground ring with 
 +0.015 % (offset -0.26 mm) and +0.32 %.
 
 Earlier (2026-12-02, session 30, 5066a02: every stage on smoothed depth; the first two stages as they were
-before session 32; README), two development draws of draw 68 on the mat: a plaque (1558612541, 0.22 m, 11 hand-held views at 0.68 m) +0.28 % at the true poses
+before session 32; docs/history/object-models.md), two development draws of draw 68 on the mat: a plaque (1558612541, 0.22 m, 11 hand-held views at 0.68 m) +0.28 % at the true poses
 (points), +0.35 % fused there, +0.71 % through the chain (the poses put its faces 0.5 mm closer); an igea
 (412929893, 0.19 m, 14 views at 0.76 m) +0.46 / +0.40 / +0.53 %: its scale error is the depth chain's. Before
 the smoothing the plaque's points at the true poses read +1.14 % (the measure's response to 2-3 mm of noise per

@@ -65,7 +65,7 @@ class PreprocessConfig(BaseModel):
     denoise: bool = Field(True, description="smooth each view's depth by an edge-preserving (bilateral) filter, "
                           "its range sigma from the view's own measured noise (the frames' spread), before "
                           "everything else: registration, the joint fit and fusion work on it (a projective TSDF "
-                          "otherwise pulls noisy surfaces into the object: _preprocess.denoise_depth). Measured (README, session 30) on the 20 scans of draw 68 on the mat: model mean "
+                          "otherwise pulls noisy surfaces into the object: _preprocess.denoise_depth). Measured (docs/history/object-models.md, session 30) on the 20 scans of draw 68 on the mat: model mean "
                           "|d| median 0.33 -> 0.28 mm, p90 0.72 -> 0.47 mm, the same verdicts; through the chain on "
                           "draw 67: 5 -> 2 runs truly wrong, 1 -> 0 missed, 2 -> 5 false alarms")
     denoise_window_px: int = Field(3, ge=3, description="window diameter of that filter [px] (odd; 3: the pixel and its 4 neighbours)")
@@ -381,7 +381,7 @@ class RegistrationConfig(BaseModel):
                                     "sees over a different depth range; estimated only when the views determine it "
                                     "better than its prior. Measured on 6 fresh family draws: the pose error drops "
                                     "or stays on every run whose registration is right (0.34 -> 0.17 deg, 1.13 -> "
-                                    "0.28 deg); no verdict changed (README)")
+                                    "0.28 deg); no verdict changed (docs/history/object-models.md)")
     range_curve_degree_varied: int = Field(5, ge=0, description="the range curve's degree when the views' distances "
                                            "to the object vary by at least range_varied_min (a hand-held loop: they "
                                            "see the same surfaces at different ranges); measured from the true "
@@ -421,7 +421,8 @@ class RegistrationConfig(BaseModel):
                                                     "within this angle [deg] of a point's own enter its plane (a point "
                                                     "near an edge is projected on its own face); None: all k. 30 since "
                                                     "session 34: a thin plaque's rim planes spanned both faces and "
-                                                    "read +0.24-0.44 % of scale (draws 73-74; README)")
+                                                    "read +0.24-0.44 % of scale (draws 73-74; "
+                                                    "docs/history/object-models.md)")
     adjust_symmetric_normals: bool = Field(True, description="the global adjustment's residual along the sum of "
                                            "both points' normals (symmetric point-to-plane) instead of the target's "
                                            "normal (False). From the true poses, every error term, 12 family scans: "

@@ -93,7 +93,7 @@ def placement_covariance(fix: MatFix | None, tilt_sigma_deg: float, height_sigma
         sw = np.radians([tilt, tilt, fix.sigma_deg])
         sn = np.array([fix.sigma_mm * 1e-3, fix.sigma_mm * 1e-3, height_sigma_m])
         # about the dots' centroid; a placement that gave none, about the sheet's middle, where the object stands
-        # (a NaN there had made every hold of the scan "unknown": draws 95-102, 7 rocker arms seen by a low ring)
+        # (a NaN there had made every hold of the scan "unknown": draws 95-102, 6 rocker arms seen by a low ring)
         c = np.r_[fix.centre_xy, 0.0] if np.all(np.isfinite(fix.centre_xy)) else np.zeros(3)
     else:
         sw, sn, c = np.radians([tilt_sigma_deg] * 3), np.full(3, height_sigma_m), np.zeros(3)

@@ -5,12 +5,13 @@ the calibration gave (the verdicts, the joint fit and the mat's placements stay 
 measured); the model is built from the corrected depth, so its size no longer carries the range
 error the calibration left between its stations.
 
-Measured on family draw 74 and two draw-73 sensors whose calibrations had warned (README, session
-34): a baluster's model -1.61 -> -0.02 % (mean distance 1.39 -> 0.33 mm), a rocker arm's -0.85 ->
--0.16 %, a fandisk's -0.22 -> -0.03 %; over the 20 runs the scale's p90 0.20 -> 0.14 %, the surfaces
-within 0.02 mm of before, the poses unchanged. Applied before the registration instead (a probe), the
-placements came out closer (0.75 -> 0.68 mm at the object on a vase) but the joint fit then moved the
-vase's views 2.0 -> 5.5 mm and ended further off (0.44 -> 0.95 mm): not done there.
+Measured on family draw 74 and two draw-73 sensors whose calibrations had warned
+(docs/history/object-models.md, session 34): a baluster's model -1.61 -> -0.02 % (mean distance 1.39 ->
+0.33 mm), a rocker arm's -0.85 -> -0.16 %, a fandisk's -0.22 -> -0.03 %; over the 20 runs the scale's
+p90 0.20 -> 0.14 %, the surfaces within 0.02 mm of before, the poses unchanged. Applied before the
+registration instead (a probe), the placements came out closer (0.75 -> 0.68 mm at the object on a vase)
+but the joint fit then moved the vase's views 2.0 -> 5.5 mm and ended further off (0.44 -> 0.95 mm): not
+done there.
 """
 
 from __future__ import annotations
