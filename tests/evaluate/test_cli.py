@@ -80,3 +80,15 @@ def test_the_reconstructions_predicted_scale_sits_beside_the_measured_one():
     assert predicted_scale({"scale_error_pct": 0.1}, {"scale": None}) == {"predicted_sigma_pct": None,
                                                                          "within_2_predicted_sigma": None}
 
+
+
+def test_the_scale_sentence_says_what_was_measured():
+    from tofmetry.pipelines.evaluate import scale_summary
+
+    sep = {"separable": True, "scale_error_pct": 0.1234, "sigma_pct": 0.0004, "offset_mm": -0.25, "offset_sigma_mm": 0.03}
+    assert scale_summary(sep) == ("scale against the reference: +0.123 +- <0.001 % (surface offset -0.25 +- 0.03 mm)")
+    ball = {"separable": False, "correlation": -0.999, "size_error_pct": 0.3, "size_sigma_pct": 0.002}
+    assert "cannot tell a scale from a surface offset" in scale_summary(ball) and "+0.300 +- 0.002 %" in scale_summary(ball)
+    beyond = sep | {"predicted_sigma_pct": 0.05, "within_2_predicted_sigma": False}
+    assert scale_summary(beyond).endswith("predicted +-0.05 % (1 sigma): the measured scale is beyond 2 of its sigmas")
+    assert scale_summary({"error": "too few points"}) == "scale against the reference: not measured (too few points)"

@@ -62,13 +62,16 @@ def scale_summary(scale: dict) -> str:
     with :func:`predicted_scale` where the reconstruction's poses.json was given)."""
     if "error" in scale:
         return f"scale against the reference: not measured ({scale['error']})"
+    def pm(sigma, digits):  # a sigma below the last digit shown reads as such, not as 0
+        return f"+- {sigma:.{digits}f}" if sigma is not None and sigma >= 10 ** -digits else f"+- <{10 ** -digits:g}"
+
     if scale["separable"]:
-        line = (f"scale against the reference: {scale['scale_error_pct']:+.3f} +- {scale['sigma_pct']:.3f} % "
-                f"(surface offset {scale['offset_mm']:+.2f} +- {scale['offset_sigma_mm']:.2f} mm)")
+        line = (f"scale against the reference: {scale['scale_error_pct']:+.3f} {pm(scale['sigma_pct'], 3)} % "
+                f"(surface offset {scale['offset_mm']:+.2f} {pm(scale['offset_sigma_mm'], 2)} mm)")
     else:
         line = (f"scale against the reference: this shape cannot tell a scale from a surface offset (correlation "
-                f"{scale['correlation']:+.3f}); its size, both read as a scale: {scale['size_error_pct']:+.3f} +- "
-                f"{scale['size_sigma_pct']:.3f} %")
+                f"{scale['correlation']:+.3f}); its size, both read as a scale: {scale['size_error_pct']:+.3f} "
+                f"{pm(scale['size_sigma_pct'], 3)} %")
     if scale.get("predicted_sigma_pct") is not None:
         line += f"; the reconstruction predicted +-{scale['predicted_sigma_pct']:.2f} % (1 sigma)"
         if scale.get("within_2_predicted_sigma") is False:
