@@ -164,6 +164,30 @@ def test_plan_warns_where_the_calibration_only_extrapolates(box):
     assert calibrated_range_warning(box, 0.8, None) is None
 
 
+def test_the_default_distance_keeps_the_object_within_the_calibrations_stations(box, tmp_path):
+    """A small object's default distance (0.5 m + 1.5 x its largest side, at least 0.7 m) would put its
+    near side below a calibration whose nearest station is at 0.78 m: the plan takes the distance at
+    which it is not (to the cm above), says so, and gives no extrapolation warning; a distance asked
+    for is kept, and warned."""
+    from types import SimpleNamespace
+
+    from tofmetry.pipelines.plan import calibrated_distance_m, plan_acquisition
+
+    cal = SimpleNamespace(support=SimpleNamespace(range_mm=(780.0, 4520.0)), intrinsics=KINECT_V2.depth,
+                          prediction={"interpolation": {"central_abs_mm": {"predicted": 0.4}},
+                                      "extrapolation": [{"central_mm": -1.5, "p95_mm": 2.0}]})
+    half = 0.5 * np.linalg.norm([0.12, 0.1, 0.1])
+    d = calibrated_distance_m(proxy_from_size(0.12, 0.1, 0.1), cal)
+    assert d == pytest.approx(np.ceil((0.78 + half) * 100) / 100) and d > 0.7
+    run = plan_acquisition(size=(0.12, 0.1, 0.1), calibration=cal)
+    assert run.settings["distance_m"] == d and "raised to" in run.settings["distance_note"]
+    assert not any("extrapolated" in w for w in run.settings.get("warnings", []))
+    asked = plan_acquisition(size=(0.12, 0.1, 0.1), calibration=cal, distance_m=0.7)
+    assert asked.settings["distance_m"] == 0.7 and "distance_note" not in asked.settings
+    assert any("extrapolated" in w for w in asked.settings["warnings"])
+    assert calibrated_distance_m(proxy_from_size(0.12, 0.1, 0.1), None) is None
+
+
 def test_grazing_surface_counts_with_the_chance_that_some_view_keeps_it():
     """Two views within 70 deg suffice; one such view keeps a sample with probability 0.9; each
     view at 70-80 deg keeps it with 0.3 and each at 80-85 deg with 0.1, all independently; unseen

@@ -486,7 +486,8 @@ def plan(
                            n_frames=frames, views=views, complete_views=complete_views, output=output, force=force)
     ext = run.object.extent_m
     console.print(f"object ({run.object.source}): {ext[0]:.3f} x {ext[1]:.3f} x {ext[2]:.3f} m; views at "
-                  f"{run.settings['distance_m']:.2f} m")
+                  f"{run.settings['distance_m']:.2f} m"
+                  + (f" ({run.settings['distance_note']})" if run.settings.get("distance_note") else ""))
     t = Table(title="candidate view sets (best first)")
     for col in ("views", "n", "completeness", "range", "min overlap", "mean |d| [mm]", "p95 [mm]"):
         t.add_column(col, justify="right")

@@ -104,7 +104,8 @@ def plan_acquisition(*, size: tuple[float, float, float] | None = None, mesh: st
     first_view : a capture of the object on its support
     calibration : DepthCalibration or a calibration file (intrinsics and its predicted error) or None
     distance_m : slant distance of the views from the object centre [m]; default: the first view's,
-        else 0.5 m + 1.5 x the largest side, within 0.7-1.5 m
+        else 0.5 m + 1.5 x the largest side, within 0.7-1.5 m, and no nearer than
+        :func:`calibrated_distance_m` (the object's near side at the calibration's nearest station)
     target : completeness to reach (0-1); the views proposed (and completed) must be predicted to
         reach :func:`tofmetry.plan.aim_for` of it, higher by the prediction's p95 over-estimate
     views : a set of views to predict as well (:func:`parse_views`)
@@ -133,8 +134,14 @@ def plan_acquisition(*, size: tuple[float, float, float] | None = None, mesh: st
     else:
         obj, d0, intr = object_from_first_view(first_view, cal)
         distance_m = distance_m or d0
+    distance_note = None
     if distance_m is None:
         distance_m = float(np.clip(0.5 + 1.5 * obj.extent_m.max(), 0.7, 1.5))
+        near = calibrated_distance_m(obj, cal)
+        if near is not None and near > distance_m:  # nearer, the calibration extrapolates on the object's near side
+            distance_note = (f"{distance_m:.2f} m raised to {near:.2f} m: the object's near side at the calibration's "
+                             "nearest station")
+            distance_m = near
     cal_mm = 0.5
     if cal is not None:
         cal_mm = float(((cal.prediction or {}).get("interpolation") or {}).get("central_abs_mm", {}).get("predicted", 0.5))
@@ -152,6 +159,7 @@ def plan_acquisition(*, size: tuple[float, float, float] | None = None, mesh: st
         poses, added, pred = complete(obj, asked.poses, intr, aim, distance_m, **kw)
         completed = Proposal(f"{views} + {len(added)} planned", poses, pred, {"spec": views, "added_at": added})
     settings = {"target": target, "aimed_at": round(aim, 4), "distance_m": distance_m, "n_frames": n_frames,
+                **({"distance_note": distance_note} if distance_note else {}),
                 "calibration_mm": cal_mm,
                 "aim_rule": f"the views must be predicted to reach the target plus {PREDICTION_ERROR_PTS[1]:g} points, the "
                             "prediction's p95 over-estimate on the family (bench/robustness), so that the scan "
@@ -201,6 +209,18 @@ def yaw_free_warning(turn: dict) -> str | None:
             "reliable. Stand it on a printed dot mat (tofmetry mat; reconstruct --mat places every view on it), give the "
             "surface a pattern (paint, texture or markers: the IR albedo then fixes the turn) or scan it on a turntable "
             "and declare its step (reconstruct --turntable-step)")
+
+
+def calibrated_distance_m(obj: PlanObject, calibration) -> float | None:
+    """The nearest distance [m] of the views from the object centre at which the object's near side
+    (half its diagonal toward the camera, as :func:`calibrated_range_warning` bounds it) lies no nearer
+    than the calibration's nearest station: nearer, the correction there is extrapolated (on the
+    family's held-out draw 103 an igea of 0.2 m scanned from 0.67 m, 45 % of its points below the
+    nearest station, came out 2.6 % large). None without a calibration with a support map."""
+    if calibration is None or getattr(calibration, "support", None) is None:
+        return None
+    lo = float(calibration.support.range_mm[0])
+    return float(np.ceil((lo * 1e-3 + 0.5 * float(np.linalg.norm(obj.extent_m))) * 100.0) / 100.0)  # to the cm above
 
 
 def calibrated_range_warning(obj: PlanObject, distance_m: float, calibration) -> str | None:
