@@ -62,6 +62,7 @@ def scale_summary(scale: dict) -> str:
     with :func:`predicted_scale` where the reconstruction's poses.json was given)."""
     if "error" in scale:
         return f"scale against the reference: not measured ({scale['error']})"
+
     def pm(sigma, digits):  # a sigma below the last digit shown reads as such, not as 0
         return f"+- {sigma:.{digits}f}" if sigma is not None and sigma >= 10 ** -digits else f"+- <{10 ** -digits:g}"
 

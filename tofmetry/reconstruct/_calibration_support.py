@@ -132,6 +132,12 @@ def extrapolated_points(points: np.ndarray, calibration) -> tuple[np.ndarray | N
     return outside, np.where(outside, extrapolation_error_mm(calibration.prediction or {}) * 1e-3, 0.0)
 
 
+def _object_points(views_stats: dict) -> tuple[int, int]:
+    """(object points, of which beyond the calibration's stations) over the views' ``stats``."""
+    return (sum(st.get("object_points", 0) for st in views_stats.values()),
+            sum(st.get("object_points_extrapolated", 0) for st in views_stats.values()))
+
+
 def extrapolation_scale_sigma(views_stats: dict, calibration_prediction: dict | None) -> dict | None:
     """The model's scale 1-sigma the calibration's extrapolation adds where part of the object lies
     nearer or farther than its stations.
@@ -154,8 +160,7 @@ def extrapolation_scale_sigma(views_stats: dict, calibration_prediction: dict | 
     dict: ``share`` (f), ``error_mm`` (E), ``spacing_mm`` (s), ``sigma_pct`` (100 f E / s); None when no
     object point lies beyond the stations or the calibration has no extrapolation folds
     """
-    n = sum(st.get("object_points", 0) for st in views_stats.values())
-    out = sum(st.get("object_points_extrapolated", 0) for st in views_stats.values())
+    n, out = _object_points(views_stats)
     e = extrapolation_error_mm(calibration_prediction)
     if n == 0 or out == 0 or not e > 0:
         return None
@@ -168,8 +173,7 @@ def extrapolation_warning(views_stats: dict, calibration_prediction: dict | None
                           min_share: float = 0.1) -> str | None:
     """A warning when more than ``min_share`` of the object's points lie where the depth
     calibration only extrapolates (nearer or farther than the depths its stations span); None otherwise."""
-    n = sum(st.get("object_points", 0) for st in views_stats.values())
-    out = sum(st.get("object_points_extrapolated", 0) for st in views_stats.values())
+    n, out = _object_points(views_stats)
     if n == 0 or out <= min_share * n:
         return None
     lo, hi = support_range_mm
