@@ -396,6 +396,7 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
                    completeness_observed=round((ev.completeness_observed or {}).get("5", {}).get("completeness",
                                                                                             float("nan")), 4),
                    scale_error_pct=r4("scale_error_pct"), scale_sigma_pct=r4("sigma_pct"),
+                   scale_sigma_regions_pct=r4("sigma_regions_pct"),
                    offset_mm=r4("offset_mm", 3), mean_signed_mm=round(st.mean_signed_mm, 3),
                    size_error_pct=r4("size_error_pct"))
     except Exception as exc:  # noqa: BLE001
