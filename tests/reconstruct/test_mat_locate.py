@@ -138,14 +138,18 @@ def test_a_fit_that_slides_a_view_off_its_placement_is_named():
 
     from tofmetry.reconstruct._mat_stage import departures
 
-    start = np.stack([np.eye(4)] * 3)
+    start = np.stack([np.eye(4)] * 5)
     end = start.copy()
     end[1, :3, :3] = Rotation.from_euler("z", 0.3, degrees=True).as_matrix()  # within the gate
-    end[2, :3, :3] = Rotation.from_euler("z", 0.8, degrees=True).as_matrix()  # beyond it
-    end[0, :3, 3] = [0.0, 0.0, 0.004]  # 4 mm at the object
-    out = departures(start, end, np.array([0.0, 0.0, 0.1]), 0.5, 3.0, ["a", "b", "c"])
+    end[2, :3, :3] = Rotation.from_euler("z", 0.8, degrees=True).as_matrix()  # beyond it and the placements' p99
+    end[0, :3, 3] = [0.0, 0.0, 0.006]  # 6 mm at the object: beyond 3 mm + the placements' p99 (2.1 mm)
+    end[3, :3, 3] = [0.0, 0.0, 0.0032]  # 3.2 mm: beyond the gate, but a placement 2 mm off moved within it
+    end[4, :3, :3] = Rotation.from_euler("z", 0.6, degrees=True).as_matrix()  # likewise in rotation
+    out = departures(start, end, np.array([0.0, 0.0, 0.1]), 0.5, 3.0, ["a", "b", "c", "d", "e"])
     assert set(out) == {"a", "c"}
-    assert out["c"][0] == pytest.approx(0.8, abs=1e-3) and out["a"][1] == pytest.approx(4.0, abs=1e-3)
+    assert out["c"][0] == pytest.approx(0.8, abs=1e-3) and out["a"][1] == pytest.approx(6.0, abs=1e-3)
+    assert set(departures(start, end, np.array([0.0, 0.0, 0.1]), 0.5, 3.0, list("abcde"), margin=(0.0, 0.0))) \
+        == {"a", "c", "d", "e"}
 
 
 def test_a_fit_the_calibration_can_move_beyond_the_gate_is_named():
@@ -303,15 +307,16 @@ def test_a_view_of_many_dots_keeps_its_own_noise():
 
 
 def test_a_fit_that_moves_a_view_within_its_placements_reach_refines_it():
-    """A view placed from few dots holds only to its own sigma: the joint fit moving it 0.54 deg
-    against a placement of +/- 0.27 deg or +/- 0.14 deg is no departure; against +/- 0.05 deg it is."""
+    """A view placed from few dots holds only to its own sigma: the joint fit moving it 0.9 deg
+    against a placement of +/- 0.27 deg or +/- 0.2 deg is no departure; against +/- 0.05 deg it is
+    (0.9 deg is beyond the gate plus the placements' p99, 0.71 deg)."""
     from scipy.spatial.transform import Rotation
 
     from tofmetry.reconstruct._mat_stage import MatPlacement, departures
 
     start = np.stack([np.eye(4)] * 2)
     end = start.copy()
-    end[1, :3, :3] = Rotation.from_euler("z", 0.54, degrees=True).as_matrix()
+    end[1, :3, :3] = Rotation.from_euler("z", 0.9, degrees=True).as_matrix()
     centre = np.array([0.0, 0.0, 0.1])
     weak = MatPlacement(None, {"a": MatFix(True, sigma_deg=0.05, sigma_mm=0.2, centre_xy=np.zeros(2)),
                                "b": MatFix(True, sigma_deg=0.27, sigma_mm=0.6, centre_xy=np.array([0.2, 0.0]))}, [0, 1])
@@ -322,7 +327,7 @@ def test_a_fit_that_moves_a_view_within_its_placements_reach_refines_it():
     assert set(departures(start, end, centre, 0.5, 3.0, ["a", "b"])) == {"b"}
     strong = {"b": (0.15, 1.0)}
     assert set(departures(start, end, centre, 0.5, 3.0, ["a", "b"], strong)) == {"b"}
-    # 0.54 deg is 3.9 sigmas of a +/- 0.14 deg placement: within what placements are found off by
+    # 0.9 deg is 4.5 sigmas of a +/- 0.2 deg placement: within what placements are found off by
     # on the family (DEPARTURE_Z), so the fit refines it
-    fair = MatPlacement(None, {"b": MatFix(True, sigma_deg=0.14, sigma_mm=0.6, centre_xy=np.array([0.2, 0.0]))}, [0])
+    fair = MatPlacement(None, {"b": MatFix(True, sigma_deg=0.2, sigma_mm=0.6, centre_xy=np.array([0.2, 0.0]))}, [0])
     assert departures(start, end, centre, 0.5, 3.0, ["a", "b"], fair.allowed_moves(centre)) == {}

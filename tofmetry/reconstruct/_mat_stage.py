@@ -40,6 +40,12 @@ P90_Z = 1.645
 #: (each seed once, 160 runs, 1737 placed views, against the truth) the placements' turns about the
 #: vertical were off by RMS 1.05 of their own sigmas, p99 2.8, at most 4.5; 0.75 % beyond 3
 DEPARTURE_Z = 5.0
+#: how far the mat's placements themselves are off, at p99: the rotation [deg] and the largest
+#: displacement of the object's points [mm] (the family's stored mat runs, each seed once, 400 runs,
+#: 4211 placed views against the truth: p90 0.09 deg / 1.1 mm, p99 0.21 deg / 2.1 mm, the most
+#: 0.60 deg / 4.1 mm). A fit that moved a view by less than the gate plus this may have taken it from
+#: a placement this far off to one within the gate (:func:`departures`)
+PLACEMENT_P99 = (0.21, 2.1)
 
 
 @dataclass
@@ -310,10 +316,11 @@ def loose_reason(loose: dict, gate_deg: float, gate_mm: float, why: str) -> str:
 
 
 def departures(start: np.ndarray, end: np.ndarray, centre_m: np.ndarray, gate_deg: float, gate_mm: float,
-               names: list[str], allowed: dict | None = None) -> dict:
-    """The views the joint fit moved beyond the pose gate, and beyond what their placement allows,
-    from where the mat placed them: name -> (rotation [deg], displacement of the object centre
-    ``centre_m`` (3,) [m], world [mm]).
+               names: list[str], allowed: dict | None = None, margin: tuple = PLACEMENT_P99) -> dict:
+    """The views the joint fit moved beyond the pose gate plus how far placements are off
+    (``margin``: rotation [deg], displacement [mm]; :data:`PLACEMENT_P99`), and beyond what their
+    placement allows, from where the mat placed them: name -> (rotation [deg], displacement of the
+    object centre ``centre_m`` (3,) [m], world [mm]).
 
     ``start``, ``end``: (V, 4, 4) camera to mat frame before and after the fit; ``allowed``: name ->
     (deg, mm) the placement's own reach (:meth:`MatPlacement.allowed_moves`), None: the gate alone.
@@ -327,14 +334,23 @@ def departures(start: np.ndarray, end: np.ndarray, centre_m: np.ndarray, gate_de
     placement's sigmas, both toward the truth; counted as departures at 3 sigmas they stood at the
     placements and came out 0.60 deg / 4.1 mm and 0.38 deg / 3.6 mm off, yet reliable. At 5 sigmas
     the rocker arm 780939817 came out 0.11 deg / 0.53 mm off; the fandisk's view still departs (the
-    fit moved it 5.4 of its placement's sigmas along the sheet at the object)."""
+    fit moved it 5.4 of its placement's sigmas along the sheet at the object).
+
+    A move just beyond the gate is no evidence against the fit: the fit is surely beyond the gate
+    only if it moved the view farther than the gate plus how far the placement itself may be off.
+    Held-out draw 103 (2026-12-05) had two rocker arms whose fit moved one view by 0.17 deg / 3.1 mm
+    and 0.21 deg / 3.2 mm; counted as departures they stood at the placements, 0.44 deg / 3.44 mm
+    (truly wrong, reliable) and 0.25 deg / 2.31 mm off with scales +0.67 and +0.34 %; with the fit
+    kept, 0.16 deg / 0.47 mm and 0.34 deg / 0.98 mm, -0.11 and +0.09 % (``bench/robustness/fit_kept``).
+    The igea of that draw, whose fit moved three views by 0.78-1.23 deg / 4.8-7.9 mm, still departs
+    (kept, that fit ended 1.15 deg / 8.4 mm off)."""
     out = {}
     allowed = allowed or {}
     for n, A, B in zip(names, start, end):
         E = B @ np.linalg.inv(A)
         deg, mm = rotation_angle_deg(E), displacement_at(E, centre_m) * 1e3
         a_deg, a_mm = allowed.get(n, (0.0, 0.0))
-        if deg > max(gate_deg, a_deg) or mm > max(gate_mm, a_mm):
+        if deg > max(gate_deg + margin[0], a_deg) or mm > max(gate_mm + margin[1], a_mm):
             out[n] = (round(deg, 3), round(mm, 2))
     return out
 
@@ -373,8 +389,9 @@ def judge_placements(verdict: dict, mat: MatPlacement, unsure: tuple | None, kep
         verdict["warnings"].append(
             "the joint fit moved view(s) " + ", ".join(f"{n} by {d:.2f} deg / {m:.1f} mm" for n, (d, m) in kept.items())
             + f" at the object from where the dot mat placed them (beyond the pose gate, {gate_deg:g} deg / "
-            f"{gate_mm:g} mm): it slid along what the object's points leave free; the mat's placements are kept, "
-            "unrefined")
+            f"{gate_mm:g} mm, plus how far placements are off at p99, {PLACEMENT_P99[0]:g} deg / "
+            f"{PLACEMENT_P99[1]:g} mm): it slid along what the object's points leave free; the mat's placements "
+            "are kept, unrefined")
     loose = mat.loose_views(gate_deg, gate_mm) if unsure or kept else {}
     if loose:  # the placements stand unrefined, and the mat alone does not hold these within the gate
         verdict["reasons"].append(loose_reason(loose, gate_deg, gate_mm,
