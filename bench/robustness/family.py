@@ -468,7 +468,8 @@ def summarize(rows: list[dict]) -> dict:
                     pairs.append(r[key] <= cp[key]["p90"])
             out[f"pose_p90_covers_{name}_{kind}"] = [sum(pairs), len(pairs)]
     # the printed scale uncertainty: how many reliable runs' scale error lies within 2 of its predicted sigmas
-    zs = [abs(r["scale_error_pct"]) / r["scale"]["predicted_scale_sigma_pct"] for r in rel
+    zs = [abs(r["scale_error_pct"]) / np.hypot(r["scale"]["predicted_scale_sigma_pct"],
+                                               np.nan_to_num(r.get("scale_sigma_pct", 0.0))) for r in rel
           if np.isfinite(r.get("scale_error_pct", np.nan))
           and ((r.get("scale") or {}).get("predicted_scale_sigma_pct") or 0) > 0]
     out["scale_within_2_sigma"] = [int(sum(z <= 2 for z in zs)), len(zs)]

@@ -75,6 +75,8 @@ def test_the_reconstructions_predicted_scale_sits_beside_the_measured_one():
     assert predicted_scale({"scale_error_pct": -0.15}, doc) == {"predicted_sigma_pct": 0.1,
                                                                "within_2_predicted_sigma": True}
     assert predicted_scale({"scale_error_pct": 0.25}, doc)["within_2_predicted_sigma"] is False
+    # the measurement's own sigma counts too: 0.25 % measured +- 0.1 % is within 2 * hypot(0.1, 0.1)
+    assert predicted_scale({"scale_error_pct": 0.25, "sigma_pct": 0.1}, doc)["within_2_predicted_sigma"] is True
     # a shape that cannot tell the scale from an offset, and a reconstruction that predicted nothing
     assert predicted_scale({"scale_error_pct": None}, doc)["within_2_predicted_sigma"] is None
     assert predicted_scale({"scale_error_pct": 0.1}, {"scale": None}) == {"predicted_sigma_pct": None,

@@ -47,13 +47,16 @@ def predicted_scale(scale: dict, poses_doc: dict) -> dict:
     Returns
     -------
     dict: ``predicted_sigma_pct`` (1 sigma, None when the reconstruction gave none) and
-    ``within_2_predicted_sigma`` (the measured scale error within twice it; None when either is
-    missing or the shape cannot tell the scale from a surface offset)
+    ``within_2_predicted_sigma`` (the measured scale error within twice the predicted sigma and the
+    measurement's own, ``sigma_pct``, in quadrature; None when either is missing or the shape cannot
+    tell the scale from a surface offset)
     """
     pred = (poses_doc.get("scale") or {}).get("predicted_scale_sigma_pct") if isinstance(poses_doc, dict) else None
     pred = float(pred) if isinstance(pred, (int, float)) and np.isfinite(pred) and pred > 0 else None
     measured = scale.get("scale_error_pct")
-    within = None if pred is None or measured is None else bool(abs(measured) <= 2 * pred)
+    own = scale.get("sigma_pct")
+    own = float(own) if isinstance(own, (int, float)) and np.isfinite(own) else 0.0
+    within = None if pred is None or measured is None else bool(abs(measured) <= 2 * np.hypot(pred, own))
     return {"predicted_sigma_pct": pred, "within_2_predicted_sigma": within}
 
 
