@@ -95,7 +95,8 @@ class Draw:
 
 
 def draw_case(seed: int, mesh_dir: Path | None = MESH_DIR, reduced: bool = False,
-              complete_to: float | None = None, planned: float | None = None, plan_kw: dict | None = None) -> Draw:
+              complete_to: float | None = None, planned: float | None = None, plan_kw: dict | None = None,
+              min_distance_m: float | None = None) -> Draw:
     """The object, path and sensor of ``seed`` (``reduced``: 6-8 views, procedural objects up to 0.35 m).
 
     ``complete_to``: the path as drawn, plus the views :func:`tofmetry.plan.complete` adds so that
@@ -103,12 +104,17 @@ def draw_case(seed: int, mesh_dir: Path | None = MESH_DIR, reduced: bool = False
     with the object's mesh); each added view goes into the loop where its azimuth falls.
     ``planned``: the path :func:`planned_path` gives instead of the drawn one (the same object,
     sensor, distance and kind). ``plan_kw``: keywords of the plan's prediction for both
-    (:func:`tofmetry.plan.predict`: e.g. ``{"single_view": 1.0}``, the rule before 2026-12-02)."""
+    (:func:`tofmetry.plan.predict`: e.g. ``{"single_view": 1.0}``, the rule before 2026-12-02).
+    ``min_distance_m``: with ``planned``, the plan's views stand at least this far from the object
+    (the drawn distance raised to it; :func:`run_case`'s ``plan_distance``)."""
     md = mesh_dir if mesh_dir is not None and Path(mesh_dir).is_dir() else None
     obj = random_object(seed, md)
     path = random_path(seed, obj.centre_m, float(obj.extent_m.max()), n_views=(6, 8) if reduced else (6, 16))
     sensor = random_sensor(seed)
     if planned is not None:
+        if min_distance_m is not None and min_distance_m > path.distance_m:
+            path = replace(path, distance_m=float(min_distance_m),
+                           params={**path.params, "drawn_distance_m": round(path.distance_m, 4)})
         path = planned_path(obj, path, sensor.intrinsics, planned, seed, plan_kw)
     if complete_to is not None:
         from tofmetry.plan import PlanObject, complete
@@ -137,7 +143,8 @@ def planned_path(obj, drawn, intr, target: float, seed: int, plan_kw: dict | Non
     pr = prop.params
     start = float(drawn.params.get("start_deg", 0.0))
     info = {"planned": prop.name, "plan_target": target, "plan_predicted": round(prop.prediction.completeness, 4),
-            "drawn": {"kind": drawn.kind, "n_views": drawn.n_views, "elevation_deg": round(drawn.elevation_deg, 2)}}
+            "drawn": {"kind": drawn.kind, "n_views": drawn.n_views, "elevation_deg": round(drawn.elevation_deg, 2),
+                      "distance_m": drawn.params.get("drawn_distance_m", round(drawn.distance_m, 4))}}
     if pr.get("kind") not in ("ring", "ring+zenithal"):
         return replace(drawn, kind=f"{drawn.kind}+plan", poses=list(prop.poses), params={**drawn.params, **info})
     n, el, m = int(pr["n"]), float(pr["elevation_deg"]), int(pr.get("n_zenithal", 0))
@@ -283,9 +290,14 @@ def mat_view_errors(pm, names: list[str], placed, true_poses) -> dict:
 def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, mesh_dir: Path | None = MESH_DIR,
              keep: bool = False, config=None, stations_mm=FAMILY_DISTANCES_MM, boards: bool = True,
              complete_to: float | None = None, turntable: float | None = None, turntable_jitter: float = 0.0,
-             tilt_boards: bool = True, planned: float | None = None, mat: bool = False) -> dict:
+             tilt_boards: bool = True, planned: float | None = None, mat: bool = False,
+             plan_distance: bool = False) -> dict:
     """Simulate, calibrate, reconstruct and evaluate one draw (``complete_to``: :func:`draw_case`;
     ``tilt_boards``: the depth tilt fitted on checkerboard captures, :func:`calibrate_sensor`;
+    ``plan_distance``: with ``planned``, the views stand no nearer than ``tofmetry plan`` with the
+    calibration places them (:func:`tofmetry.pipelines.plan.calibrated_distance_m`: the object's near
+    side within the calibration's stations; at most 1.5 m, the family's farthest), the drawn distance
+    where that is farther, as a user who lets the plan choose the distance scans;
     ``turntable``: a turntable path's step is declared, ``registration.turntable_step_deg``, with
     this accuracy [deg], as a user with a turntable does; ``turntable_jitter``: a turntable path's
     views turned about the vertical through the object by N(0, jitter) [deg] each, as a manual
@@ -304,6 +316,14 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
         d, row["turntable_jitter_deg"] = jitter_turntable(d, seed, turntable_jitter)
     t0 = time.perf_counter()
     cal, white, t_cal = calibrate_sensor(d.sensor, seed, distances_mm=stations_mm, tilt_work=work if tilt_boards else None)
+    if plan_distance and planned is not None:
+        from tofmetry.pipelines.plan import calibrated_distance_m
+        from tofmetry.plan import PlanObject
+
+        near = calibrated_distance_m(PlanObject(d.object.vertices, d.object.triangles, "mesh"), cal)
+        if near is not None and near > d.path.distance_m:
+            d = draw_case(seed, mesh_dir, reduced, complete_to, planned, min_distance_m=min(near, 1.5))
+            row.update(d.describe())
     row["true_k_mm_per_ln"] = round(d.sensor.errors.amplitude_slope_mm_per_ln(), 3)
     board_dirs = board_captures(d.sensor, seed, work) if boards else None
     row["calibration"] = {"seconds": round(t_cal, 1), "model": cal.prediction.get("method"),
@@ -567,6 +587,10 @@ def main(argv=None) -> int:
     ap.add_argument("--planned", type=float, default=None, metavar="TARGET",
                     help="replace each drawn path by the views tofmetry plan proposes to reach TARGET (with the "
                     "object's mesh, at the drawn distance, walked as the drawn kind: planned_path)")
+    ap.add_argument("--plan-distance", action="store_true",
+                    help="with --planned, the views stand no nearer than tofmetry plan with the calibration places "
+                    "them (the object's near side within the calibration's stations; at most 1.5 m): the drawn "
+                    "distance raised where it is nearer")
     ap.add_argument("--turntable", type=float, default=None, metavar="ACCURACY_DEG",
                     help="declare the step of the turntable paths (registration.turntable_step_deg = 360 / views) "
                     "and how accurately it turns (the simulated turntable is exact; a stepper motor's ~0.1)")
@@ -599,7 +623,8 @@ def main(argv=None) -> int:
                          config=None if config is None else config.model_copy(deep=True),
                          stations_mm=STATION_SETS[a.stations],
                          boards=not a.no_boards, complete_to=a.complete_to, turntable=a.turntable,
-                         turntable_jitter=a.turntable_jitter, tilt_boards=not a.no_tilt_boards, planned=a.planned, mat=a.mat)
+                         turntable_jitter=a.turntable_jitter, tilt_boards=not a.no_tilt_boards, planned=a.planned, mat=a.mat,
+                         plan_distance=a.plan_distance)
             rows.append(r)
             with open(jl, "a") as fh:
                 fh.write(json.dumps(r, default=float) + "\n")
