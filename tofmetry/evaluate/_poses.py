@@ -32,9 +32,11 @@ where the noise alone would say thousandths.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.cluster.vq import kmeans2
 
 from tofmetry._shared.geometry import (SCALE_OFFSET_MAX_CORRELATION, displacement_at, rotation_angle_deg,
                                        similarity_offset_jacobian)
@@ -134,13 +136,13 @@ def _region_spread(centred: np.ndarray, J: np.ndarray, w: np.ndarray, e: np.ndar
     sum (x_b - mean)^2)``, is the standard error a spatially correlated surface error leaves (it
     includes the noise's). NaN where there are too few points for the regions.
     """
-    from scipy.cluster.vq import kmeans2
-
     n = len(centred)
     if n < 50 * regions:
         return np.full(J.shape[1], np.nan)
     sub = centred[:: max(1, n // 5000)]
-    codebook, _ = kmeans2(sub, regions, seed=0, minit="++", iter=20)
+    with warnings.catch_warnings():  # a region left empty is skipped below; kmeans2 would only warn of it
+        warnings.simplefilter("ignore", UserWarning)
+        codebook, _ = kmeans2(sub, regions, seed=0, minit="++", iter=20)
     label = np.argmin(((centred[:, None, :] - codebook[None, :, :]) ** 2).sum(-1), axis=1)
     Jw = J * w[:, None]
     H, g = Jw.T @ J, Jw.T @ e
