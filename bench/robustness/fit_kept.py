@@ -3,7 +3,8 @@
 ``OMP_NUM_THREADS=1 PYTHONPATH=$PWD .venv/bin/python -m bench.robustness.fit_kept --seeds S1,... --mat --planned 0.9 -o DIR``
 
 On a mat, a scan's placements stand unrefined (the joint fit set aside) where the fit moved a view beyond the pose
-gate and beyond its placement's reach (:func:`tofmetry.reconstruct._mat_stage.departures`), or where the depth
+gate plus the placements' own p99 and beyond its placement's reach (:func:`tofmetry.reconstruct._mat_stage.departures`;
+the gate alone before session 52), or where the depth
 calibration's residual could move the fit beyond the gate (:func:`~tofmetry.reconstruct._mat_stage.calibration_beyond_gate`).
 This runs :mod:`bench.robustness.family` (same arguments) with both rules off, so that the rows show what the fit
 would have given. It changes no code path of tofmetry but those two functions as the pipeline sees them.
@@ -17,7 +18,8 @@ bar, and mixed on a rocker arm (3.36 -> 2.71 mm at the object, 0.27 -> 0.58 deg)
 whose placements stood unrefined, all because the calibration could move the fit beyond the gate (rows
 ``bench/results/object_family_dev96_102_fit_kept_*``, against their stored rows, made on the code of their draws): the
 kept fit was worse on 15, better on 3 and the same on 3, and 6 runs became truly wrong (3 of them reliable: misses).
-That rule holds; the departure rule is the one to refine.
+That rule holds; the departure rule was the one to refine (session 52: a departure now needs the gate plus
+``_mat_stage.PLACEMENT_P99``, and the two rocker arms keep their fit).
 """
 
 from __future__ import annotations

@@ -36,7 +36,7 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.cluster.vq import kmeans2
+from scipy.cluster.vq import kmeans2, vq
 
 from tofmetry._shared.geometry import (SCALE_OFFSET_MAX_CORRELATION, displacement_at, rotation_angle_deg,
                                        similarity_offset_jacobian)
@@ -122,14 +122,14 @@ def pose_errors(poses, true_poses, object_points: np.ndarray, max_points: int = 
 SCALE_REGIONS = 16
 
 
-def _region_spread(centred: np.ndarray, J: np.ndarray, w: np.ndarray, e: np.ndarray, x: np.ndarray,
+def _region_spread(centred: np.ndarray, J: np.ndarray, w: np.ndarray, e: np.ndarray,
                    regions: int = SCALE_REGIONS) -> np.ndarray:
     """(P,) delete-one-region jackknife standard errors of the last step's parameters.
 
     Parameters
     ----------
     centred : (N, 3) [m] the inlier points about their centroid (what the regions are drawn on)
-    J : (N, P) the step's Jacobian; w : (N,) its weights; e : (N,) its residuals [m]; x : (P,) its solution
+    J : (N, P) the step's Jacobian; w : (N,) its weights; e : (N,) its residuals [m]
 
     The points are split into ``regions`` compact regions (k-means on their positions, seeded); the
     step is solved again without each region, and the spread of those solutions, ``sqrt((B - 1) / B
@@ -143,7 +143,7 @@ def _region_spread(centred: np.ndarray, J: np.ndarray, w: np.ndarray, e: np.ndar
     with warnings.catch_warnings():  # a region left empty is skipped below; kmeans2 would only warn of it
         warnings.simplefilter("ignore", UserWarning)
         codebook, _ = kmeans2(sub, regions, seed=0, minit="++", iter=20)
-    label = np.argmin(((centred[:, None, :] - codebook[None, :, :]) ** 2).sum(-1), axis=1)
+    label = vq(centred, codebook, check_finite=False)[0]
     Jw = J * w[:, None]
     H, g = Jw.T @ J, Jw.T @ e
     sols = []
@@ -152,7 +152,7 @@ def _region_spread(centred: np.ndarray, J: np.ndarray, w: np.ndarray, e: np.ndar
         if not m.any():
             continue
         Hb, gb = H - Jw[m].T @ J[m], g - Jw[m].T @ e[m]
-        sols.append(-np.linalg.lstsq(Hb, gb, rcond=1e-12)[0] - x)
+        sols.append(-np.linalg.lstsq(Hb, gb, rcond=1e-12)[0])
     sols = np.array(sols)
     B = len(sols)
     if B < 4:
@@ -242,7 +242,7 @@ def scale_from_reference(points: np.ndarray, reference, inlier_mm: float = 3.0, 
         sigma = float(np.sqrt(max(Hi[6, 6] * s2, 0.0)))
         if offset:
             sigma_off = float(np.sqrt(max(Hi[7, 7] * s2, 0.0)))
-        last = (qc, J, w, e, x)
+        last = (qc, J, w, e)
     # the noise-only sigmas above take the residuals as independent; a model's surface errors are not
     # (a rim read 0.3 mm inward, a face bent by the range error), and where the shape barely separates
     # scale from offset such an error moves the scale far more than noise does: the spread of the
