@@ -72,12 +72,14 @@ def _scale(points: np.ndarray, ref) -> dict:
     except Exception as exc:  # noqa: BLE001 - a stage with too few points is a result
         return {"error": f"{type(exc).__name__}: {exc}"[:200]}
     return {"scale_pct": round(100 * sc["scale_error"], 4), "offset_mm": round(sc["offset_mm"], 3),
-            "sigma_pct": round(100 * sc["sigma"], 4)}
+            "sigma_pct": round(100 * sc["sigma"], 4), "correlation": round(sc["correlation"], 4)}
 
 
 def sources_case(seed: int, work: Path, mat: bool = False, errors: str = "all", config=None, n_frames: int = 5,
-                 planned: float | None = None) -> dict:
-    """One draw's scale at each stage (module docstring); returns one JSON-able row."""
+                 planned: float | None = None, plan_distance: bool = False) -> dict:
+    """One draw's scale at each stage (module docstring); returns one JSON-able row. ``plan_distance``:
+    with ``planned``, the views stand no nearer than the plan with the calibration places them, as
+    ``family --plan-distance`` draws them (:func:`bench.robustness.family.run_case`)."""
     from tofmetry.evaluate import evaluate_model
     from tofmetry.io import ScanDataset, read_json
     from tofmetry.io.mesh import Geometry
@@ -90,6 +92,13 @@ def sources_case(seed: int, work: Path, mat: bool = False, errors: str = "all", 
 
     d = keep_errors(draw_case(seed, planned=planned), errors)
     cal, white, _ = calibrate_sensor(d.sensor, seed, tilt_work=work)
+    if plan_distance and planned is not None:
+        from tofmetry.pipelines.plan import calibrated_distance_m
+        from tofmetry.plan import PlanObject
+
+        near = calibrated_distance_m(PlanObject(d.object.vertices, d.object.triangles, "mesh"), cal)
+        if near is not None and near > d.path.distance_m:
+            d = keep_errors(draw_case(seed, planned=planned, min_distance_m=min(near, 1.5)), errors)
     if errors != "all" and "amplitude_bias" not in d.sensor.errors.enabled:
         white = None
     boards = board_captures(d.sensor, seed, work) if white is not None else None
@@ -112,7 +121,7 @@ def sources_case(seed: int, work: Path, mat: bool = False, errors: str = "all", 
     pts = np.concatenate([v.points[s.object_mask] @ T[:3, :3].T + T[:3, 3] for v, s, T in zip(views, segs, W)])
     above = pts[:, 2] > float(d.object.vertices[:, 2].min()) + 0.5 * cfg.segment.min_height_mm * 1e-3
     row = {"seed": int(seed), "object": d.object.name, "size_m": round(float(d.object.size_m), 4),
-           "path": d.path.kind, "n_views": int(d.path.n_views), "mat": mat, "errors": errors,
+           "path": d.path.kind, "distance_m": round(float(d.path.distance_m), 4), "n_views": int(d.path.n_views), "mat": mat, "errors": errors,
            "points_true": _scale(pts[above], ref)}
     # fused at the true poses, cropped to the object as the pipeline crops (the true ground is z = 0) and
     # judged as the family judges a model (aligned, the reference's underside left out)
@@ -135,6 +144,8 @@ def main(argv=None) -> int:
     ap.add_argument("--mat", action="store_true", help="each object stands on its dot mat (family --mat)")
     ap.add_argument("--planned", type=float, default=None, metavar="TARGET",
                     help="the views the plan proposes for this completeness (family --planned)")
+    ap.add_argument("--plan-distance", action="store_true",
+                    help="with --planned, the views no nearer than the plan with the calibration places them (family --plan-distance)")
     ap.add_argument("--errors", default="all", help="error terms of the sensor kept (drift.keep_errors)")
     ap.add_argument("--set", action="append", default=[], metavar="STAGE.FIELD=JSON",
                     help="override one field of the reconstruction config (repeatable)")
@@ -145,7 +156,8 @@ def main(argv=None) -> int:
     rows = []
     try:
         for s in [int(x) for x in a.seeds.split(",") if x.strip()]:
-            r = sources_case(s, work, a.mat, a.errors, cfg.model_copy(deep=True), planned=a.planned)
+            r = sources_case(s, work, a.mat, a.errors, cfg.model_copy(deep=True), planned=a.planned,
+                             plan_distance=a.plan_distance)
             rows.append(r)
             print(json.dumps(r), flush=True)
     finally:
