@@ -159,9 +159,15 @@ def test_plan_warns_where_the_calibration_only_extrapolates(box):
                           prediction={"extrapolation": [{"central_mm": -1.5, "p95_mm": 2.0}]})
     half = 0.5 * np.linalg.norm(box.extent_m)             # 0.206 m: the box's half diagonal
     w = calibrated_range_warning(box, 0.8, cal)          # nearest depth ~ 0.59 m < 0.78 m
-    assert w is not None and "780-4520 mm" in w and "3.5 mm" in w and f"{0.78 + half:.2f} m" in w
-    assert calibrated_range_warning(box, 0.78 + half + 0.01, cal) is None
+    advised = np.ceil((0.78 + half) * 100) / 100         # to the cm above: scanning from it raises no warning
+    assert w is not None and "780-4520 mm" in w and "3.5 mm" in w and f"scan from {advised:.2f} m or farther" in w
+    assert calibrated_range_warning(box, advised, cal) is None
     assert calibrated_range_warning(box, 0.8, None) is None
+    # beyond the farthest station the advice is to come nearer, not to go farther
+    far = calibrated_range_warning(box, 4.5, cal)
+    farthest = np.floor((4.52 - half) * 100) / 100
+    assert far is not None and f"scan from {farthest:.2f} m or nearer" in far and "farther, or" not in far
+    assert calibrated_range_warning(box, farthest, cal) is None
 
 
 def test_the_default_distance_keeps_the_object_within_the_calibrations_stations(box, tmp_path):

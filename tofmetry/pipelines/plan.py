@@ -238,10 +238,15 @@ def calibrated_range_warning(obj: PlanObject, distance_m: float, calibration) ->
     near, far = 1e3 * (distance_m - half), 1e3 * (distance_m + half)
     if near >= lo and far <= hi:
         return None
+    # the advice names the side the views leave: too near, the distance calibrated_distance_m gives (to the cm
+    # above, so that scanning from it raises no warning); too far, the farthest within the stations (to the cm below)
+    farthest = float(np.floor((hi * 1e-3 - half) * 100.0) / 100.0)
+    advice = (f"scan from {calibrated_distance_m(obj, calibration):.2f} m or farther, or calibrate nearer" if near < lo
+              else f"scan from {farthest:.2f} m or nearer, or calibrate farther" if farthest > 0
+              else "calibrate over the depths the object spans")
     return (f"views at {distance_m:.2f} m see the object at about {max(near, 0):.0f}-{far:.0f} mm, the calibration's "
             f"stations span {lo:.0f}-{hi:.0f} mm: outside, its correction is extrapolated, off by up to "
-            f"{extrapolation_error_mm(calibration.prediction):.1f} mm by its own extrapolation folds; scan from "
-            f"{(lo * 1e-3 + half):.2f} m or farther, or calibrate nearer")
+            f"{extrapolation_error_mm(calibration.prediction):.1f} mm by its own extrapolation folds; {advice}")
 
 
 def read_plan(path: str | os.PathLike) -> dict:
