@@ -21,6 +21,18 @@ response to noise on this shape), one that appears in ``fused_true`` the fusion'
 ``--errors`` keeps only some error terms of the sensor (:func:`bench.robustness.drift.keep_errors`); without the
 amplitude bias the amplitude correction is switched off as well.
 
+Measured (2026-12-06, session 53; ``--plan-distance`` for draws 106-107's seeds; rows
+``bench/results/scale_sources_dev105_107_igea_fandisk_rows.jsonl``): the eight held-out runs of draws 105-107 whose
+scale lay beyond 0.2 % but two. Six igeas (scale/offset correlation -0.978 to -0.980, on the family's 0.98 line:
+``fused_true`` falls on its far side on four of them and reads "not separable"), points / fused / model:
+777095218 -0.12 / - / -0.59 %, 1262340483 -0.44 / - / -0.43 %, 1402597130 +0.07 / +0.06 / -0.65 %,
+1430467187 -0.60 / - / -0.45 %, 1409541855 -0.12 / - / -0.24 %, 1647792163 -0.11 / -0.06 / +0.22 %; two fandisks
+(correlation -0.87) -0.11 / -0.12 / -0.26 % and -0.05 / -0.09 / -0.22 %. So on two igeas the depth chain alone,
+at the true poses, reads -0.44 and -0.60 %: their points' signed distance runs with height (the upper tenth
+-0.19 mm against the lowest +0.02 mm; +0.22 against -0.12 mm), a few tenths of a millimetre that a head of
+0.16-0.30 m, where scale and offset barely differ, reads as half a per cent. Fitted with an offset per region
+instead (16 k-means regions) the same points read -0.24 and -0.49 %. The four others' errors are their poses'.
+
 Measured (2026-12-05, session 45): draw 92's dome 1716637505 +0.76 / +0.21 / +0.59 % (offsets -0.69 / -0.27 /
 -0.60 mm) and the development vase 1220163138 +1.52 / +1.50 / -0.52 % (offsets -0.44 / -0.48 / +0.76 mm): near a
 surface of revolution the fitted scale trades against the offset (correlation 0.97-0.98), and a few tenths of a
