@@ -396,6 +396,7 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
                plan=res.diagnostics.get("plan"), amplitude_slope=res.diagnostics.get("amplitude_slope"),
                slab=res.diagnostics.get("slab"), mat_fixes=res.diagnostics.get("mat"),
                mat_depth_tilt=res.diagnostics.get("mat_depth_tilt"), mat_scale_hold=res.diagnostics.get("mat_scale_hold"),
+               mat_range_offset=res.diagnostics.get("mat_range_offset"),
                support_curve={k: v for k, v in (res.diagnostics.get("support_curve") or {}).items() if k != "curve_mm"})
     model = Geometry(res.mesh_vertices, res.mesh_triangles, source="model")
     try:

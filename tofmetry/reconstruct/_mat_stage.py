@@ -24,6 +24,7 @@ from tofmetry.reconstruct._mat_dots import albedo_image, plane_frame
 from tofmetry.reconstruct._mat_locate import MatFix, locate_on_mat, pooled_dot_noise, with_pooled_noise
 from tofmetry.reconstruct._adjust_field import DepthFieldPrior
 from tofmetry.reconstruct._mat_plane import matched_dots, view_dot_plane
+from tofmetry.reconstruct._mat_range import moved_along_sight, range_offset
 from tofmetry.reconstruct._mat_tilt import (combined_tilt, depth_plane_tilt_cov, largest_sigma, retilted_fix,
                                             support_mask)
 from tofmetry.reconstruct._photometric import log_albedo
@@ -62,6 +63,8 @@ class MatPlacement:
         dots alone give (views placed by their dots, with enough of them matched)
     through : name -> {"via": neighbours' names, "agree_deg", "agree_mm"} of a view the mat did not
         place, registered onto its placed neighbours instead
+    range_offset : the mat's range error its dots' size gave and the placements were corrected for
+        (:func:`~tofmetry.reconstruct._mat_range.range_offset`), None where not measured
     """
 
     graph: PoseGraphResult
@@ -70,6 +73,7 @@ class MatPlacement:
     left_out: dict = field(default_factory=dict)
     through: dict = field(default_factory=dict)
     dot_planes: dict = field(default_factory=dict)
+    range_offset: dict | None = None
 
     def to_dict(self) -> dict:
         return {name: f.to_dict() | ({"through": self.through[name]} if name in self.through else {})
@@ -189,6 +193,10 @@ def place_views(views, segs, regs, intr, white_map, rc: RegistrationConfig, name
                 planes[names[k]] = dp
     pooled, _ = pooled_dot_noise(fixes.values())  # a view of few dots cannot tell its own noise
     fixes = {n: with_pooled_noise(f, pooled) for n, f in fixes.items()}
+    rng = range_offset(list(fixes.values()), rc.mat_min_dots) if rc.mat_range_from_dots else None
+    if rng is not None:  # the mat's own range error, read from its dots' size, out of every placement
+        fixes = {n: moved_along_sight(f, rng["delta_mm"]) for n, f in fixes.items()}
+        poses = {k: fixes[names[k]].camera_to_mat for k in poses}
     through, not_through = {}, {}
     if len(poses) >= 2:
         on_mat = dict(poses)  # placed through views the mat placed, not through each other
@@ -219,7 +227,7 @@ def place_views(views, segs, regs, intr, white_map, rc: RegistrationConfig, name
             d["object_disagrees"] = rejection_reason(replace(p, accepted=False), rc)
         edges.append(d)
     graph = PoseGraphResult(P, edges, {"reasons": [], "loops": [], "placed_by": "dot mat"})
-    return MatPlacement(graph, fixes, kept, left_out, through, planes)
+    return MatPlacement(graph, fixes, kept, left_out, through, planes, rng)
 
 
 def _through_neighbours(k: int, poses: dict, regs, rc: RegistrationConfig, names: list[str]):

@@ -449,6 +449,7 @@ class ReconstructionPipeline:
                 "left_out": self.left_out, "color": colour_diag, "turntable": self.turntable,
                 "pattern": self.pattern, "mat": None if self.mat is None else self.mat.to_dict(),
                 "mat_depth_tilt": None if self.mat_tilt is None else self.mat_tilt.to_dict(),
+                "mat_range_offset": None if self.mat is None else self.mat.range_offset,
                 "calibrated": self.cal is not None, "amplitude_corrected": self.white_map is not None, "intrinsics": intr.to_dict(),
                 "calibration_local": (self.prediction_at_object or {}).get("local"),
                 "working_range_mm": self.working_range_mm(), "config": self.cfg.model_dump()}
