@@ -206,8 +206,9 @@ class RegistrationConfig(BaseModel):
                                  "across the image from the dots' planes, weigh it against what the calibration may "
                                  "have left, and take it off every view (tofmetry.reconstruct._mat_tilt)")
     mat_range_from_dots: bool = Field(True, description="on a dot mat, the mat's own range error read from its dots' "
-                                      "size against the printed layout (one value for all views) and each placement "
-                                      "moved back along its line of sight by it (tofmetry.reconstruct._mat_range)")
+                                      "size against the printed layout (one value for all views) and, where beyond 3 of its "
+                                      "sigmas, each placement moved back along its line of sight by it "
+                                      "(tofmetry.reconstruct._mat_range)")
     mat_scale_floor_pct: float = Field(0.1, ge=0, description="the dots' own systematic scale error [%] (1 sigma) in "
                                        "the mat's check of the depth scale (_mat_stage.pattern_scale): on exact depth "
                                        "they came out 0.09 +- 0.02 % small over 8 views of a vase")
