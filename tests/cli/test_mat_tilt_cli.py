@@ -71,3 +71,17 @@ def test_the_scale_the_mat_holds_is_printed(capsys):
     assert "-0.362 % applied, +-0.040 % left" in out
     _print_mat({"00": fix}, {}, None, None, {"applied_pct": 0.0, "note": "scale and offset are not separable"})
     assert "holds the model's scale" not in capsys.readouterr().err
+
+
+def test_the_mats_range_error_is_printed_with_what_was_done(capsys):
+    """``reconstruct --mat`` says how far the dots' size put the mat's plane along the rays
+    (``diagnostics.mat_range_offset``) and whether the placements were corrected for it."""
+    from tofmetry.cli.model import _print_mat
+
+    fix = {"how": "dots", "n_dots": 20, "n_matched": 19, "rms_mm": 0.9, "sigma_deg": 0.04, "sigma_mm": 0.2,
+           "tilt_sigma_deg": 0.04, "pattern_scale_pct": 0.1, "pattern_scale_sigma_pct": 0.2}
+    _print_mat({"00": fix}, {}, range_offset={"delta_mm": 0.9755, "sigma_mm": 0.1595, "views": 8, "significant": True})
+    out = " ".join(capsys.readouterr().err.split())
+    assert "the mat's plane +0.98 mm +- 0.16 mm off along the rays (8 views): beyond 3 sigma, taken out" in out
+    _print_mat({"00": fix}, {}, range_offset={"delta_mm": -0.40, "sigma_mm": 0.57, "views": 8, "significant": False})
+    assert "within 3 sigma, the placements left as they were" in " ".join(capsys.readouterr().err.split())

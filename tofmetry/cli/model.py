@@ -150,7 +150,8 @@ def reconstruct(
         if not e["accepted"]:
             console.print(f"edge {e['source']}->{e['target']}: {e.get('verdict', 'rejected')}: {e.get('reason', '')}")
     _print_mat(res.diagnostics.get("mat"), rel.get("views") or {}, (res.diagnostics.get("scale") or {}).get("mat_pattern"),
-               res.diagnostics.get("mat_depth_tilt"), res.diagnostics.get("mat_scale_hold"))
+               res.diagnostics.get("mat_depth_tilt"), res.diagnostics.get("mat_scale_hold"),
+               res.diagnostics.get("mat_range_offset"))
     tt = res.diagnostics.get("turntable")
     if tt:
         stepped = [f"{a}->{b} ({how})" for a, b, how in tt["bridged"]]
@@ -238,10 +239,11 @@ def reconstruct(
 
 
 def _print_mat(fixes: dict | None, verdicts: dict, pattern: dict | None = None, tilt: dict | None = None,
-               hold: dict | None = None) -> None:
+               hold: dict | None = None, range_offset: dict | None = None) -> None:
     """The views' placements on the dot mat (``diagnostics.mat``), as a table, the depth tilt its dots
-    measured (``diagnostics.mat_depth_tilt``), the depth scale they measure (``diagnostics.scale.mat_pattern``)
-    and the model's scale they hold against the joint fit (``diagnostics.mat_scale_hold``)."""
+    measured (``diagnostics.mat_depth_tilt``), the depth scale they measure (``diagnostics.scale.mat_pattern``),
+    the mat's range error they measure (``diagnostics.mat_range_offset``) and the model's scale they hold
+    against the joint fit (``diagnostics.mat_scale_hold``)."""
     if not fixes:
         return
     t = Table(title="views placed on the dot mat (each on its own; dots seen whole / matched to the layout)")
@@ -267,6 +269,11 @@ def _print_mat(fixes: dict | None, verdicts: dict, pattern: dict | None = None, 
                       f"{pattern['sigma_pct']:.3f} % against their printed size ({pattern['views']} views; the "
                       f"calibration's predicted range error and the method allow +-{pattern['allowed_pct']:.2f} %): "
                       + ("consistent" if pattern["consistent"] else "[bold red]NOT consistent[/]"))
+    if range_offset:
+        console.print(f"the dots' size puts the mat's plane {range_offset['delta_mm']:+.2f} mm +- "
+                      f"{range_offset['sigma_mm']:.2f} mm off along the rays ({range_offset['views']} views): "
+                      + ("beyond 3 sigma, taken out of every placement" if range_offset["significant"]
+                         else "within 3 sigma, the placements left as they were"))
     if hold and hold.get("held_sigma_pct") is not None:
         console.print(f"the mat holds the model's scale: the joint fit moved it {hold['fit_scale_pct']:+.3f} % "
                       f"(+-{hold['fit_sigma_pct']:.3f} %) from the placements (+-{hold['mat_sigma_pct']:.3f} %); "
