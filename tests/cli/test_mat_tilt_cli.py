@@ -80,8 +80,12 @@ def test_the_mats_range_error_is_printed_with_what_was_done(capsys):
 
     fix = {"how": "dots", "n_dots": 20, "n_matched": 19, "rms_mm": 0.9, "sigma_deg": 0.04, "sigma_mm": 0.2,
            "tilt_sigma_deg": 0.04, "pattern_scale_pct": 0.1, "pattern_scale_sigma_pct": 0.2}
-    _print_mat({"00": fix}, {}, range_offset={"delta_mm": 0.9755, "sigma_mm": 0.1595, "views": 8, "significant": True})
+    _print_mat({"00": fix}, {}, range_offset={"delta_mm": 0.9755, "sigma_mm": 0.1595, "views": 8, "significant": True,
+                                              "applied": True})
     out = " ".join(capsys.readouterr().err.split())
     assert "the mat's plane +0.98 mm +- 0.16 mm off along the rays (8 views): beyond 3 sigma, taken out" in out
     _print_mat({"00": fix}, {}, range_offset={"delta_mm": -0.40, "sigma_mm": 0.57, "views": 8, "significant": False})
     assert "within 3 sigma, the placements left as they were" in " ".join(capsys.readouterr().err.split())
+    _print_mat({"00": fix}, {}, range_offset={"delta_mm": -0.9, "sigma_mm": 0.2, "views": 8, "significant": True,
+                                              "applied": False})
+    assert "not taken out (registration.mat_range_from_dots is off)" in " ".join(capsys.readouterr().err.split())

@@ -272,8 +272,9 @@ def _print_mat(fixes: dict | None, verdicts: dict, pattern: dict | None = None, 
     if range_offset:
         console.print(f"the dots' size puts the mat's plane {range_offset['delta_mm']:+.2f} mm +- "
                       f"{range_offset['sigma_mm']:.2f} mm off along the rays ({range_offset['views']} views): "
-                      + ("beyond 3 sigma, taken out of every placement" if range_offset["significant"]
-                         else "within 3 sigma, the placements left as they were"))
+                      + ("beyond 3 sigma, taken out of every placement" if range_offset.get("applied")
+                         else "within 3 sigma, the placements left as they were" if not range_offset["significant"]
+                         else "beyond 3 sigma, not taken out (registration.mat_range_from_dots is off)"))
     if hold and hold.get("held_sigma_pct") is not None:
         console.print(f"the mat holds the model's scale: the joint fit moved it {hold['fit_scale_pct']:+.3f} % "
                       f"(+-{hold['fit_sigma_pct']:.3f} %) from the placements (+-{hold['mat_sigma_pct']:.3f} %); "

@@ -193,8 +193,10 @@ def place_views(views, segs, regs, intr, white_map, rc: RegistrationConfig, name
                 planes[names[k]] = dp
     pooled, _ = pooled_dot_noise(fixes.values())  # a view of few dots cannot tell its own noise
     fixes = {n: with_pooled_noise(f, pooled) for n, f in fixes.items()}
-    rng = range_offset(list(fixes.values()), rc.mat_min_dots) if rc.mat_range_from_dots else None
-    if rng is not None and rng["significant"]:  # the mat's own range error, read from its dots' size, out of every placement
+    rng = range_offset(list(fixes.values()), rc.mat_min_dots)  # the mat's own range error, from its dots' size
+    if rng is not None:
+        rng["applied"] = bool(rc.mat_range_from_dots and rng["significant"])
+    if rng is not None and rng["applied"]:  # taken out of every placement
         fixes = {n: moved_along_sight(f, rng["delta_mm"]) for n, f in fixes.items()}
         poses = {k: fixes[names[k]].camera_to_mat for k in poses}
     through, not_through = {}, {}
