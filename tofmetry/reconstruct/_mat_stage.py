@@ -63,8 +63,9 @@ class MatPlacement:
         dots alone give (views placed by their dots, with enough of them matched)
     through : name -> {"via": neighbours' names, "agree_deg", "agree_mm"} of a view the mat did not
         place, registered onto its placed neighbours instead
-    range_offset : the mat's range error its dots' size gave and the placements were corrected for
-        (:func:`~tofmetry.reconstruct._mat_range.range_offset`), None where not measured
+    range_offset : the mat's range error its dots' size gave
+        (:func:`~tofmetry.reconstruct._mat_range.range_offset`; ``applied``: taken out of the
+        placements, ``registration.mat_range_from_dots``), None where not measured
     """
 
     graph: PoseGraphResult
