@@ -287,6 +287,18 @@ def mat_view_errors(pm, names: list[str], placed, true_poses) -> dict:
     return out
 
 
+def plan_min_distance_m(draw: Draw, calibration) -> float | None:
+    """The distance [m] ``--plan-distance`` raises ``draw``'s planned views to: the nearest at which
+    ``tofmetry plan`` with ``calibration`` keeps the object's near side within its stations
+    (:func:`tofmetry.pipelines.plan.calibrated_distance_m`), at most 1.5 m (the family's farthest);
+    None where the drawn distance is already as far (or the calibration has no support)."""
+    from tofmetry.pipelines.plan import calibrated_distance_m
+    from tofmetry.plan import PlanObject
+
+    near = calibrated_distance_m(PlanObject(draw.object.vertices, draw.object.triangles, "mesh"), calibration)
+    return min(near, 1.5) if near is not None and near > draw.path.distance_m else None
+
+
 def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, mesh_dir: Path | None = MESH_DIR,
              keep: bool = False, config=None, stations_mm=FAMILY_DISTANCES_MM, boards: bool = True,
              complete_to: float | None = None, turntable: float | None = None, turntable_jitter: float = 0.0,
@@ -316,14 +328,10 @@ def run_case(seed: int, work: Path, n_frames: int = 5, reduced: bool = False, me
         d, row["turntable_jitter_deg"] = jitter_turntable(d, seed, turntable_jitter)
     t0 = time.perf_counter()
     cal, white, t_cal = calibrate_sensor(d.sensor, seed, distances_mm=stations_mm, tilt_work=work if tilt_boards else None)
-    if plan_distance and planned is not None:
-        from tofmetry.pipelines.plan import calibrated_distance_m
-        from tofmetry.plan import PlanObject
-
-        near = calibrated_distance_m(PlanObject(d.object.vertices, d.object.triangles, "mesh"), cal)
-        if near is not None and near > d.path.distance_m:
-            d = draw_case(seed, mesh_dir, reduced, complete_to, planned, min_distance_m=min(near, 1.5))
-            row.update(d.describe())
+    near = plan_min_distance_m(d, cal) if plan_distance and planned is not None else None
+    if near is not None:
+        d = draw_case(seed, mesh_dir, reduced, complete_to, planned, min_distance_m=near)
+        row.update(d.describe())
     row["true_k_mm_per_ln"] = round(d.sensor.errors.amplitude_slope_mm_per_ln(), 3)
     board_dirs = board_captures(d.sensor, seed, work) if boards else None
     row["calibration"] = {"seconds": round(t_cal, 1), "model": cal.prediction.get("method"),

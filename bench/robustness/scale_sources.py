@@ -73,7 +73,8 @@ from pathlib import Path
 import numpy as np
 
 from bench.robustness.drift import keep_errors
-from bench.robustness.family import board_captures, calibrate_sensor, config_with, draw_case, draw_mat, judging_config
+from bench.robustness.family import (board_captures, calibrate_sensor, config_with, draw_case, draw_mat, judging_config,
+                                     plan_min_distance_m)
 
 
 def _scale(points: np.ndarray, ref) -> dict:
@@ -104,13 +105,9 @@ def sources_case(seed: int, work: Path, mat: bool = False, errors: str = "all", 
 
     d = keep_errors(draw_case(seed, planned=planned), errors)
     cal, white, _ = calibrate_sensor(d.sensor, seed, tilt_work=work)
-    if plan_distance and planned is not None:
-        from tofmetry.pipelines.plan import calibrated_distance_m
-        from tofmetry.plan import PlanObject
-
-        near = calibrated_distance_m(PlanObject(d.object.vertices, d.object.triangles, "mesh"), cal)
-        if near is not None and near > d.path.distance_m:
-            d = keep_errors(draw_case(seed, planned=planned, min_distance_m=min(near, 1.5)), errors)
+    near = plan_min_distance_m(d, cal) if plan_distance and planned is not None else None
+    if near is not None:
+        d = keep_errors(draw_case(seed, planned=planned, min_distance_m=near), errors)
     if errors != "all" and "amplitude_bias" not in d.sensor.errors.enabled:
         white = None
     boards = board_captures(d.sensor, seed, work) if white is not None else None
@@ -133,7 +130,8 @@ def sources_case(seed: int, work: Path, mat: bool = False, errors: str = "all", 
     pts = np.concatenate([v.points[s.object_mask] @ T[:3, :3].T + T[:3, 3] for v, s, T in zip(views, segs, W)])
     above = pts[:, 2] > float(d.object.vertices[:, 2].min()) + 0.5 * cfg.segment.min_height_mm * 1e-3
     row = {"seed": int(seed), "object": d.object.name, "size_m": round(float(d.object.size_m), 4),
-           "path": d.path.kind, "distance_m": round(float(d.path.distance_m), 4), "n_views": int(d.path.n_views), "mat": mat, "errors": errors,
+           "path": d.path.kind, "distance_m": round(float(d.path.distance_m), 4), "n_views": int(d.path.n_views),
+           "mat": mat, "errors": errors,
            "points_true": _scale(pts[above], ref)}
     # fused at the true poses, cropped to the object as the pipeline crops (the true ground is z = 0) and
     # judged as the family judges a model (aligned, the reference's underside left out)
