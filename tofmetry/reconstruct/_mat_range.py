@@ -1,4 +1,4 @@
-"""The mat's own range error, read from the size of its dots, taken out of the placements.
+"""The mat's own range error, read from the size of its dots (and, where asked, taken out of the placements).
 
 A view is placed on the mat by its support plane (the depth: the camera's height and tilt) and by
 its dots (their rays cut with that plane, matched to the printed layout). If the depth reads the
@@ -59,6 +59,26 @@ def _sight(fix: MatFix) -> tuple[np.ndarray, float]:
     return d / max(D, 1e-9), D
 
 
+def widened_fit(values: np.ndarray, sigmas: np.ndarray, regressor: np.ndarray) -> tuple[float, float, float]:
+    """One factor ``a`` with ``values ~ a * regressor``, least squares weighted by ``1 / sigmas^2``.
+
+    Parameters
+    ----------
+    values, sigmas, regressor : (n,) the measured values, their 1-sigmas (> 0), what ``a`` multiplies
+        (all ones: the weighted mean), n >= 2
+
+    Returns
+    -------
+    (a, its 1-sigma widened by sqrt(chi2 / (n - 1)) where the scatter exceeds the sigmas, chi2 / (n - 1))
+    """
+    w = 1.0 / np.asarray(sigmas, float) ** 2
+    x, e = np.asarray(regressor, float), np.asarray(values, float)
+    info = float(np.sum(w * x ** 2))
+    a = float(np.sum(w * x * e) / info)
+    chi2_dof = float(np.sum(w * (e - a * x) ** 2)) / (len(e) - 1)
+    return a, float(np.sqrt(1.0 / info) * max(1.0, np.sqrt(chi2_dof))), chi2_dof
+
+
 def range_offset(fixes: list[MatFix], min_dots: int = 6) -> dict | None:
     """The mat's range error ``delta`` [mm] common to the views, from their dots' sizes (module
     docstring); None where fewer than two views were placed by at least ``min_dots`` matched dots.
@@ -79,16 +99,11 @@ def range_offset(fixes: list[MatFix], min_dots: int = 6) -> dict | None:
            and np.isfinite(f.pattern_scale) and np.isfinite(f.pattern_scale_sigma) and f.pattern_scale_sigma > 0]
     if len(use) < 2:
         return None
-    e = np.array([f.pattern_scale for f in use])
-    s = np.array([f.pattern_scale_sigma for f in use])
     inv_d = np.array([1.0 / max(_sight(f)[1], 1e-3) for f in use])  # pattern_scale = delta * inv_d
-    w = 1.0 / s ** 2
-    info = float(np.sum(w * inv_d ** 2))
-    delta = float(np.sum(w * inv_d * e) / info)
-    chi2 = float(np.sum(w * (e - delta * inv_d) ** 2))
-    sigma = float(np.sqrt(1.0 / info) * max(1.0, np.sqrt(chi2 / (len(use) - 1))))
+    delta, sigma, chi2_dof = widened_fit(np.array([f.pattern_scale for f in use]),
+                                         np.array([f.pattern_scale_sigma for f in use]), inv_d)
     return {"delta_mm": round(1e3 * delta, 4), "sigma_mm": round(1e3 * sigma, 4),
-            "chi2_per_view": round(chi2 / (len(use) - 1), 3), "views": len(use),
+            "chi2_per_view": round(chi2_dof, 3), "views": len(use),
             "significant": bool(abs(delta) > SIGNIFICANT_Z * sigma),
             "rule": "pattern_scale_v = delta / D_v (D_v the camera's distance to its dots), least squares "
                     "weighted by the dots' sigmas; where beyond 3 of its sigmas, each placement moved delta toward its dots"}

@@ -24,7 +24,7 @@ from tofmetry.reconstruct._mat_dots import albedo_image, plane_frame
 from tofmetry.reconstruct._mat_locate import MatFix, locate_on_mat, pooled_dot_noise, with_pooled_noise
 from tofmetry.reconstruct._adjust_field import DepthFieldPrior
 from tofmetry.reconstruct._mat_plane import matched_dots, view_dot_plane
-from tofmetry.reconstruct._mat_range import moved_along_sight, range_offset
+from tofmetry.reconstruct._mat_range import moved_along_sight, range_offset, widened_fit
 from tofmetry.reconstruct._mat_tilt import (combined_tilt, depth_plane_tilt_cov, largest_sigma, retilted_fix,
                                             support_mask)
 from tofmetry.reconstruct._photometric import log_albedo
@@ -290,16 +290,13 @@ def pattern_scale(fixes: dict, offset_mm: float | None, floor_pct: float = 0.1, 
            and f.pattern_scale_sigma > 0]
     if len(use) < 2:
         return None
-    e = np.array([f.pattern_scale for f in use])
-    w = 1.0 / np.array([f.pattern_scale_sigma for f in use]) ** 2
-    mean = float(np.sum(w * e) / np.sum(w))
-    chi2 = float(np.sum(w * (e - mean) ** 2))
-    sigma = float(np.sqrt(1.0 / np.sum(w)) * max(1.0, np.sqrt(chi2 / (len(use) - 1))))
+    mean, sigma, chi2_dof = widened_fit(np.array([f.pattern_scale for f in use]),
+                                        np.array([f.pattern_scale_sigma for f in use]), np.ones(len(use)))
     height = float(np.median([f.camera_to_mat[2, 3] for f in use]))
     from_offset = (offset_mm or 0.0) * 1e-3 / max(height, 1e-3)
     allowed = 3.0 * float(np.sqrt(sigma ** 2 + from_offset ** 2 + (floor_pct / 100) ** 2))
     return {"scale_pct": round(100 * mean, 4), "sigma_pct": round(100 * sigma, 4), "views": len(use),
-            "chi2_per_view": round(chi2 / (len(use) - 1), 3), "camera_height_mm": round(1e3 * height, 1),
+            "chi2_per_view": round(chi2_dof, 3), "camera_height_mm": round(1e3 * height, 1),
             "from_offset_pct": round(100 * from_offset, 4), "consistent": bool(abs(mean) <= allowed),
             "floor_pct": floor_pct, "allowed_pct": round(100 * allowed, 4),
             "rule": "|scale| <= 3 sqrt(sigma^2 + (calibration's predicted range error / camera height)^2 + floor^2)"}
