@@ -103,6 +103,7 @@ class MatFix:
                 "pattern_scale_sigma_pct": round(100 * self.pattern_scale_sigma, 4),
                 "tilt_sigma_deg": round(self.tilt_sigma_deg, 4), "tilt_from_dots_deg": round(self.tilt_deg, 4),
                 "dot_noise_mm": round(self.noise_mm, 3),
+                "centre_xy": [round(float(x), 5) for x in self.centre_xy] if np.isfinite(self.centre_xy).all() else None,
                 "camera_to_mat": self.camera_to_mat.tolist() if self.located else None}
 
 

@@ -175,7 +175,8 @@ def place_views(views, segs, regs, intr, white_map, rc: RegistrationConfig, name
         if not fx.located and s.object_mask.any():  # too few whole dots: the whole pattern
             G = plane_frame(s.plane)
             foot = (v.points[s.object_mask] @ G[:2, :3].T + G[:2, 3]).mean(0)
-            fp = locate_by_pattern(alb, rays, s.plane, foot, mat)
+            fp = locate_by_pattern(alb, rays, s.plane, foot, mat,
+                                   pattern_sigma=(rc.mat_pattern_sigma_deg, rc.mat_pattern_sigma_mm))
             fx = fp if fp.located else replace(fx, reason=f"{fx.reason}; {fp.reason}")
         wanted = (dot_planes or depth_field is not None) and fx.located and "dots" in fx.how
         seen = matched_dots(alb, rays, s.plane, fx, mat) if wanted else None
