@@ -21,6 +21,19 @@ response to noise on this shape), one that appears in ``fused_true`` the fusion'
 ``--errors`` keeps only some error terms of the sensor (:func:`bench.robustness.drift.keep_errors`); without the
 amplitude bias the amplitude correction is switched off as well.
 
+Measured (2026-12-06, session 54; rows ``bench/results/scale_sources_dev105_106_igea_terms_rows.jsonl``): the two
+igeas whose points read -0.44 and -0.60 % at the true poses, with one error term of the sensor at a time beside the
+noise (``--errors noise,TERM``), points / fused / model. 1262340483: noise alone -0.08 / - / +0.01 %, with the
+amplitude bias -0.24 / -0.36 / -0.21 % (its coefficient measured within 0.05 mm per ln unit of the truth: what is
+left is the bias's form on a head seen at every incidence, not its size), the per-pixel deformation -0.16 / -0.30 / -,
+the range curve (wiggling) -0.11 / -0.25 / -, flying pixels -0.05 / - / -; no one term makes it, and the fusion adds
+-0.12 to -0.14 % on this small head (0.16 m) whatever the term. 1430467187 (0.30 m, predicted scale sigma 0.62 %: its
+calibration's predicted central error is 4.2 mm): noise alone -0.04 / -0.03 / +0.01 %, the range curve -0.39 +-
+0.18 / - / -0.09 % (the flat support's curve, :mod:`tofmetry.reconstruct._support_curve`, takes most of it out of
+the model), every other term within 0.05 % of the noise's. So the misses of these heads are the sum of several
+terms' few tenths of a millimetre over the object, read as a scale where scale and offset barely differ, not one
+error a single correction would remove.
+
 Measured (2026-12-06, session 53; ``--plan-distance`` for draws 106-107's seeds; rows
 ``bench/results/scale_sources_dev105_107_igea_fandisk_rows.jsonl``): the eight held-out runs of draws 105-107 whose
 scale lay beyond 0.2 % but two. Six igeas (scale/offset correlation -0.978 to -0.980, on the family's 0.98 line:
