@@ -205,10 +205,10 @@ class RegistrationConfig(BaseModel):
     mat_pattern_sigma_deg: float = Field(0.2, gt=0, description="1-sigma of the turn of a view the mat's whole pattern "
                                          "placed with too few dots seen whole to refine it [deg] "
                                          "(tofmetry.reconstruct._mat_dense.locate_by_pattern): measured on the "
-                                         "family's held-out draws 89-109, 51 such views, RMS 0.196 deg, p90 0.29, "
+                                         "family's held-out draws 89-109, 43 such views in 19 runs, RMS 0.186 deg, p90 0.29, "
                                          "at most 0.57 deg")
     mat_pattern_sigma_mm: float = Field(1.5, gt=0, description="... and of its shift along the sheet [mm] (the same "
-                                        "views: the object's largest displacement p50 1.3, p90 2.3, at most 3.4 mm)")
+                                        "views: the object's largest displacement p50 1.5, p90 2.35, at most 3.4 mm)")
     mat_depth_tilt: bool = Field(True, description="on a dot mat with a depth calibration, measure the depth's tilt "
                                  "across the image from the dots' planes, weigh it against what the calibration may "
                                  "have left, and take it off every view (tofmetry.reconstruct._mat_tilt)")
