@@ -287,6 +287,15 @@ def mat_view_errors(pm, names: list[str], placed, true_poses) -> dict:
     return out
 
 
+def draw_of_row(row: dict, mesh_dir: Path | None = MESH_DIR) -> Draw:
+    """The draw a stored row (:func:`run_case`'s, with ``planned``) was made on, drawn again from its seed: the
+    planned path's target from the row, and the distance ``--plan-distance`` raised it to where it did."""
+    p = row["path"]
+    drawn = (p.get("drawn") or {}).get("distance_m")
+    raised = p["distance_m"] if drawn is not None and p["distance_m"] > drawn + 1e-6 else None
+    return draw_case(row["seed"], mesh_dir, planned=float(p.get("plan_target", 0.9)), min_distance_m=raised)
+
+
 def plan_min_distance_m(draw: Draw, calibration) -> float | None:
     """The distance [m] ``--plan-distance`` raises ``draw``'s planned views to: the nearest at which
     ``tofmetry plan`` with ``calibration`` keeps the object's near side within its stations

@@ -28,7 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.robustness.family import GATE_DEG, GATE_MM, MESH_DIR, draw_case
+from bench.robustness.family import GATE_DEG, GATE_MM, MESH_DIR, draw_of_row
+from tofmetry.reconstruct._mat_locate import MatFix
 
 #: a standard normal's 90th percentile of |x| (as ``_mat_stage.P90_Z``)
 P90_Z = 1.645
@@ -37,10 +38,7 @@ P90_Z = 1.645
 def score_row(row: dict, mesh_dir: Path | None = MESH_DIR) -> dict:
     """One row's worst placed view, its p90 over the gate at its dots (``old_ratio``) and at the object (``new_ratio``)."""
     fixes = row.get("mat_fixes") or {}
-    p = row["path"]
-    drawn = (p.get("drawn") or {}).get("distance_m")
-    raised = p["distance_m"] if drawn is not None and p["distance_m"] > drawn + 1e-6 else None
-    d = draw_case(row["seed"], mesh_dir, planned=float(p.get("plan_target", 0.9)), min_distance_m=raised)
+    d = draw_of_row(row, mesh_dir)
     true = np.asarray(d.path.poses, float)
     old = new = 0.0
     for k, name in enumerate(sorted(fixes)):
@@ -49,9 +47,10 @@ def score_row(row: dict, mesh_dir: Path | None = MESH_DIR) -> dict:
             continue
         world_to_mat = np.asarray(f["camera_to_mat"], float) @ np.linalg.inv(true[k])
         obj = d.object.vertices @ world_to_mat[:3, :3].T + world_to_mat[:3, 3]
-        lever = float(np.linalg.norm(obj - np.r_[f["centre_xy"], 0.0], axis=1).max())
-        rot = float(np.hypot(f["sigma_deg"], f.get("tilt_sigma_deg") or 0.0))
-        at_object = float(np.hypot(f["sigma_mm"], np.radians(rot) * lever * 1e3))
+        fx = MatFix(True, sigma_deg=f["sigma_deg"], sigma_mm=f["sigma_mm"],
+                    tilt_sigma_deg=f.get("tilt_sigma_deg") or 0.0, centre_xy=np.asarray(f["centre_xy"], float))
+        far = obj[np.argmax(np.linalg.norm(obj - np.r_[fx.centre_xy, 0.0], axis=1))]  # the longest lever
+        rot, at_object = fx.rotation_sigma_deg, fx.sigma_at_mm(far)
         old = max(old, P90_Z * f["sigma_mm"] / GATE_MM, P90_Z * rot / GATE_DEG)
         new = max(new, P90_Z * at_object / GATE_MM, P90_Z * rot / GATE_DEG)
     return {"seed": row["seed"], "object": row["object"]["name"],

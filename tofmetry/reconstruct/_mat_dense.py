@@ -166,7 +166,7 @@ def locate_dense(alb: np.ndarray, rays: np.ndarray, plane: np.ndarray, footprint
 
 
 def locate_by_pattern(alb: np.ndarray, rays: np.ndarray, plane: np.ndarray, footprint_xy: np.ndarray,
-                      mat: DotMat, min_matched: int = 3, pattern_sigma: tuple[float, float] = (0.2, 1.5)) -> MatFix:
+                      mat: DotMat, pattern_sigma: tuple[float, float], min_matched: int = 3) -> MatFix:
     """A view placed by the whole pattern (:func:`locate_dense`), then by the dots it sees near where
     that puts them (:func:`~tofmetry.reconstruct._mat_locate.guided_match`), when at least
     ``min_matched`` do. The pattern's own placement is as fine as its search (0.5 deg steps, 2 mm cells):

@@ -38,7 +38,7 @@ millimetre that this module does not know yet (on depth with noise alone two ige
 1.44-1.47 m read -0.40 +- 0.57 and -0.77 +- 0.71 mm, the plaques at 0.73 m +-0.1 mm). Measured
 against the truth on the 200 runs of held-out draws 100-109 (``bench/robustness/mat_sight``, session
 54): the placements stand +0.31 mm too far back along their lines of sight on average (sd 0.35 mm),
-the dots read -0.45 +- 0.54 mm off that (about -0.46 mm more per metre of distance), 2.7 times the
+the dots read -0.45 +- 0.54 mm off that (about -0.46 mm more per metre of distance), 2.3 times the
 sigma they claim; and the models' scale does not follow the placements' error along sight
 (correlation -0.02): where the joint fit refines them, the scale left is the object's own. The value
 is measured and reported on every mat scan (``diagnostics.mat_range_offset``).
