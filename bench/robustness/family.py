@@ -296,6 +296,50 @@ def draw_of_row(row: dict, mesh_dir: Path | None = MESH_DIR) -> Draw:
     return draw_case(row["seed"], mesh_dir, planned=float(p.get("plan_target", 0.9)), min_distance_m=raised)
 
 
+def stored_placements(row: dict, mesh_dir: Path | None = MESH_DIR):
+    """A stored ``--mat`` row's placements with the truth: ``(draw, names, on, placed, true, errors)`` with the
+    draw redrawn from its seed (:func:`draw_of_row`), ``names`` its views (sorted), ``on`` the indices of those the
+    mat placed, ``placed`` (len(on), 4, 4) their stored camera-to-mat placements, ``true`` (V, 4, 4) the true
+    camera-to-world poses and ``errors`` :func:`tofmetry.evaluate.pose_errors` of the placed against the truth
+    (its ``alignment`` carries the mat frame onto the world's). None where the row has no placements (no mat,
+    refused) or fewer than two views placed."""
+    from tofmetry.evaluate import pose_errors
+
+    fixes = row.get("mat_fixes") or {}
+    if not fixes or "refused" in row:
+        return None
+    d = draw_of_row(row, mesh_dir)
+    names = sorted(fixes)
+    true = np.asarray(d.path.poses, float)
+    on = [k for k, n in enumerate(names) if fixes[n]["located"]]
+    if len(true) != len(names) or len(on) < 2:
+        return None
+    placed = np.array([fixes[names[k]]["camera_to_mat"] for k in on], float)
+    return d, names, on, placed, true, pose_errors(placed, true[on], d.object.vertices)
+
+
+def over_stored_rows(argv, prog: str, description: str, per_row, describe) -> list[dict]:
+    """The command line of a diagnostic on stored family rows (``ROWS.jsonl [...] [-o OUT.jsonl]``): ``per_row``
+    (a stored row -> a result dict, or None to skip it) on every row of every file, each result tagged with its
+    file's name (``rows``) and printed to stderr by ``describe`` (result -> one line) as it comes; the results are
+    written to ``-o`` (jsonl) when given, and returned."""
+    ap = argparse.ArgumentParser(prog=prog, description=description)
+    ap.add_argument("rows", nargs="+", type=Path, help="stored family rows (jsonl) of runs with --mat")
+    ap.add_argument("-o", "--output", type=Path, default=None, help="per-run rows (jsonl) written here")
+    a = ap.parse_args(argv)
+    runs = []
+    for path in a.rows:
+        for line in path.read_text().splitlines():
+            r = per_row(json.loads(line))
+            if r is not None:
+                r["rows"] = path.name
+                runs.append(r)
+                print(describe(r), file=sys.stderr, flush=True)
+    if a.output is not None:
+        a.output.write_text("".join(json.dumps(r) + "\n" for r in runs))
+    return runs
+
+
 def plan_min_distance_m(draw: Draw, calibration) -> float | None:
     """The distance [m] ``--plan-distance`` raises ``draw``'s planned views to: the nearest at which
     ``tofmetry plan`` with ``calibration`` keeps the object's near side within its stations

@@ -31,14 +31,12 @@ and +1.06 mm came out +0.67 and +0.34 %.
 
 from __future__ import annotations
 
-import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 
-from bench.robustness.family import MESH_DIR, draw_of_row
+from bench.robustness.family import MESH_DIR, over_stored_rows, stored_placements
 from tofmetry.reconstruct._mat_range import widened_fit
 
 #: a view's dots count only where at least this many were matched (as ``registration.mat_min_dots``)
@@ -48,20 +46,11 @@ MIN_DOTS = 6
 def run_sight(row: dict, mesh_dir: Path | None = MESH_DIR) -> dict | None:
     """One stored family row's placements against the truth (module docstring); None where the row has no
     placements (no mat, refused) or fewer than two views placed by ``MIN_DOTS`` dots."""
-    from tofmetry.evaluate import pose_errors
-
-    fixes = row.get("mat_fixes") or {}
-    if not fixes or "refused" in row:
+    got = stored_placements(row, mesh_dir)
+    if got is None:
         return None
-    p = row["path"]
-    d = draw_of_row(row, mesh_dir)
-    names = sorted(fixes)
-    true = np.asarray(d.path.poses, float)
-    on = [k for k, n in enumerate(names) if fixes[n]["located"]]
-    if len(true) != len(names) or len(on) < 2:
-        return None
-    placed = np.array([fixes[names[k]]["camera_to_mat"] for k in on], float)
-    pm = pose_errors(placed, true[on], d.object.vertices)
+    d, names, on, placed, true, pm = got
+    fixes, p = row["mat_fixes"], row["path"]
     centre = d.object.vertices.mean(0)
     rad_err, rad_share, ps, ps_sig, dist = [], [], [], [], []
     for i, k in enumerate(on):
@@ -112,21 +101,9 @@ def summarize(runs: list[dict]) -> dict:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m bench.robustness.mat_sight", description=__doc__.splitlines()[0])
-    ap.add_argument("rows", nargs="+", type=Path, help="stored family rows (jsonl) of runs with --mat")
-    ap.add_argument("-o", "--output", type=Path, default=None, help="per-run rows (jsonl) written here")
-    a = ap.parse_args(argv)
-    runs = []
-    for f in a.rows:
-        for line in f.read_text().splitlines():
-            r = run_sight(json.loads(line))
-            if r is not None:
-                r["rows"] = f.name
-                runs.append(r)
-                print(f"{r['seed']:>10} {r['object']:<11} true {r['true_mm']:+.2f} mm, dots read {r['reading_mm']:+.2f} "
-                      f"+/- {r['reading_sigma_mm']:.2f} mm, scale {r['scale_error_pct']}", file=sys.stderr, flush=True)
-    if a.output is not None:
-        a.output.write_text("".join(json.dumps(r) + "\n" for r in runs))
+    runs = over_stored_rows(argv, "python -m bench.robustness.mat_sight", __doc__.splitlines()[0], run_sight,
+                            lambda r: f"{r['seed']:>10} {r['object']:<11} true {r['true_mm']:+.2f} mm, dots read "
+                                      f"{r['reading_mm']:+.2f} +/- {r['reading_sigma_mm']:.2f} mm, scale {r['scale_error_pct']}")
     print(json.dumps(summarize(runs), indent=1))
     return 0
 

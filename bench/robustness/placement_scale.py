@@ -35,16 +35,13 @@ by area 1.02 times (0.99). Where the placements stood unrefined (22 reliable run
 
 from __future__ import annotations
 
-import argparse
-import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
 
-from bench.robustness.family import MESH_DIR, draw_of_row
+from bench.robustness.family import MESH_DIR, over_stored_rows, stored_placements
 from tofmetry._shared.geometry import SCALE_OFFSET_MAX_CORRELATION, similarity_offset_jacobian, skew
 from tofmetry.reconstruct import RegistrationConfig
 from tofmetry.reconstruct._mat_locate import MatFix
@@ -170,19 +167,11 @@ def placement_scale(P_true: np.ndarray, N_true: np.ndarray, moves: np.ndarray, S
 def run_row(row: dict, mesh_dir: Path | None = MESH_DIR) -> dict | None:
     """One stored family row (module docstring); None without placements (no mat, refused) or with fewer than
     two views the dots placed."""
-    from tofmetry.evaluate import pose_errors
-
-    fixes = row.get("mat_fixes") or {}
-    if not fixes or "refused" in row:
+    got = stored_placements(row, mesh_dir)
+    if got is None:
         return None
-    d = draw_of_row(row, mesh_dir)
-    names = sorted(fixes)
-    true = np.asarray(d.path.poses, float)
-    on = [k for k, n in enumerate(names) if fixes[n]["located"]]
-    if len(true) != len(names) or len(on) < 2:
-        return None
-    placed = np.array([fixes[names[k]]["camera_to_mat"] for k in on], float)
-    pm = pose_errors(placed, true[on], d.object.vertices)
+    d, names, on, placed, true, pm = got
+    fixes = row["mat_fixes"]
     views = seen_points(d.object.vertices, d.object.triangles, true[on], d.sensor.intrinsics)
     Pw, Nw, mv, vi = [], [], [], []
     for i, ((P, N), T, A) in enumerate(zip(views, true[on], placed)):
@@ -207,22 +196,10 @@ def run_row(row: dict, mesh_dir: Path | None = MESH_DIR) -> dict | None:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m bench.robustness.placement_scale", description=__doc__.splitlines()[0])
-    ap.add_argument("rows", nargs="+", type=Path, help="stored family rows (jsonl) of runs with --mat")
-    ap.add_argument("-o", "--output", type=Path, default=None, help="per-run rows (jsonl) written here")
-    a = ap.parse_args(argv)
-    runs = []
-    for f in a.rows:
-        for line in f.read_text().splitlines():
-            r = run_row(json.loads(line))
-            if r is not None:
-                r["rows"] = f.name
-                runs.append(r)
-                print(f"{r['seed']:>10} {r['object']:<11} placements: fused {r['fused_pct']:+.3f} %, views "
-                      f"{r['views_pct']:+.3f} %, by area {r['area_pct']:+.3f} % (+/- {r['predicted_sigma_pct']:.3f} %); "
-                      f"model {r['scale_error_pct']}", file=sys.stderr, flush=True)
-    if a.output is not None:
-        a.output.write_text("".join(json.dumps(r) + "\n" for r in runs))
+    over_stored_rows(argv, "python -m bench.robustness.placement_scale", __doc__.splitlines()[0], run_row,
+                     lambda r: f"{r['seed']:>10} {r['object']:<11} placements: fused {r['fused_pct']:+.3f} %, views "
+                               f"{r['views_pct']:+.3f} %, by area {r['area_pct']:+.3f} % (+/- {r['predicted_sigma_pct']:.3f} "
+                               f"%); model {r['scale_error_pct']}")
     return 0
 
 
