@@ -27,7 +27,8 @@ fit's scale was weighed against the mat's).
 
 Measured (2026-12-06, session 55) on the 140 runs of held-out draws 106-112 (113 separable on the fused surface;
 ``bench/results/placement_scale_fresh106_112_rows.jsonl``): the placements alone give the model RMS 0.132 %, p90
-0.215 % of scale; their covariances predict a median 0.054 % (|error| / sigma p68 1.77, p90 3.31, 74 % within 2).
+0.215 % of scale; their covariances predict a median 0.054 % (|error| / sigma median 1.07, p68 1.77, p90 3.31, RMS
+2.25; 74 % within 2).
 The views' points counted once read it 0.84 times (correlation 0.97; draw 108's plaques 0.66 and 0.52 times), weighted
 by area 1.02 times (0.99). Where the placements stood unrefined (22 reliable runs) the models' scale follows theirs
 (correlation +0.81; RMS 0.359 against 0.192 %); where the joint fit was held by the mat (69), hardly (+0.27).
