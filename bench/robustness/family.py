@@ -318,11 +318,11 @@ def stored_placements(row: dict, mesh_dir: Path | None = MESH_DIR):
     return d, names, on, placed, true, pose_errors(placed, true[on], d.object.vertices)
 
 
-def over_stored_rows(argv, prog: str, description: str, per_row, describe) -> list[dict]:
+def over_stored_rows(argv, prog: str, description: str, per_row, describe=None) -> list[dict]:
     """The command line of a diagnostic on stored family rows (``ROWS.jsonl [...] [-o OUT.jsonl]``): ``per_row``
     (a stored row -> a result dict, or None to skip it) on every row of every file, each result tagged with its
-    file's name (``rows``) and printed to stderr by ``describe`` (result -> one line) as it comes; the results are
-    written to ``-o`` (jsonl) when given, and returned."""
+    file's name (``rows``) and printed to stderr by ``describe`` (result -> one line; None: not printed) as it
+    comes; the results are written to ``-o`` (jsonl) when given, and returned."""
     ap = argparse.ArgumentParser(prog=prog, description=description)
     ap.add_argument("rows", nargs="+", type=Path, help="stored family rows (jsonl) of runs with --mat")
     ap.add_argument("-o", "--output", type=Path, default=None, help="per-run rows (jsonl) written here")
@@ -334,7 +334,8 @@ def over_stored_rows(argv, prog: str, description: str, per_row, describe) -> li
             if r is not None:
                 r["rows"] = path.name
                 runs.append(r)
-                print(describe(r), file=sys.stderr, flush=True)
+                if describe is not None:
+                    print(describe(r), file=sys.stderr, flush=True)
     if a.output is not None:
         a.output.write_text("".join(json.dumps(r) + "\n" for r in runs))
     return runs

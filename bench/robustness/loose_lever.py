@@ -21,18 +21,14 @@ rule as it is flags none (1585444336 at 0.996 of the gate); taken at the object 
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from bench.robustness.family import GATE_DEG, GATE_MM, MESH_DIR, draw_of_row
+from bench.robustness.family import GATE_DEG, GATE_MM, MESH_DIR, draw_of_row, over_stored_rows
 from tofmetry.reconstruct._mat_locate import MatFix
-
-#: a standard normal's 90th percentile of |x| (as ``_mat_stage.P90_Z``)
-P90_Z = 1.645
+from tofmetry.reconstruct._mat_stage import P90_Z
 
 
 def score_row(row: dict, mesh_dir: Path | None = MESH_DIR) -> dict:
@@ -60,13 +56,7 @@ def score_row(row: dict, mesh_dir: Path | None = MESH_DIR) -> dict:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m bench.robustness.loose_lever", description=__doc__.splitlines()[0])
-    ap.add_argument("rows", nargs="+", type=Path, help="family rows (jsonl) made with --mat, with centre_xy")
-    ap.add_argument("-o", "--output", type=Path, default=None, help="per-run scores (jsonl) written here")
-    a = ap.parse_args(argv)
-    out = [score_row(json.loads(line)) for f in a.rows for line in f.read_text().splitlines()]
-    if a.output is not None:
-        a.output.write_text("".join(json.dumps(r) + "\n" for r in out))
+    out = over_stored_rows(argv, "python -m bench.robustness.loose_lever", __doc__.splitlines()[0], score_row)
     unref = [r for r in out if r["unrefined"]]
     for key in ("old_ratio", "new_ratio"):
         flagged = [r for r in unref if r[key] > 1.0]

@@ -114,20 +114,13 @@ def area_scale_row(points: np.ndarray, normals: np.ndarray, k: int = 12) -> np.n
     return (Hi @ (J * w[:, None]).T)[6]
 
 
-def area_weighted_scale(points: np.ndarray, normals: np.ndarray, dn: np.ndarray) -> float:
-    """Relative scale [%] of the normal moves ``dn`` (N,) [m] (:func:`area_scale_row`); NaN where not separable."""
-    r = area_scale_row(points, normals)
-    return float("nan") if r is None else 100.0 * float(r @ dn)
-
-
-def predicted_sigma(points: np.ndarray, normals: np.ndarray, view: np.ndarray, fixes: list[dict],
+def predicted_sigma(points: np.ndarray, normals: np.ndarray, r: np.ndarray | None, view: np.ndarray, fixes: list[dict],
                     to_world: np.ndarray, height_sigma_m: float, tilt_sigma_deg: float) -> float:
     """The scale 1-sigma [%] the placements' own covariances give (as the mat's scale hold takes them:
     :func:`tofmetry.reconstruct._mat_scale.placement_covariance`, each view's left increment in the mat
-    frame carried to the world by ``to_world`` (4, 4)), on the area-weighted row of the view points
-    ``points`` (world), ``view`` (N,) their placed view's index into ``fixes`` (the rows' ``mat_fixes``
-    entries)."""
-    r = area_scale_row(points, normals)
+    frame carried to the world by ``to_world`` (4, 4)), on the area-weighted row ``r`` (:func:`area_scale_row`,
+    None: not separable) of the view points ``points`` (world), ``view`` (N,) their placed view's index into
+    ``fixes`` (the rows' ``mat_fixes`` entries)."""
     if r is None:
         return float("nan")
     R, t = to_world[:3, :3], to_world[:3, 3]
@@ -143,11 +136,12 @@ def predicted_sigma(points: np.ndarray, normals: np.ndarray, view: np.ndarray, f
     return 100.0 * float(np.sqrt(var))
 
 
-def placement_scale(P_true: np.ndarray, N_true: np.ndarray, moves: np.ndarray, S: np.ndarray, SN: np.ndarray) -> tuple:
+def placement_scale(P_true: np.ndarray, N_true: np.ndarray, moves: np.ndarray, S: np.ndarray, SN: np.ndarray,
+                    area_row: np.ndarray | None) -> tuple:
     """(fused, views, area) relative scale [%] of the moves ``moves`` (M, 3) [m] of the view points ``P_true``
     (M, 3) (world, unit normals ``N_true`` toward their cameras), read on the surface samples ``S``, ``SN``
-    and on the view points themselves, counted once and weighted by area (module docstring); NaN where scale
-    and offset are not separable."""
+    and on the view points themselves, counted once and weighted by area (``area_row``, :func:`area_scale_row`
+    of those points; module docstring); NaN where scale and offset are not separable."""
     dn_views = np.einsum("ij,ij->i", N_true, moves)
     rows_v, _ = _scale_rows(P_true, N_true)
     views = float("nan") if rows_v is None else 100.0 * float(rows_v[0] @ dn_views)
@@ -162,7 +156,8 @@ def placement_scale(P_true: np.ndarray, N_true: np.ndarray, moves: np.ndarray, S
     mean_move = np.einsum("mk,mkj->mj", same.astype(np.float64), moves[jj]) / np.maximum(cnt, 1)[:, None]
     rows_f, _ = _scale_rows(S[good], SN[good])
     fused = float("nan") if rows_f is None else 100.0 * float(rows_f[0] @ np.einsum("ij,ij->i", SN[good], mean_move[good]))
-    return fused, views, area_weighted_scale(P_true, N_true, dn_views)
+    area = float("nan") if area_row is None else 100.0 * float(area_row @ dn_views)
+    return fused, views, area
 
 
 def run_row(row: dict, mesh_dir: Path | None = MESH_DIR) -> dict | None:
@@ -183,10 +178,11 @@ def run_row(row: dict, mesh_dir: Path | None = MESH_DIR) -> dict | None:
         vi.append(np.full(len(P), i))
     S, SN = surface_samples(d.object.vertices, d.object.triangles)
     Pw, Nw = np.concatenate(Pw), np.concatenate(Nw)
-    fused, concat, area = placement_scale(Pw, Nw, np.concatenate(mv), S, SN)
+    row_area = area_scale_row(Pw, Nw)
+    fused, concat, area = placement_scale(Pw, Nw, np.concatenate(mv), S, SN, row_area)
     cal_mm = (row.get("calibration") or {}).get("predicted_central_mm") or RegistrationConfig().mat_prior_mm
-    pred = predicted_sigma(Pw, Nw, np.concatenate(vi), [fixes[names[k]] for k in on], pm.alignment, cal_mm * 1e-3,
-                           RegistrationConfig().mat_prior_deg)
+    pred = predicted_sigma(Pw, Nw, row_area, np.concatenate(vi), [fixes[names[k]] for k in on], pm.alignment,
+                           cal_mm * 1e-3, RegistrationConfig().mat_prior_deg)
     warnings = row.get("warnings") or []
     return {"seed": row["seed"], "object": row["object"]["name"], "views": len(on), "reliable": row.get("reliable"),
             "unrefined": any("unrefined" in w for w in warnings), "held_by_mat": row.get("mat_scale_hold") is not None,
