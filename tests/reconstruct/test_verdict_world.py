@@ -108,6 +108,22 @@ def test_the_chains_own_scale_error_is_added_in_quadrature():
     assert scale_report(None, None, 1000.0, floor_pct=0.05)["predicted_scale_sigma_pct"] is None
 
 
+def test_unrefined_placements_add_their_own_scale_in_quadrature():
+    """Where the dot mat's placements stand as the poses, their scale 1-sigma joins the chain's
+    prediction (after the larger of rule and budget) and is reported; none given, nothing changes."""
+    pred = {"interpolation": {"central_abs_mm": {"predicted": 0.3}},
+            "folds": [{"center_mm": 1000.0 + 250 * k} for k in range(5)]}
+    adj = {"depth_gain": 0.001, "gain_estimated": True, "gain_sigma_data": 0.0004}
+    base = scale_report(adj, pred, 1000.0, floor_pct=0.05)
+    r = scale_report(adj, pred, 1000.0, floor_pct=0.05, placements_sigma_pct=0.12)
+    assert np.isclose(r["predicted_scale_sigma_pct"], np.hypot(base["predicted_scale_sigma_pct"], 0.12))
+    assert r["placements_scale_sigma_pct"] == 0.12 and "placements" in r["source"]
+    for none in (None, float("nan"), 0.0):
+        r = scale_report(adj, pred, 1000.0, floor_pct=0.05, placements_sigma_pct=none)
+        assert r["predicted_scale_sigma_pct"] == base["predicted_scale_sigma_pct"]
+        assert "placements_scale_sigma_pct" not in r
+
+
 def test_scale_report_takes_the_larger_of_the_rule_and_the_budget():
     """The budget is handed the calibration's offset [m] and the gain's sigma; the prediction is
     the larger of the two propagations, and the report keeps both."""

@@ -31,7 +31,7 @@ from tofmetry.reconstruct._model_build import (
 )
 from tofmetry.reconstruct._mat_stage import (calibration_beyond_gate, departures, judge_placements, pattern_scale,
                                              pattern_scale_warning, place_views)
-from tofmetry.reconstruct._mat_scale import budget_held, held_poses
+from tofmetry.reconstruct._mat_scale import budget_held, held_poses, placed_scale
 from tofmetry.reconstruct._mat_tilt import MatDepthTilt, take_off_depth_tilt
 from tofmetry.reconstruct._preprocess import ViewData, prepare_view
 from tofmetry.reconstruct._support_curve import correct_by_support
@@ -277,6 +277,15 @@ class ReconstructionPipeline:
                           [self.mat.fixes.get(n) for n in names], (fit.get("poses") or {}).get("sigma", np.nan),
                           adj.pose_covariance, rc.mat_prior_deg, height_mm * 1e-3)
 
+    def placements_scale(self, views, segs, placed, names: list[str]):
+        """The model's scale 1-sigma the mat's placements ``placed`` (V, 4, 4) leave where they stand
+        unrefined (:func:`~tofmetry.reconstruct._mat_scale.placed_scale`): a ScaleHold."""
+        rc = self.cfg.registration
+        height_mm = calibration_central_mm(None if self.cal is None else self.cal.prediction) or rc.mat_prior_mm
+        return placed_scale([v.points[s.object_mask] for v, s in zip(views, segs)],
+                            [v.normals[s.object_mask] for v, s in zip(views, segs)], placed,
+                            [self.mat.fixes.get(n) for n in names], rc.mat_prior_deg, height_mm * 1e-3)
+
     def place_on_mat(self, views, segs, regs, intr, what: str) -> None:
         """Every view placed on the dot mat (:func:`place_views`, into :attr:`mat`), its tilt weighed
         by the calibration's residual field (:meth:`mat_field`)."""
@@ -360,9 +369,11 @@ class ReconstructionPipeline:
                 adj = None
                 for v, sg, (pts, depth, plane) in zip(views, segs, before_fit):
                     v.points, v.depth_mm, sg.plane = pts, depth, plane
-        poses, hold = start if adj is None else adj.poses, None
+        poses, hold, placed = start if adj is None else adj.poses, None, None
         if self.mat is not None and adj is not None and rc.mat_holds_scale:  # the fit may not bend the mat's scale
             poses, hold = self.hold_mat_scale(views, segs, start, poses, intr, adj, names)
+        elif self.mat is not None and adj is None:  # the placements are the poses: their own scale uncertainty
+            placed = self.placements_scale(views, segs, start, names)
         if support is None:  # the curve after the poses, levelled on the object unless the calibration warns there
             # (level_from_support); on a mat, its gain anchored
             gain = self.cfg.preprocess.support_anchor == "gain"
@@ -441,7 +452,8 @@ class ReconstructionPipeline:
                                       rc.amplitude_k_sigma_mm if self.white_map is not None else None,
                                       rc.scale_floor_pct, support, object_depth_span_mm(views, segs),
                                       None if self.cal is None or self.cal.support is None else
-                                      extrapolation_scale_sigma({v.name: v.stats for v in views}, pred))
+                                      extrapolation_scale_sigma({v.name: v.stats for v in views}, pred),
+                                      None if placed is None else 100 * placed.mat_sigma)
                 | ({"mat_pattern": mat_scale} if self.mat is not None else {}),
                 "world": world, "slab": slab, "support_curve": support,
                 "views": {v.name: v.stats for v in views}, "fusion": fusion_info, "timings_s": self.timings,

@@ -27,7 +27,8 @@ OBJECT_SUPPORT_OFFSET_MM = 0.6
 
 def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z_ref_mm: float,
                  budget=None, k_sigma_mm: float | None = None, floor_pct: float = 0.0,
-                 support: dict | None = None, depth_span_mm=None, extrapolation: dict | None = None) -> dict:
+                 support: dict | None = None, depth_span_mm=None, extrapolation: dict | None = None,
+                 placements_sigma_pct: float | None = None) -> dict:
     """The model's predicted scale and surface-offset uncertainty from the depth chain.
 
     A range offset ``e`` left by the calibration moves every point along its ray: the surfaces
@@ -86,6 +87,12 @@ def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z
     ``extrapolation``: where part of the object lies beyond the calibration's stations, the scale
     1-sigma its extrapolation adds (:func:`~tofmetry.reconstruct._calibration_support.extrapolation_scale_sigma`),
     in quadrature (``extrapolation_scale_sigma_pct``).
+
+    ``placements_sigma_pct`` [%]: where the dot mat's placements stand as the poses, unrefined by the
+    joint fit, the scale 1-sigma their own pose errors leave
+    (:func:`~tofmetry.reconstruct._mat_scale.placed_scale`), in quadrature
+    (``placements_scale_sigma_pct``). Where the fit refined them, the budget's poses' term counts them
+    (:func:`~tofmetry.reconstruct._mat_scale.budget_held`).
 
     Returns
     -------
@@ -170,6 +177,11 @@ def scale_report(adjustment: dict | None, calibration_prediction: dict | None, z
         out["source"] += (f"; {100 * extrapolation['share']:.0f} % of the object's points lie beyond the calibration's "
                           f"stations, where its correction drifts by up to {extrapolation['error_mm']:.1f} mm per "
                           f"{extrapolation['spacing_mm']:.0f} mm of depth: +-{extrapolation['sigma_pct']:.2f} %")
+    if placements_sigma_pct is not None and np.isfinite(placements_sigma_pct) and placements_sigma_pct > 0:
+        out["placements_scale_sigma_pct"] = float(placements_sigma_pct)
+        out["predicted_scale_sigma_pct"] = float(np.hypot(out["predicted_scale_sigma_pct"], placements_sigma_pct))
+        out["source"] += (f"; the dot mat's placements, standing unrefined as the poses, +-{placements_sigma_pct:.3f} % "
+                          "from their own dots, tilt and height")
     if floor_pct > 0:
         out["chain_floor_pct"] = float(floor_pct)
         out["predicted_scale_sigma_pct"] = float(np.hypot(out["predicted_scale_sigma_pct"], floor_pct))
