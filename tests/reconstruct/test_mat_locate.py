@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from tofmetry._shared.dot_mat import DotMat
 from tofmetry._shared.geometry import rotation_angle_deg
@@ -11,7 +12,8 @@ from tofmetry.io import read_json
 from tofmetry.pipelines.reconstruct import ScanDataset
 from tofmetry.reconstruct import ReconstructionConfig
 from tofmetry.reconstruct._mat_dots import albedo_image, plane_frame, seen_dots
-from tofmetry.reconstruct._mat_locate import OVERLAPPING, MatFix, locate_on_mat, match_dots
+from tofmetry.reconstruct._mat_locate import (OVERLAPPING, MatFix, _best_hypothesis, _matches, _Printed, locate_on_mat,
+                                             match_dots)
 from tofmetry.reconstruct._photometric import log_albedo
 from tofmetry.reconstruct._pipeline import ReconstructionPipeline
 from tests.reconstruct.mat_scenes import perfect_mat_scan
@@ -36,6 +38,43 @@ def test_a_subset_of_the_layout_moved_and_noisy_is_matched_back():
     assert (matched[25:] == -1).sum() >= 5  # a random blob may land on a dot of its size by chance
     assert abs(np.degrees(np.arctan2(Rf[1, 0], Rf[0, 0])) - 117.0) < 0.1  # 0.5 mm noise over ~0.3 m
     assert np.linalg.norm(tf - t) < 1.5e-3
+
+
+def test_the_printed_dots_raster_answers_as_the_tree():
+    """The raster only spares the tree the points far from every dot: on points near dots, far
+    from them and off the sheet, the same nearest dot and distance as the tree's bounded query."""
+    C, _ = DotMat(seed=4).dots()
+    rng = np.random.default_rng(2)
+    p = np.r_[C[rng.integers(0, len(C), 20000)] + rng.normal(0, 3e-3, (20000, 2)),
+              rng.uniform(C.min(0) - 0.05, C.max(0) + 0.05, (20000, 2))]
+    d, j = _Printed(C, 4e-3).query(p)
+    d0, j0 = cKDTree(C).query(p, distance_upper_bound=4e-3)
+    np.testing.assert_array_equal(j, j0)
+    np.testing.assert_array_equal(d, d0)
+    assert 0.1 < np.isfinite(d).mean() < 0.9
+
+
+def test_the_pruned_count_picks_the_hypothesis_a_full_count_picks():
+    """Hypotheses dropped once they cannot reach the best one's count: the pick (first of the best
+    on a tie) and its matches are those of counting every hypothesis on every dot."""
+    mat = DotMat(seed=9)
+    C, Rad = mat.dots()
+    rng = np.random.default_rng(3)
+    printed = _Printed(C, 4e-3)
+    for trial in range(5):
+        pick = rng.choice(len(C), 30, replace=False)
+        th = rng.uniform(-np.pi, np.pi, 3000)
+        R = np.stack([np.c_[np.cos(th), -np.sin(th)], np.c_[np.sin(th), np.cos(th)]], 1)
+        t = rng.uniform(-0.2, 0.2, (3000, 2))
+        k = rng.integers(0, 3000, 3)  # a few near-true hypotheses among the random ones
+        R[k], t[k] = np.eye(2), rng.normal(0, 2e-3, (3, 2))
+        seen = C[pick] + rng.normal(0, 0.7e-3, (30, 2))
+        seen_r = Rad[pick] + rng.normal(0, 0.5e-3, 30)
+        best, ok, j = _best_hypothesis(R, t, seen, seen_r, printed, Rad, 3e-3)
+        ok_all, j_all = _matches(R, t, seen, seen_r, printed, Rad, 3e-3)
+        assert best == int(np.argmax(ok_all.sum(1))) and best in k
+        np.testing.assert_array_equal(ok, ok_all[best])
+        np.testing.assert_array_equal(j, j_all[best])
 
 
 def test_a_scene_with_no_mat_places_no_view():
