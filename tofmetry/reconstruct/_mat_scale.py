@@ -171,10 +171,13 @@ def placed_scale(points_cam: list[np.ndarray], normals_cam: list[np.ndarray], pl
     Where the joint fit refines the placements, :func:`hold_scale` counts them in the held sigma;
     where it was not kept (the calibration's residual could move it beyond the gate, or it slid
     views beyond it), the placements' own pose errors scale the model and the depth chain's
-    prediction has no term for them. Measured from the stored rows of family draws 106-112
-    (``bench/robustness/placement_scale``): on 22 reliable runs whose placements stood unrefined the
-    models' scale error followed the placements' (correlation +0.81) and ran |error| / sigma p90
-    1.77 against the chain's prediction alone, 1.43 with this term in quadrature.
+    prediction has no term for them. On the 22 reliable runs of family draws 106-112 whose placements
+    stood unrefined the models' scale error followed the placements' (correlation +0.81, read from
+    the stored rows by ``bench/robustness/placement_scale``); rerun with this term in quadrature
+    (session 56, ``bench/results/object_family_dev106_112_unrefined_placed_sigma_rows.jsonl``),
+    |error| / sigma p90 went 1.77 -> 1.53 (1.645 exact), 21 of 22 within 2 sigmas either way. The
+    term is added on 17 of them; on the 5 heads (igea) scale and offset are not separable on the
+    views' own points, and it is not.
 
     Parameters
     ----------

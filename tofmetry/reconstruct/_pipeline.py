@@ -266,25 +266,30 @@ class ReconstructionPipeline:
         self.place_on_mat(views, segs, regs, intr, "placing the views on the mat again (depth tilt taken off)")
         return mt
 
+    def mat_scale_inputs(self, views, segs, names: list[str]) -> tuple:
+        """What the mat's scale terms take of the views ``names``: the object's points [m] and normals per
+        view (camera frame), each view's :class:`~tofmetry.reconstruct._mat_locate.MatFix` (None: not
+        placed by dots), and the placements' tilt [deg] and height [m] fallback sigmas (the height's the
+        calibration's predicted central error, the configured prior without one)."""
+        rc = self.cfg.registration
+        height_mm = calibration_central_mm(None if self.cal is None else self.cal.prediction) or rc.mat_prior_mm
+        return ([v.points[s.object_mask] for v, s in zip(views, segs)],
+                [v.normals[s.object_mask] for v, s in zip(views, segs)],
+                [self.mat.fixes.get(n) for n in names], rc.mat_prior_deg, height_mm * 1e-3)
+
     def hold_mat_scale(self, views, segs, start, poses, intr, adj: AdjustResult, names: list[str]):
         """The joint fit's ``poses`` with their scale weighed against the mat's placements ``start``
         (:func:`~tofmetry.reconstruct._mat_scale.held_poses`): (poses, ScaleHold)."""
-        rc = self.cfg.registration
         fit = scale_budget_of(views, segs, poses, intr, median_object_depth_m(views, segs), None, 0.0, adj)(0.0, 0.0)
-        height_mm = calibration_central_mm(None if self.cal is None else self.cal.prediction) or rc.mat_prior_mm
-        return held_poses([v.points[s.object_mask] for v, s in zip(views, segs)],
-                          [v.normals[s.object_mask] for v, s in zip(views, segs)], start, poses,
-                          [self.mat.fixes.get(n) for n in names], (fit.get("poses") or {}).get("sigma", np.nan),
-                          adj.pose_covariance, rc.mat_prior_deg, height_mm * 1e-3)
+        P, N, fixes, tilt_deg, height_m = self.mat_scale_inputs(views, segs, names)
+        return held_poses(P, N, start, poses, fixes, (fit.get("poses") or {}).get("sigma", np.nan),
+                          adj.pose_covariance, tilt_deg, height_m)
 
     def placements_scale(self, views, segs, placed, names: list[str]):
         """The model's scale 1-sigma the mat's placements ``placed`` (V, 4, 4) leave where they stand
         unrefined (:func:`~tofmetry.reconstruct._mat_scale.placed_scale`): a ScaleHold."""
-        rc = self.cfg.registration
-        height_mm = calibration_central_mm(None if self.cal is None else self.cal.prediction) or rc.mat_prior_mm
-        return placed_scale([v.points[s.object_mask] for v, s in zip(views, segs)],
-                            [v.normals[s.object_mask] for v, s in zip(views, segs)], placed,
-                            [self.mat.fixes.get(n) for n in names], rc.mat_prior_deg, height_mm * 1e-3)
+        P, N, fixes, tilt_deg, height_m = self.mat_scale_inputs(views, segs, names)
+        return placed_scale(P, N, placed, fixes, tilt_deg, height_m)
 
     def place_on_mat(self, views, segs, regs, intr, what: str) -> None:
         """Every view placed on the dot mat (:func:`place_views`, into :attr:`mat`), its tilt weighed
