@@ -43,7 +43,7 @@ import open3d as o3d
 from scipy.spatial import cKDTree
 
 from bench.robustness.family import MESH_DIR, over_stored_rows, stored_placements
-from tofmetry._shared.geometry import SCALE_OFFSET_MAX_CORRELATION, similarity_offset_jacobian, skew
+from tofmetry._shared.geometry import skew
 from tofmetry.reconstruct import RegistrationConfig
 from tofmetry.reconstruct._mat_locate import MatFix
 from tofmetry.reconstruct._mat_scale import placement_covariance
@@ -100,18 +100,8 @@ def area_scale_row(points: np.ndarray, normals: np.ndarray, k: int = 12) -> np.n
     fitted beside it. None where the two are not separable or the fit is singular."""
     d, _ = cKDTree(points).query(points, k=k + 1)
     w = d[:, -1] ** 2
-    w /= w.mean()
-    c = (points * w[:, None]).sum(0) / w.sum()
-    q = points - c
-    L = float(np.sqrt((w * (q ** 2).sum(1)).sum() / w.sum()))
-    J = similarity_offset_jacobian(q, normals, L)
-    H = (J * w[:, None]).T @ J
-    if not np.linalg.cond(H) < 1e12:
-        return None
-    Hi = np.linalg.inv(H)
-    if abs(Hi[6, 7] / np.sqrt(Hi[6, 6] * Hi[7, 7])) > SCALE_OFFSET_MAX_CORRELATION:
-        return None
-    return (Hi @ (J * w[:, None]).T)[6]
+    rows, _ = _scale_rows(points, normals, weights=w / w.mean())
+    return None if rows is None else rows[0]
 
 
 def predicted_sigma(points: np.ndarray, normals: np.ndarray, r: np.ndarray | None, view: np.ndarray, fixes: list[dict],

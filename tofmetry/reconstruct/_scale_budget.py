@@ -62,26 +62,39 @@ class PoseUncertainty:
     field_basis: Callable[[np.ndarray], np.ndarray] | None = None
 
 
-def _scale_rows(points_w: np.ndarray, normals_w: np.ndarray) -> tuple[np.ndarray | None, float]:
+def _scale_rows(points_w: np.ndarray, normals_w: np.ndarray,
+                weights: np.ndarray | None = None) -> tuple[np.ndarray | None, float]:
     """The fit of :func:`scale_response` as a linear map: ``(rows, correlation)`` with ``rows`` (2, N)
     such that a displacement field ``d`` has scale ``rows[0] @ (n . d)`` and normal offset
     ``rows[1] @ (n . d)`` [m]; ``rows`` is None where the fit is singular or scale and offset are not
-    separable (``|correlation| > SCALE_OFFSET_MAX_CORRELATION``)."""
+    separable (``|correlation| > SCALE_OFFSET_MAX_CORRELATION``).
+
+    ``weights`` (N,): each point's weight in the fit (its centroid, size and normal equations), e.g.
+    the surface area it stands for; None: each point counted once (what the scale budget and the
+    mat's scale hold do)."""
     p = np.asarray(points_w, np.float64)
     n = np.asarray(normals_w, np.float64)
     if len(p) < 10:
         return None, float("nan")
-    qc = p - p.mean(0)
-    L = float(np.sqrt(np.mean(np.sum(qc ** 2, 1)))) or 1.0
-    J = similarity_offset_jacobian(qc, n, L)
-    H = J.T @ J
+    if weights is None:
+        qc = p - p.mean(0)
+        L = float(np.sqrt(np.mean(np.sum(qc ** 2, 1)))) or 1.0
+        J = similarity_offset_jacobian(qc, n, L)
+        JW = J
+    else:
+        w = np.asarray(weights, np.float64)
+        qc = p - (p * w[:, None]).sum(0) / w.sum()
+        L = float(np.sqrt((w * (qc ** 2).sum(1)).sum() / w.sum())) or 1.0
+        J = similarity_offset_jacobian(qc, n, L)
+        JW = J * w[:, None]
+    H = JW.T @ J
     if not np.linalg.cond(H) < 1e12:  # a plane: the scale moves nothing along its normal
         return None, float("nan")
     Hi = np.linalg.inv(H)
     corr = float(Hi[6, 7] / np.sqrt(max(Hi[6, 6] * Hi[7, 7], 1e-300)))
     if not np.isfinite(corr) or abs(corr) > SCALE_OFFSET_MAX_CORRELATION:
         return None, corr
-    return (Hi @ J.T)[6:8], corr
+    return (Hi @ JW.T)[6:8], corr
 
 
 def scale_response(points_w: np.ndarray, normals_w: np.ndarray, moves_w: np.ndarray) -> tuple[float, float, float]:
