@@ -70,11 +70,29 @@ def run_sight(row: dict, mesh_dir: Path | None = MESH_DIR) -> dict | None:
             dist.append(float(-c[2] / z[2]))
     if len(ps) < 2:
         return None
+    # the placements in the mat's own frame against the truth, no alignment: the sheet lies centred at the
+    # world's origin, its long side turned by its yaw about z (tofmetry._shared.dot_mat); the mat frame's
+    # z is up, so a camera placed too high or too far out shows as it is
+    a = np.radians(row["mat"]["yaw_deg"])
+    to_mat = np.array([[np.cos(a), np.sin(a), 0.0], [-np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    up_err, out_err = [], []
+    for i, k in enumerate(on):
+        c_true = to_mat @ true[k][:3, 3]
+        e = placed[i][:3, 3] - c_true
+        out = np.r_[c_true[:2], 0.0] / np.linalg.norm(c_true[:2])
+        up_err.append(float(e[2]))
+        out_err.append(float(e @ out))
+    k_err = None
+    if (row.get("amplitude_slope") or {}).get("k_mm_per_ln") is not None and row.get("true_k_mm_per_ln") is not None:
+        k_err = round(row["amplitude_slope"]["k_mm_per_ln"] - row["true_k_mm_per_ln"], 4)
     delta, sigma, _ = widened_fit(np.asarray(ps), np.asarray(ps_sig), 1.0 / np.asarray(dist))  # as range_offset
     return {"seed": row["seed"], "object": row["object"]["name"], "distance_m": p["distance_m"],
             "dots_distance_m": round(float(np.median(dist)), 3), "views": len(on), "views_with_dots": len(ps),
             "true_mm": round(1e3 * float(np.mean(rad_err)) / float(np.mean(rad_share)), 3),
             "reading_mm": round(1e3 * delta, 3), "reading_sigma_mm": round(1e3 * sigma, 3),
+            "height_mm": round(1e3 * float(np.mean(up_err)), 3), "outward_mm": round(1e3 * float(np.mean(out_err)), 3),
+            "elevation_deg": p["elevation_deg"], "k_error_mm_per_ln": k_err,
+            "unrefined": row.get("adjustment") is None, "mean_signed_mm": row.get("mean_signed_mm"),
             "scale_error_pct": row.get("scale_error_pct")}
 
 
@@ -97,13 +115,44 @@ def summarize(runs: list[dict]) -> dict:
             "corr_reading_true": round(float(np.corrcoef(rd, tr)[0, 1]), 3),
             "runs_with_scale": int(ok.sum()),
             "corr_scale_true": round(float(np.corrcoef(sc[ok], tr[ok])[0, 1]), 3),
-            "corr_scale_reading": round(float(np.corrcoef(sc[ok], rd[ok])[0, 1]), 3)}
+            "corr_scale_reading": round(float(np.corrcoef(sc[ok], rd[ok])[0, 1]), 3)} | _in_mat_frame(runs)
+
+
+def _in_mat_frame(runs: list[dict]) -> dict:
+    """The placements' height and outward errors in the mat's frame (:func:`run_sight`'s ``height_mm``,
+    ``outward_mm``; absent from rows made before session 57): their means, by how the poses stood, and how the
+    outward error follows the amplitude coefficient's error and the model's mean signed deviation."""
+    runs = [r for r in runs if "height_mm" in r]
+    if len(runs) < 3:
+        return {}
+    h = np.array([r["height_mm"] for r in runs])
+    o = np.array([r["outward_mm"] for r in runs])
+    un = np.array([r["unrefined"] for r in runs])
+    k = np.array([np.nan if r["k_error_mm_per_ln"] is None else r["k_error_mm_per_ln"] for r in runs], float)
+    ms = np.array([np.nan if r["mean_signed_mm"] is None else r["mean_signed_mm"] for r in runs], float)
+    out = {"height_mean_mm": round(float(h.mean()), 3), "height_sd_mm": round(float(h.std()), 3),
+           "outward_mean_mm": round(float(o.mean()), 3), "outward_sd_mm": round(float(o.std()), 3),
+           "corr_outward_height": round(float(np.corrcoef(o, h)[0, 1]), 3)}
+    for name, m in (("held", ~un), ("unrefined", un)):
+        if m.sum() >= 2:
+            out[f"{name}_runs"] = int(m.sum())
+            out[f"{name}_outward_mean_mm"] = round(float(o[m].mean()), 3)
+            out[f"{name}_mean_signed_mm"] = round(float(np.nanmean(ms[m])), 3)
+            ok = m & np.isfinite(ms)
+            if ok.sum() >= 3:
+                out[f"{name}_corr_mean_signed_outward"] = round(float(np.corrcoef(ms[ok], o[ok])[0, 1]), 3)
+    ok = np.isfinite(k)
+    if ok.sum() >= 3:
+        out["corr_outward_k_error"] = round(float(np.corrcoef(o[ok], k[ok])[0, 1]), 3)
+        out["corr_height_k_error"] = round(float(np.corrcoef(h[ok], k[ok])[0, 1]), 3)
+    return out
 
 
 def main(argv=None) -> int:
     runs = over_stored_rows(argv, "python -m bench.robustness.mat_sight", __doc__.splitlines()[0], run_sight,
                             lambda r: f"{r['seed']:>10} {r['object']:<11} true {r['true_mm']:+.2f} mm, dots read "
-                                      f"{r['reading_mm']:+.2f} +/- {r['reading_sigma_mm']:.2f} mm, scale {r['scale_error_pct']}")
+                                      f"{r['reading_mm']:+.2f} +/- {r['reading_sigma_mm']:.2f} mm, in the mat's frame "
+                                      f"{r['height_mm']:+.2f} mm up, {r['outward_mm']:+.2f} mm out, scale {r['scale_error_pct']}")
     print(json.dumps(summarize(runs), indent=1))
     return 0
 
