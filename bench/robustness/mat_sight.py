@@ -30,8 +30,9 @@ and +1.06 mm came out +0.67 and +0.34 %.
 
 In the mat's own frame, no alignment (``height_mm``, ``outward_mm``; session 57, the 120 runs of held-out draws
 110-115, ``bench/results/mat_sight_fresh110_115_rows.jsonl``): the placed cameras stand +0.17 mm too high (sd 0.38)
-and +0.28 mm too far out (sd 0.34; the two correlate at 0.72); the outward error follows the amplitude coefficient's
-error (the grey-level boards' k minus the sensor's, correlation -0.72; the height -0.44). Where the placements stood
+and +0.28 mm too far out (sd 0.34; the two correlate at 0.72); the outward error runs with the amplitude
+coefficient's error (the grey-level boards' k minus the sensor's, correlation -0.72; the height -0.44), but the
+true k leaves it as it is (:mod:`bench.robustness.true_k`). Where the placements stood
 unrefined (28 runs) the model's mean signed deviation follows the outward error (correlation +0.71; +0.14 mm on
 average, against -0.04 mm over the 92 runs whose joint fit held, which takes it out: correlation -0.03). On these
 runs the aligned measure above reads +0.31 mm (sd 0.37) and the dots' reading follows it at 0.70, 0.38 mm short.
