@@ -22,19 +22,18 @@ import sys
 import tofmetry.pipelines.reconstruct as _reconstruct
 from bench.robustness import family
 
-_TRUE: dict = {}
-
 
 def main(argv=None) -> int:
     calibrate, measured = family.calibrate_sensor, _reconstruct.with_measured_amplitude_slope
+    true = {}  # the coefficient of the draw being run
 
     def calibrate_sensor(sensor, *args, **kwargs):  # the draw's sensor: its true coefficient
-        _TRUE["k"] = sensor.errors.amplitude_slope_mm_per_ln()
+        true["k"] = sensor.errors.amplitude_slope_mm_per_ln()
         return calibrate(sensor, *args, **kwargs)
 
     def with_true_slope(config, slope):
         cfg = measured(config, slope)
-        cfg.preprocess.amplitude_k_mm_per_ln = _TRUE["k"]
+        cfg.preprocess.amplitude_k_mm_per_ln = true["k"]
         return cfg
 
     family.calibrate_sensor = calibrate_sensor

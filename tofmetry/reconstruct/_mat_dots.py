@@ -107,6 +107,13 @@ def toner_share(alb: np.ndarray, blob: np.ndarray, contrast: float, grow: int = 
     return np.where(edge, share, 0.0)
 
 
+#: each pixel's 4 neighbours over a whole image, as (this pixel's slice, its neighbour's slice)
+_NEIGHBOURS = ((np.s_[1:, :], np.s_[:-1, :]),  # the one above
+               (np.s_[:-1, :], np.s_[1:, :]),  # below
+               (np.s_[:, 1:], np.s_[:, :-1]),  # to the left
+               (np.s_[:, :-1], np.s_[:, 1:]))  # to the right
+
+
 def _filled_blobs(dark: np.ndarray, lab: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     """Each dark blob with its holes: ``(filled, alone)``, ``filled`` (H, W) int, the blob's label on its
     pixels and on the pixels it encloses, 0 elsewhere; ``alone`` (n + 1,) bool, whether that is what
@@ -124,8 +131,8 @@ def _filled_blobs(dark: np.ndarray, lab: np.ndarray, n: int) -> tuple[np.ndarray
     back, nb = ndimage.label(~dark)
     owner = np.zeros(nb + 1, np.int64)  # the one blob a patch touches; -1: more than one
     keys = []  # each (patch, blob) next to each other, as patch * (n + 1) + blob
-    for a, b in ((back[1:, :], lab[:-1, :]), (back[:-1, :], lab[1:, :]), (back[:, 1:], lab[:, :-1]),
-                 (back[:, :-1], lab[:, 1:])):
+    for here, there in _NEIGHBOURS:
+        a, b = back[here], lab[there]
         m = (a > 0) & (b > 0)
         keys.append(a[m].astype(np.int64) * (n + 1) + b[m])
     patch, blob = np.divmod(np.unique(np.concatenate(keys)), n + 1)
@@ -134,7 +141,6 @@ def _filled_blobs(dark: np.ndarray, lab: np.ndarray, n: int) -> tuple[np.ndarray
     owner[count > 1] = -1
     edge = np.unique(np.concatenate([back[0], back[-1], back[:, 0], back[:, -1]]))
     owner[edge] = 0
-    owner[0] = 0
     shared = count > 1
     shared[edge] = False
     alone = np.ones(n + 1, bool)
@@ -184,9 +190,9 @@ def seen_dots(alb: np.ndarray, rays: np.ndarray, plane: np.ndarray, contrast: fl
     size = np.bincount(filled.ravel(), minlength=n + 1)
     # a blob not wholly on paper: a pixel next to it (4-connected), outside it, is not paper
     off_paper = np.zeros(n + 1, bool)
-    for a, b, q in ((filled[1:, :], filled[:-1, :], bright[:-1, :]), (filled[:-1, :], filled[1:, :], bright[1:, :]),
-                    (filled[:, 1:], filled[:, :-1], bright[:, :-1]), (filled[:, :-1], filled[:, 1:], bright[:, 1:])):
-        off_paper[a[(a > 0) & (a != b) & ~q]] = True
+    for here, there in _NEIGHBOURS:
+        a, b = filled[here], filled[there]
+        off_paper[a[(a > 0) & (a != b) & ~bright[there]]] = True
     flat = np.flatnonzero(filled)  # each blob's pixels in row-major order, as np.nonzero gives them
     owner = filled.ravel()[flat]
     order = np.argsort(owner, kind="stable")

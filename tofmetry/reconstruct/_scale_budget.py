@@ -79,14 +79,12 @@ def _scale_rows(points_w: np.ndarray, normals_w: np.ndarray,
     if weights is None:
         qc = p - p.mean(0)
         L = float(np.sqrt(np.mean(np.sum(qc ** 2, 1)))) or 1.0
-        J = similarity_offset_jacobian(qc, n, L)
-        JW = J
     else:
-        w = np.asarray(weights, np.float64)
-        qc = p - (p * w[:, None]).sum(0) / w.sum()
-        L = float(np.sqrt((w * (qc ** 2).sum(1)).sum() / w.sum())) or 1.0
-        J = similarity_offset_jacobian(qc, n, L)
-        JW = J * w[:, None]
+        w = np.asarray(weights, np.float64)[:, None]
+        qc = p - (p * w).sum(0) / w.sum()
+        L = float(np.sqrt((w[:, 0] * (qc ** 2).sum(1)).sum() / w.sum())) or 1.0
+    J = similarity_offset_jacobian(qc, n, L)
+    JW = J if weights is None else J * w
     H = JW.T @ J
     if not np.linalg.cond(H) < 1e12:  # a plane: the scale moves nothing along its normal
         return None, float("nan")
