@@ -222,6 +222,17 @@ class RegistrationConfig(BaseModel):
     mat_scale_floor_pct: float = Field(0.1, ge=0, description="the dots' own systematic scale error [%] (1 sigma) in "
                                        "the mat's check of the depth scale (_mat_stage.pattern_scale): on exact depth "
                                        "they came out 0.09 +- 0.02 % small over 8 views of a vase")
+    mat_plane_at_object: bool = Field(False, description="with a mat, each view's support plane takes its offset "
+                                      "from the support at the object's depths before the view is placed "
+                                      "(tofmetry.reconstruct._mat_level): the placements then share the object's "
+                                      "range error, and the support curve is levelled on the object. Off: on 26 "
+                                      "development runs of draws 113-115 (session 58) the models of the 15 whose "
+                                      "placements stood unrefined came out less inflated (mean signed deviation "
+                                      "+0.17 -> +0.07 mm, mean |d| p90 0.36 -> 0.30 mm) but their scale no better "
+                                      "(|scale| p90 0.44 -> 0.46 %) and their poses farther from the truth at the object "
+                                      "(up to 2.65 from 0.97 mm): the placements then carry the object's own range error")
+    mat_plane_band_mm: float = Field(100.0, gt=0, description="with mat_plane_at_object, the support's points within "
+                                     "this of the object's median depth give the plane's offset [mm]")
     mat_holds_scale: bool = Field(True, description="with a mat, the joint fit's change of the model's scale from the "
                                   "placements is weighed against the placements' own scale uncertainty and the rest "
                                   "taken off (tofmetry.reconstruct._mat_scale)")

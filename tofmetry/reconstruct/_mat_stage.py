@@ -21,6 +21,7 @@ from tofmetry._shared.dot_mat import DotMat
 from tofmetry.reconstruct._config import RegistrationConfig
 from tofmetry.reconstruct._mat_dense import locate_by_pattern
 from tofmetry.reconstruct._mat_dots import albedo_image, plane_frame
+from tofmetry.reconstruct._mat_level import plane_at_depth
 from tofmetry.reconstruct._mat_locate import MatFix, locate_on_mat, pooled_dot_noise, with_pooled_noise
 from tofmetry.reconstruct._adjust_field import DepthFieldPrior
 from tofmetry.reconstruct._mat_plane import matched_dots, view_dot_plane
@@ -66,6 +67,9 @@ class MatPlacement:
     range_offset : the mat's range error its dots' size gave
         (:func:`~tofmetry.reconstruct._mat_range.range_offset`; ``applied``: taken out of the
         placements, ``registration.mat_range_from_dots``), None where not measured
+    plane_levels : view name -> ``{"moved_mm", "points"}``: how far its support plane was moved toward the
+        camera onto the support at the object's depths before it was placed
+        (:func:`~tofmetry.reconstruct._mat_level.plane_at_depth`, ``registration.mat_plane_at_object``)
     """
 
     graph: PoseGraphResult
@@ -75,10 +79,12 @@ class MatPlacement:
     through: dict = field(default_factory=dict)
     dot_planes: dict = field(default_factory=dict)
     range_offset: dict | None = None
+    plane_levels: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return {name: f.to_dict() | ({"through": self.through[name]} if name in self.through else {})
                 | ({"dot_plane": self.dot_planes[name].to_dict()} if name in self.dot_planes else {})
+                | ({"plane_level": self.plane_levels[name]} if name in self.plane_levels else {})
                 for name, f in self.fixes.items()}
 
     def view_verdicts(self) -> dict:
@@ -163,29 +169,35 @@ def place_views(views, segs, regs, intr, white_map, rc: RegistrationConfig, name
     """
     mat = DotMat.from_dict(rc.mat, "registration.mat")
     rays = intr.ray_table(True)
-    fixes, poses, planes = {}, {}, {}
+    fixes, poses, planes, levels = {}, {}, {}, {}
     for k, (v, s) in enumerate(zip(views, segs)):
         if s.plane is None or v.ir is None:
             fixes[names[k]] = MatFix(False, reason="no support plane was found in the view" if s.plane is None else
                                      "the view has no IR frames (the mat's dots are seen in the IR amplitude)")
             continue
         ground = support_mask(v, s, plane_threshold_m)
+        plane_k = s.plane
+        if rc.mat_plane_at_object and s.object_mask.any():  # its offset read at the object's depths
+            on = (np.abs(v.points @ s.plane[:3] + s.plane[3]) < plane_threshold_m) & ~s.object_mask
+            plane_k, moved, n_on = plane_at_depth(s.plane, v.points[on], float(np.median(v.points[s.object_mask, 2])),
+                                                  1e-3 * rc.mat_plane_band_mm)
+            levels[names[k]] = {"moved_mm": round(moved, 3), "points": n_on}
         alb = albedo_image(v.index, intr.shape, ground, log_albedo(v, intr, white_map))
-        fx = locate_on_mat(alb, rays, s.plane, mat, rc.mat_min_dots)
+        fx = locate_on_mat(alb, rays, plane_k, mat, rc.mat_min_dots)
         if not fx.located and s.object_mask.any():  # too few whole dots: the whole pattern
-            G = plane_frame(s.plane)
+            G = plane_frame(plane_k)
             foot = (v.points[s.object_mask] @ G[:2, :3].T + G[:2, 3]).mean(0)
-            fp = locate_by_pattern(alb, rays, s.plane, foot, mat,
+            fp = locate_by_pattern(alb, rays, plane_k, foot, mat,
                                    pattern_sigma=(rc.mat_pattern_sigma_deg, rc.mat_pattern_sigma_mm))
             fx = fp if fp.located else replace(fx, reason=f"{fx.reason}; {fp.reason}")
         wanted = (dot_planes or depth_field is not None) and fx.located and "dots" in fx.how
-        seen = matched_dots(alb, rays, s.plane, fx, mat) if wanted else None
-        dp = None if seen is None else view_dot_plane(alb, rays, s.plane, fx, mat, seen=seen)
+        seen = matched_dots(alb, rays, plane_k, fx, mat) if wanted else None
+        dp = None if seen is None else view_dot_plane(alb, rays, plane_k, fx, mat, seen=seen)
         if depth_field is not None and fx.located:
-            cov = depth_plane_tilt_cov(s.plane, v.points[ground], depth_field)
+            cov = depth_plane_tilt_cov(plane_k, v.points[ground], depth_field)
             if dp is not None:
                 tilt, tcov = combined_tilt(dp, cov)
-                fx, _ = retilted_fix(fx, s.plane, seen[0], seen[1], tilt, tcov, mat)
+                fx, _ = retilted_fix(fx, plane_k, seen[0], seen[1], tilt, tcov, mat)
             else:
                 fx = replace(fx, tilt_sigma_deg=float(np.degrees(largest_sigma(cov))))
         fixes[names[k]] = fx
@@ -231,7 +243,7 @@ def place_views(views, segs, regs, intr, white_map, rc: RegistrationConfig, name
             d["object_disagrees"] = rejection_reason(replace(p, accepted=False), rc)
         edges.append(d)
     graph = PoseGraphResult(P, edges, {"reasons": [], "loops": [], "placed_by": "dot mat"})
-    return MatPlacement(graph, fixes, kept, left_out, through, planes, rng)
+    return MatPlacement(graph, fixes, kept, left_out, through, planes, rng, levels)
 
 
 def _through_neighbours(k: int, poses: dict, regs, rc: RegistrationConfig, names: list[str]):

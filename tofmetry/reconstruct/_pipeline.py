@@ -215,6 +215,8 @@ class ReconstructionPipeline:
         mode = self.cfg.preprocess.support_curve_level
         if mode != "auto":
             return mode == "support"
+        if self.mat is not None and self.cfg.registration.mat_plane_at_object:  # placed at the object's depths
+            return False
         pc = calibration_central_mm(self.prediction_at_object) if self.cal is not None else None
         return pc is not None and pc > self.cfg.registration.max_calibration_mm
 
