@@ -42,6 +42,7 @@ import numpy as np
 import open3d as o3d
 
 from bench.robustness import family
+from bench.robustness.mat_sight import world_to_mat
 from tofmetry.io import read_json
 from tofmetry.reconstruct import _pipeline
 
@@ -103,7 +104,7 @@ def view_lift(points, index, plane, obj, T, placed, to_mat, rays, scene) -> dict
         to_world = np.linalg.inv(to_mat) @ placed
         X, Xp = R @ centre_c + t, to_world[:3, :3] @ centre_c + to_world[:3, 3]
         v = (X - t) / np.linalg.norm(X - t)
-        out["placement_height"] = round(1e3 * float(placed[2, 3] - (to_mat @ T)[2, 3]), 3)
+        out["placement_height"] = round(1e3 * float(placed[2, 3] - t[2]), 3)  # the turn about z keeps heights
         out["placement_along"] = round(1e3 * float((Xp - X) @ v), 3)
         if out["object_dz"] is not None:
             out["surface_along"] = round(out["placement_along"] + out["object_dz"], 3)
@@ -121,9 +122,8 @@ def run_lift(seed: int, config=None) -> dict:
         scene = o3d.t.geometry.RaycastingScene()
         scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
         true = {v["name"]: np.array(v["camera_to_world"]) for v in truth["views"]}
-        a = np.radians(row["mat"]["yaw_deg"])
         to_mat = np.eye(4)
-        to_mat[:3, :3] = [[np.cos(a), np.sin(a), 0.0], [-np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]]
+        to_mat[:3, :3] = world_to_mat(row["mat"]["yaw_deg"])
         rays = np.asarray(cap["intr"].ray_table(True)).reshape(-1, 2)
         views = {}
         for name, (pts, idx), (plane, obj) in zip(cap["names"], cap["views"], cap["segs"]):

@@ -52,6 +52,13 @@ from tofmetry.reconstruct._mat_range import widened_fit
 MIN_DOTS = 6
 
 
+def world_to_mat(yaw_deg: float) -> np.ndarray:
+    """(3, 3) rotation from the world to the family's mat frame: the sheet lies centred at the world's origin, its
+    long side turned by ``yaw_deg`` about z (:class:`tofmetry._shared.dot_mat.DotMat`), z up in both."""
+    a = np.radians(yaw_deg)
+    return np.array([[np.cos(a), np.sin(a), 0.0], [-np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+
+
 def run_sight(row: dict, mesh_dir: Path | None = MESH_DIR) -> dict | None:
     """One stored family row's placements against the truth (module docstring); None where the row has no
     placements (no mat, refused) or fewer than two views placed by ``MIN_DOTS`` dots."""
@@ -82,8 +89,7 @@ def run_sight(row: dict, mesh_dir: Path | None = MESH_DIR) -> dict | None:
     # the placements in the mat's own frame against the truth, no alignment: the sheet lies centred at the
     # world's origin, its long side turned by its yaw about z (tofmetry._shared.dot_mat); the mat frame's
     # z is up, so a camera placed too high or too far out shows as it is
-    a = np.radians(row["mat"]["yaw_deg"])
-    to_mat = np.array([[np.cos(a), np.sin(a), 0.0], [-np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    to_mat = world_to_mat(row["mat"]["yaw_deg"])
     up_err, out_err = [], []
     for i, k in enumerate(on):
         c_true = to_mat @ true[k][:3, 3]
