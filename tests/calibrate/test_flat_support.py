@@ -7,6 +7,7 @@ plane cannot absorb (orthogonal to 1, Z and Z^2 over the span); a range error in
 
 import numpy as np
 import pytest
+from scipy.interpolate import CubicSpline
 
 from tofmetry.calibrate import flat_support_curve
 from tofmetry.errors import EstimationError, InputError
@@ -144,3 +145,41 @@ def test_anchored_planes_give_the_whole_curve_offset_gain_and_curvature_included
     # unanchored, the same views give the curve's part orthogonal to 1, Z and Z^2 only
     u = flat_support_curve(Z, XY)
     assert not u.anchored and np.max(np.abs(u.error_mm(z) - truth)) > 1.0
+
+
+def test_tied_to_the_calibrations_stations_the_curve_gives_the_whole_gain():
+    """A calibration's residual is about nought at its stations and wiggles between them; the support
+    shows the wiggle less its 1, Z and Z^2 over the span. Tied to nought at the stations, the curve's
+    slope over an object's depths is the residual's, the parts a plane absorbs included."""
+    stations = np.arange(600.0, 2700.0, 400.0)  # a calibration's stations, 400 mm apart
+    through = CubicSpline(stations, wiggle_mm(stations))  # a smooth calibration through its stations
+
+    def residual(z):
+        return wiggle_mm(z) - through(z)
+
+    Z, XY = views_of_floor(residual, noise_mm=1.0)
+    untied = flat_support_curve(Z, XY)
+    tied = flat_support_curve(Z, XY, stations_mm=stations)
+    lo, hi = tied.span_mm
+    assert tied.stations_mm == tuple(stations[(stations >= lo) & (stations <= hi)])
+    zz = np.linspace(650.0, 1450.0, 40)  # where objects stand
+
+    def true_slope(z):
+        return (residual(z - residual(z) + 1) - residual(z - residual(z) - 1)) / 2
+
+    err_tied = np.max(np.abs(tied.gain(zz)[0] - true_slope(zz)))
+    err_untied = np.max(np.abs(untied.gain(zz)[0] - true_slope(zz)))
+    # the residual's slope spans +-5 %; the spline (60 mm knots, its smoothness prior) follows it within
+    # 0.25 %; untied, the curve misses the slope of the residual's parabola over the span besides (0.4 %)
+    assert err_tied < 2.5e-3 and err_tied < 0.6 * err_untied
+    # its level at an object's depths is what the tie adds there: levelling keeps the slope
+    z_obj = np.linspace(900.0, 1000.0, 20)
+    assert tied.tie_mean_mm(z_obj) != 0.0 and untied.tie_mean_mm(z_obj) == 0.0
+    np.testing.assert_allclose(tied.levelled(z_obj).gain(z_obj)[0], tied.gain(z_obj)[0])
+    # with that taken off (the reconstruction's unlevelled curve), its level there is the untied curve's
+    tied.level_mm = tied.tie_mean_mm(z_obj)
+    assert np.mean(tied.error_mm(z_obj)) == pytest.approx(np.mean(untied.error_mm(z_obj)), abs=1e-9)
+    # fewer than two stations within the span: untied
+    one = flat_support_curve(Z, XY, stations_mm=[1000.0])
+    assert one.tie_coef_mm is None and one.stations_mm == ()
+    np.testing.assert_allclose(one.coef_mm, untied.coef_mm)

@@ -73,6 +73,9 @@ class FlatSupportCurve:
     anchored : its offset, gain and curvature measured too, from planes known without the depth
         (``anchors``); otherwise its part orthogonal to ``1``, ``Z`` and ``Z^2`` only
     n_anchors : the anchored views that gave them
+    tie_coef_mm : (B,) the part of ``coef_mm`` that ties the curve to the calibration's stations (its
+        ``1``, ``Z`` and ``Z^2`` fitted so that the curve is nought there, :func:`_station_tie`); None untied
+    stations_mm : the stations within the span it was tied to [mm]
     """
 
     span_mm: tuple[float, float]
@@ -88,6 +91,8 @@ class FlatSupportCurve:
     level_mm: float = 0.0
     anchored: bool = False
     n_anchors: int = 0
+    tie_coef_mm: np.ndarray | None = None
+    stations_mm: tuple = ()
 
     def _basis(self, z_mm: np.ndarray, nu: int = 0) -> np.ndarray:
         """(N, B) the basis functions (or their ``nu``-th derivative) at ``z_mm`` clipped to the span."""
@@ -130,6 +135,13 @@ class FlatSupportCurve:
         b = self._basis(z_mm).mean(0)
         return float(b @ self.coef_mm - self.level_mm), float(np.sqrt(max(b @ self.coef_cov_mm2 @ b, 0.0)))
 
+    def tie_mean_mm(self, z_mm) -> float:
+        """The station tie's mean over the depths ``z_mm`` [mm] (0 untied): what the tie adds to the curve's
+        level there."""
+        if self.tie_coef_mm is None or np.size(z_mm) == 0:
+            return 0.0
+        return float(self._basis(z_mm).mean(0) @ self.tie_coef_mm)
+
     def levelled(self, z_mm) -> "FlatSupportCurve":
         """The curve less its mean over the depths ``z_mm`` [mm] (an object's points): it then changes
         their depths' slope (the gain their size sees) but not their mean, which the support cannot
@@ -153,11 +165,13 @@ class FlatSupportCurve:
                              for v, e, u in zip(z, self.error_mm(z), s)},
                 "max_abs_mm": round(float(np.max(np.abs(self.error_mm(np.linspace(lo, hi, 200))))), 3),
                 "notes": list(self.notes), "level_mm": round(self.level_mm, 3), "anchored": self.anchored,
-                "n_anchors": self.n_anchors,
+                "n_anchors": self.n_anchors, "stations_mm": [round(float(z), 1) for z in self.stations_mm],
                 "model": "support flat: 1/Z = a x + b y + c per view, measured Z' = Z + e(Z'), e a cubic spline "
                          + (f"whole: its part orthogonal to 1, Z and Z^2 from the support, those from {self.n_anchors} "
                             "views' planes measured without the depth (the printed pattern's perspective)"
                             if self.anchored else
+                            f"its 1, Z and Z^2 tied to nought at the calibration's {len(self.stations_mm)} stations "
+                            "within the span" if self.tie_coef_mm is not None else
                             "kept orthogonal to 1, Z and Z^2 over the span (those parts stay the calibration's)")
                          + "; 1-sigma from the views' jackknife"}
 
@@ -194,7 +208,8 @@ def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: fl
                        smooth_mm: float = 5.0, min_views: int = 3, min_points: int = 500,
                        min_span_steps: float = 3.0, clip_sigmas: float = 3.0,
                        max_points_per_view: int = 8000, seed: int = 0,
-                       anchors: list | None = None) -> FlatSupportCurve:
+                       anchors: list | None = None, stations_mm=None,
+                       station_sigma_mm: float = 0.3) -> FlatSupportCurve:
     """Fit the range-error curve a flat support shows in several views of it.
 
     Parameters
@@ -213,6 +228,14 @@ def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: fl
         depth (a printed pattern's perspective fit), ``p`` (3,) its ``(a, b, c)`` [1/m] and ``cov``
         (3, 3) their covariance. With at least ``min_views`` anchored views the curve's offset, gain
         and curvature come from them (:func:`_anchored_part`) and the curve is whole (``anchored``)
+    stations_mm : optional, the depths [mm] of the depth calibration's stations, where its own residual is
+        about nought (it was fitted there; between them it wiggles, which the support shows). Without
+        anchors, with at least two of them within the span, the curve's ``1``, ``Z`` and ``Z^2`` (``1`` and
+        ``Z`` with two) are those that put it nearest nought there (:func:`_station_tie`): its gain and
+        curvature over an object's depths are then the whole range error's, not only its part the support
+        shows. A part of the support's own error that is a parabola in Z (a smooth incidence bias) goes with them.
+    station_sigma_mm : the calibration's residual at its stations (1 sigma) [mm], added to the curve's
+        covariance through the tie
 
     Returns
     -------
@@ -306,11 +329,37 @@ def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: fl
         coef = coef + full
         for j in range(V):  # a view without an anchor leaves the planes' share as it is
             jack[j] = jack[j] + (share(anchored.index(j)) if j in anchored else full)
+    tie, zs = None, ()
+    if not whole and stations_mm is not None:
+        zs = tuple(float(z) for z in np.sort(np.asarray(stations_mm, np.float64).ravel()) if lo <= z <= hi)
+        if len(zs) >= 2:
+            M, G = _station_tie(np.array(zs), knots, Bg, Pg, zg.mean(), hi - lo)
+            tie = M @ coef - coef
+            coef, jack = M @ coef, jack @ M.T
+        else:
+            zs = ()
     cov = (V - 1) / V * (jack - jack.mean(0)).T @ (jack - jack.mean(0))
+    if tie is not None:
+        cov = cov + station_sigma_mm ** 2 * G @ G.T
     return FlatSupportCurve((lo, hi), knots, coef, cov, V, int(sum(m.sum() for m in used)),
                             float(1.4826 * np.median(np.abs(res))),
                             float(1.4826 * np.median(np.abs(np.concatenate(flat)))), float(step_mm),
-                            anchored=whole, n_anchors=len(anchored) if whole else 0)
+                            anchored=whole, n_anchors=len(anchored) if whole else 0, tie_coef_mm=tie,
+                            stations_mm=zs)
+
+
+def _station_tie(zs: np.ndarray, knots: np.ndarray, Bg: np.ndarray, Pg: np.ndarray, z0: float,
+                 span: float) -> tuple[np.ndarray, np.ndarray]:
+    """The curve tied to nought at the stations ``zs`` [mm]: ``M`` (B, B) maps its coefficients to those
+    with ``k0 + k1 u + k2 u^2`` (``u = (Z - z0) / span``; ``k2`` held at 0 with two stations) added, fitted
+    by least squares to minus the curve there; ``G`` (B, S) maps the stations' own residuals [mm] to the
+    coefficients (their covariance)."""
+    Bs = BSpline.design_matrix(zs, knots, _DEGREE).toarray()
+    u = (zs - z0) / span
+    A = np.column_stack([np.ones_like(u), u, u ** 2])[:, :min(3, len(zs))]
+    to_coef = (np.linalg.pinv(Bg) @ Pg)[:, :A.shape[1]]
+    G = to_coef @ np.linalg.pinv(A)
+    return np.eye(Bs.shape[1]) - G @ Bs, G
 
 
 def _anchor_samples(xy: np.ndarray, p: np.ndarray, anchor: np.ndarray, anchor_cov: np.ndarray,

@@ -36,6 +36,14 @@ class PreprocessConfig(BaseModel):
         "'calibration' otherwise. Measured on the family's draws 80-84 (99 runs): where it warned (20), the model's "
         "mean signed deviation followed the level, correlation -0.96; elsewhere -0.35, levels 0.21 mm RMS, and "
         "taking them off made 6 of 10 held-out runs worse (draw 85)")
+    support_curve_stations: bool = Field(False, description="the support curve's 1, Z and Z^2 (which a flat "
+                                         "support cannot show) tied to nought at the depth calibration's stations, "
+                                         "where it was fitted (tofmetry.calibrate.flat_support_curve): its gain over "
+                                         "the object is then the whole range error's, its level there unchanged. Off: "
+                                         "on 9 development runs of draws 113-117 (session 59, the family's stations "
+                                         "100-250 mm apart) the depth's share of the scale came closer on 7 (|.| mean "
+                                         "0.285 -> 0.247 %) but the models' scale no better (5 -> 5 of 8 beyond 0.2 %): "
+                                         "the support shows the range error on other pixels than the object's")
     support_curve_step_mm: float = Field(60.0, gt=0, description="the support curve's knot spacing [mm]: it follows "
                                          "range wiggles down to about twice this period")
     support_curve_smooth_mm: float = Field(5.0, gt=0, description="prior 1-sigma of the support curve's second "

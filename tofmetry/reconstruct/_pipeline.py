@@ -204,9 +204,16 @@ class ReconstructionPipeline:
         with self.progress("range curve from the support", 1) as adv:
             report = correct_by_support(views, segs, intr, pc.support_curve_band_mm * 1e-3, pc.support_curve_clear_px,
                                         self.cfg.segment.plane_threshold_mm * 1e-3, pc.support_curve_step_mm,
-                                        pc.support_curve_smooth_mm, anchors, level)
+                                        pc.support_curve_smooth_mm, anchors, level,
+                                        self.calibration_stations_mm() if pc.support_curve_stations else None)
             adv()
         return report
+
+    def calibration_stations_mm(self) -> list[float] | None:
+        """The depths of the depth calibration's stations [mm] (its fit's samples), None without them."""
+        rows = ((self.cal.diagnostics or {}).get("samples") or []) if self.cal is not None else []
+        z = [float(r["center_mm"]) for r in rows if isinstance(r, dict) and np.isfinite(r.get("center_mm", np.nan))]
+        return z or None
 
     def level_from_support(self) -> bool:
         """Whether the support curve's level at the object's depths is taken off the object

@@ -64,7 +64,8 @@ def support_samples(views: list[ViewData], segs: list[Segmentation], intr: Camer
 
 def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: CameraIntrinsics,
                        band_m: float, clear_px: float, plane_threshold_m: float, step_mm: float,
-                       smooth_mm: float, anchors: list | None = None, level: bool = True) -> dict:
+                       smooth_mm: float, anchors: list | None = None, level: bool = True,
+                       stations_mm=None) -> dict:
     """Fit the support's range curve, levelled on the object's depths, and subtract it from every
     view's depth, in place.
 
@@ -78,6 +79,9 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
     (``object_offset_mm``): an anchored one by the whole range error the dots' planes show there, one
     from the support alone by its part orthogonal to ``1``, ``Z`` and ``Z^2`` (what the views'
     placements, which took their height from the measured support, leave the object off by).
+    ``stations_mm``: the depth calibration's stations (:func:`~tofmetry.calibrate.flat_support_curve`):
+    the curve's ``1``, ``Z`` and ``Z^2`` tied to nought there, which changes its gain over the object; its
+    level at the object's depths stays the untied curve's (the placements hold the rest).
 
     Returns
     -------
@@ -88,7 +92,8 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
     """
     z_mm, xy = support_samples(views, segs, intr, band_m, clear_px)
     try:
-        curve = flat_support_curve(z_mm, xy, step_mm=step_mm, smooth_mm=smooth_mm, anchors=anchors)
+        curve = flat_support_curve(z_mm, xy, step_mm=step_mm, smooth_mm=smooth_mm, anchors=anchors,
+                                   stations_mm=stations_mm)
     except EstimationError as exc:
         return {"applied": False, "why": str(exc)}
     # levelled, the object's own mean depth stays as the calibration left it (session 34, on a bar of draw 74:
@@ -98,6 +103,7 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
     # deviation followed it, correlation -0.87; the ten largest levels unlevelled: mean |d| 1.45 -> 0.29 mm
     # at best, two worse, bench/robustness/README.md)
     z_obj = np.concatenate([v.points[s.object_mask, 2] for v, s in zip(views, segs)]) * 1e3
+    curve.level_mm = curve.tie_mean_mm(z_obj)  # the tie changes the curve's slope at the object, not its level
     lv, slv = curve.mean_error(z_obj)
     if level:
         curve = curve.levelled(z_obj)
