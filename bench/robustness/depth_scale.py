@@ -54,14 +54,15 @@ import json
 import shutil
 import tempfile
 from pathlib import Path
+from unittest import mock
 
 import numpy as np
 import open3d as o3d
 
 from bench.robustness import family
+from bench.robustness.mat_lift import scan_truth
 from tofmetry.calibrate import wall_sample
 from tofmetry.evaluate import scale_from_reference
-from tofmetry.io import read_json
 from tofmetry.io.mesh import Geometry
 from tofmetry.reconstruct import _pipeline
 from tofmetry.simulate.family import random_sensor
@@ -90,11 +91,8 @@ def _captured_run(seed: int, work: Path, config=None) -> tuple[dict, dict]:
         cap["after"] = snapshot(views, segs)
         return report
 
-    _pipeline.ReconstructionPipeline.correct_by_support = correct_by_support
-    try:
+    with mock.patch.object(_pipeline.ReconstructionPipeline, "correct_by_support", correct_by_support):
         row = family.run_case(seed, work, mat=True, planned=0.9, plan_distance=True, keep=True, config=config)
-    finally:
-        _pipeline.ReconstructionPipeline.correct_by_support = correct
     return row, cap
 
 
@@ -136,15 +134,10 @@ def run_seed(seed: int, config=None) -> dict:
     work = Path(tempfile.mkdtemp(prefix="tof-depth-scale-"))
     try:
         row, cap = _captured_run(seed, work, config)
-        scan = work / f"scan-{seed}"
-        truth = read_json(scan / "truth.json")
-        mesh = o3d.io.read_triangle_mesh(str(scan / "reference.ply"))
+        true, mesh, scene = scan_truth(work / f"scan-{seed}")
     finally:
         shutil.rmtree(work, ignore_errors=True)
     ref = Geometry(np.asarray(mesh.vertices), np.asarray(mesh.triangles), source="reference")
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
-    true = {v["name"]: np.array(v["camera_to_world"]) for v in truth["views"]}
     sc = row.get("support_curve") or {}
     out = {"seed": seed, "object": row["object"]["name"], "unrefined": any("unrefined" in w for w in row["warnings"]),
            "scale_error_pct": row.get("scale_error_pct"),

@@ -37,6 +37,7 @@ import json
 import shutil
 import tempfile
 from pathlib import Path
+from unittest import mock
 
 import numpy as np
 import open3d as o3d
@@ -64,11 +65,8 @@ def _captured_run(seed: int, work: Path, config=None) -> tuple[dict, dict]:
                        segs=[(None if s.plane is None else np.array(s.plane), s.object_mask.copy()) for s in segs],
                        fixes={n: f.camera_to_mat.copy() for n, f in self.mat.fixes.items() if f.located})
 
-    _pipeline.ReconstructionPipeline.place_on_mat = place_on_mat
-    try:
+    with mock.patch.object(_pipeline.ReconstructionPipeline, "place_on_mat", place_on_mat):
         row = family.run_case(seed, work, mat=True, planned=0.9, plan_distance=True, keep=True, config=config)
-    finally:
-        _pipeline.ReconstructionPipeline.place_on_mat = place
     return row, cap
 
 
@@ -111,17 +109,22 @@ def view_lift(points, index, plane, obj, T, placed, to_mat, rays, scene) -> dict
     return out
 
 
+def scan_truth(scan: Path) -> tuple[dict, o3d.geometry.TriangleMesh, o3d.t.geometry.RaycastingScene]:
+    """A family scan's truth (its folder ``scan``): each view's true camera-to-world (4, 4) by name, the
+    reference mesh and an Open3D ray-casting scene of it."""
+    truth = read_json(scan / "truth.json")
+    mesh = o3d.io.read_triangle_mesh(str(scan / "reference.ply"))
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+    return {v["name"]: np.array(v["camera_to_world"]) for v in truth["views"]}, mesh, scene
+
+
 def run_lift(seed: int, config=None) -> dict:
     """One seed's run row figures and its views' lift figures (``config``: :func:`_captured_run`)."""
     work = Path(tempfile.mkdtemp(prefix="tof-mat-lift-"))
     try:
         row, cap = _captured_run(seed, work, config)
-        scan = work / f"scan-{seed}"
-        truth = read_json(scan / "truth.json")
-        mesh = o3d.io.read_triangle_mesh(str(scan / "reference.ply"))
-        scene = o3d.t.geometry.RaycastingScene()
-        scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
-        true = {v["name"]: np.array(v["camera_to_world"]) for v in truth["views"]}
+        true, _, scene = scan_truth(work / f"scan-{seed}")
         to_mat = np.eye(4)
         to_mat[:3, :3] = world_to_mat(row["mat"]["yaw_deg"])
         rays = np.asarray(cap["intr"].ray_table(True)).reshape(-1, 2)

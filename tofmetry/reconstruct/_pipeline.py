@@ -205,7 +205,8 @@ class ReconstructionPipeline:
             report = correct_by_support(views, segs, intr, pc.support_curve_band_mm * 1e-3, pc.support_curve_clear_px,
                                         self.cfg.segment.plane_threshold_mm * 1e-3, pc.support_curve_step_mm,
                                         pc.support_curve_smooth_mm, anchors, level,
-                                        self.calibration_stations_mm() if pc.support_curve_stations else None)
+                                        self.calibration_stations_mm() if pc.support_curve_stations else None,
+                                        pc.support_curve_columns)
             adv()
         return report
 

@@ -27,7 +27,8 @@ from tofmetry.sensor import CameraIntrinsics
 
 
 def support_samples(views: list[ViewData], segs: list[Segmentation], intr: CameraIntrinsics,
-                    band_m: float, clear_px: float) -> tuple[list[np.ndarray], list[np.ndarray]]:
+                    band_m: float, clear_px: float,
+                    columns: float | None = None) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Each view's points on its support plane, away from the object: measured Z [mm] and normalised
     rays (x, y).
 
@@ -40,6 +41,9 @@ def support_samples(views: list[ViewData], segs: list[Segmentation], intr: Camer
     clear_px : points within this many pixels of the object's are left out: its foot (below the
         segmentation's height), its flying pixels and its shadow lie at the object's own depths, where
         a millimetre of them reads as the range error there
+    columns : None: the whole support. Otherwise only its points in the object's own image columns (the 5-95 %
+        span of the object's normalised x in that view) widened by this on each side: the calibration's residual
+        between its stations changes over the image, and the support's rows below the object carry the object's
 
     Returns
     -------
@@ -57,6 +61,10 @@ def support_samples(views: list[ViewData], segs: list[Segmentation], intr: Camer
         obj[v.index[s.object_mask]] = True
         clear = ndimage.distance_transform_edt(~obj.reshape(H, W)).ravel() > clear_px
         on = (np.abs(v.points @ np.asarray(s.plane[:3]) + float(s.plane[3])) < band_m) & ~s.object_mask & clear[v.index]
+        if columns is not None and s.object_mask.any():
+            x = rays[v.index, 0]
+            lo, hi = np.percentile(x[s.object_mask], [5, 95])
+            on &= (x > lo - columns) & (x < hi + columns)
         z_mm.append(v.points[on, 2] * 1e3)
         xy.append(rays[v.index[on]])
     return z_mm, xy
@@ -65,7 +73,7 @@ def support_samples(views: list[ViewData], segs: list[Segmentation], intr: Camer
 def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: CameraIntrinsics,
                        band_m: float, clear_px: float, plane_threshold_m: float, step_mm: float,
                        smooth_mm: float, anchors: list | None = None, level: bool = True,
-                       stations_mm=None) -> dict:
+                       stations_mm=None, columns: float | None = None) -> dict:
     """Fit the support's range curve, levelled on the object's depths, and subtract it from every
     view's depth, in place.
 
@@ -81,7 +89,8 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
     placements, which took their height from the measured support, leave the object off by).
     ``stations_mm``: the depth calibration's stations (:func:`~tofmetry.calibrate.flat_support_curve`):
     the curve's ``1``, ``Z`` and ``Z^2`` tied to nought there, which changes its gain over the object; its
-    level at the object's depths stays the untied curve's (the placements hold the rest).
+    level at the object's depths stays the untied curve's (the placements hold the rest). ``columns``: the
+    support's points in the object's image columns only (:func:`support_samples`).
 
     Returns
     -------
@@ -90,7 +99,7 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
     changed over the object's measured depths (``object_gain_pct``, its jackknife ``object_gain_sigma_pct``)
     and those depths' 5-95 % span (``object_depth_mm``)
     """
-    z_mm, xy = support_samples(views, segs, intr, band_m, clear_px)
+    z_mm, xy = support_samples(views, segs, intr, band_m, clear_px, columns)
     try:
         curve = flat_support_curve(z_mm, xy, step_mm=step_mm, smooth_mm=smooth_mm, anchors=anchors,
                                    stations_mm=stations_mm)
