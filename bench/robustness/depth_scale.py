@@ -45,6 +45,13 @@ With ``--set preprocess.support_curve_stations=true`` (the curve's ``1``, ``Z``,
 stations; nine of the runs, ``bench/results/depth_scale_dev_stations_rows.jsonl``, rows of this tool's first
 version: run and depth-alone scales only) the depth alone came closer on 7 of 9 (|.| mean 0.285 -> 0.247 %), the
 runs' scale not (|.| mean 0.235 -> 0.221 % over 8 separable, 5 -> 5 beyond 0.2 %).
+
+With the support read in the object's own image columns (``--set preprocess.support_curve_columns=0.05``, an option,
+off; ``bench/results/depth_scale_dev_columns_rows.jsonl``): the depth alone leaves 0.23 -> 0.14 % of scale on
+average over the twelve (better on 9: fandisk 1626370171 +0.49 -> +0.21 %, fandisk 1105210102 +0.38 -> +0.18 %,
+baluster 1758384059 +0.25 -> +0.11 %, held bunny 184071080 -0.15 -> -0.04 %; worse on a bunny 982114271 +0.03 ->
++0.17 %); the runs' scale |.| mean 0.238 -> 0.215 % over 11 separable, 7 -> 6 beyond 0.2 % (the rest is the poses':
+rocker arm 1212029075 +0.01 -> +0.23 %, its depth -0.50 -> -0.25 % no longer offset by them).
 """
 
 from __future__ import annotations
