@@ -43,7 +43,8 @@ def support_samples(views: list[ViewData], segs: list[Segmentation], intr: Camer
         a millimetre of them reads as the range error there
     columns : None: the whole support. Otherwise only its points in the object's own image columns (the 5-95 %
         span of the object's normalised x in that view) widened by this on each side: the calibration's residual
-        between its stations changes over the image, and the support's rows below the object carry the object's
+        between its stations changes over the image, and the support in the object's own columns shows the part
+        the object has (``preprocess.support_curve_columns``)
 
     Returns
     -------
@@ -73,7 +74,7 @@ def support_samples(views: list[ViewData], segs: list[Segmentation], intr: Camer
 def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: CameraIntrinsics,
                        band_m: float, clear_px: float, plane_threshold_m: float, step_mm: float,
                        smooth_mm: float, anchors: list | None = None, level: bool = True,
-                       stations_mm=None, columns: float | None = None) -> dict:
+                       stations_mm: list[float] | None = None, columns: float | None = None) -> dict:
     """Fit the support's range curve, levelled on the object's depths, and subtract it from every
     view's depth, in place.
 
