@@ -52,7 +52,8 @@ class PreprocessConfig(BaseModel):
                                                 "bench.robustness.depth_scale) 0.05 left the object 0.23 -> 0.14 % of "
                                                 "scale on average (the depth alone, at the true poses; better on 9 of "
                                                 "12), but on held-out draw 118 a pebble came out at mean |d| 0.88 mm, "
-                                                "completeness 0.902 (0.15 mm, 0.999 from the whole support)")
+                                                "completeness 0.902 (0.15 mm, 0.999 from the whole support): in a "
+                                                "strip x hardly varies and the curve's fit broke (390 mm)")
     support_curve_step_mm: float = Field(60.0, gt=0, description="the support curve's knot spacing [mm]: it follows "
                                          "range wiggles down to about twice this period")
     support_curve_smooth_mm: float = Field(5.0, gt=0, description="prior 1-sigma of the support curve's second "
