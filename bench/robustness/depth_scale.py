@@ -64,10 +64,9 @@ from pathlib import Path
 from unittest import mock
 
 import numpy as np
-import open3d as o3d
 
 from bench.robustness import family
-from bench.robustness.mat_lift import scan_truth
+from bench.robustness.mat_lift import cast_from, scan_truth
 from tofmetry.calibrate import wall_sample
 from tofmetry.evaluate import scale_from_reference
 from tofmetry.io.mesh import Geometry
@@ -103,13 +102,6 @@ def _captured_run(seed: int, work: Path, config=None) -> tuple[dict, dict]:
     return row, cap
 
 
-def _cast(scene, t: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Ray-cast from ``t`` along ``dirs`` (N, 3) world: the hit's t (inf: none) and its triangle's normal."""
-    rays = o3d.core.Tensor(np.c_[np.repeat(t[None], len(dirs), 0), dirs].astype(np.float32))
-    hit = scene.cast_rays(rays)
-    return hit["t_hit"].numpy(), hit["primitive_normals"].numpy()
-
-
 def view_depth_error(P: np.ndarray, T: np.ndarray, scene) -> tuple[np.ndarray, list | None]:
     """One view's object points ``P`` (N, 3) camera frame [m] at the true camera-to-world ``T``: the true points
     (M, 3) world [m] (those whose ray hits the reference) and the figures (module docstring), None when fewer than
@@ -117,7 +109,7 @@ def view_depth_error(P: np.ndarray, T: np.ndarray, scene) -> tuple[np.ndarray, l
     R, t = T[:3, :3], T[:3, 3]
     xy = P[:, :2] / P[:, 2:3]
     d = np.c_[xy, np.ones(len(P))] @ R.T  # the ray's t along (x, y, 1) is Z
-    th, nrm = _cast(scene, t, d)
+    th, nrm = cast_from(scene, t, d)
     ok = np.isfinite(th)
     true_w = (np.c_[xy, np.ones(len(P))] * th[:, None])[ok] @ R.T + t
     dz, z = 1e3 * (P[ok, 2] - th[ok]), 1e3 * P[ok, 2]

@@ -88,8 +88,7 @@ def view_lift(points, index, plane, obj, T, placed, to_mat, rays, scene) -> dict
     z_obj = float(np.median(points[obj, 2]))
     near = sup & (np.abs(points[:, 2] - z_obj) < NEAR_OBJECT_M)
     dirs = np.c_[xy[obj], np.ones(obj.sum())] @ R.T
-    hit = scene.cast_rays(o3d.core.Tensor(np.c_[np.repeat(t[None], len(dirs), 0), dirs].astype(np.float32)))
-    t_hit = hit["t_hit"].numpy()
+    t_hit, _ = cast_from(scene, t, dirs)
     ok = np.isfinite(t_hit)
     obj_dz = 1e3 * (points[obj, 2][ok] - t_hit[ok])  # the ray's t along (x, y, 1) is Z
     centre_c = points[obj].mean(0)
@@ -107,6 +106,13 @@ def view_lift(points, index, plane, obj, T, placed, to_mat, rays, scene) -> dict
         if out["object_dz"] is not None:
             out["surface_along"] = round(out["placement_along"] + out["object_dz"], 3)
     return out
+
+
+def cast_from(scene, t: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Ray-cast ``scene`` from ``t`` (3,) along ``dirs`` (N, 3), world frame: each ray's hit distance in units of
+    its direction's length (inf: no hit) and the hit triangle's normal (N, 3)."""
+    hit = scene.cast_rays(o3d.core.Tensor(np.c_[np.repeat(t[None], len(dirs), 0), dirs].astype(np.float32)))
+    return hit["t_hit"].numpy(), hit["primitive_normals"].numpy()
 
 
 def scan_truth(scan: Path) -> tuple[dict, o3d.geometry.TriangleMesh, o3d.t.geometry.RaycastingScene]:

@@ -208,7 +208,7 @@ def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: fl
                        smooth_mm: float = 5.0, min_views: int = 3, min_points: int = 500,
                        min_span_steps: float = 3.0, clip_sigmas: float = 3.0,
                        max_points_per_view: int = 8000, seed: int = 0,
-                       anchors: list | None = None, stations_mm=None,
+                       anchors: list | None = None, stations_mm: list[float] | None = None,
                        station_sigma_mm: float = 0.3) -> FlatSupportCurve:
     """Fit the range-error curve a flat support shows in several views of it.
 
@@ -282,7 +282,8 @@ def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: fl
     u = (zg - zg.mean()) / (hi - lo)
     Q = null_space(np.vstack([u @ Bg, u ** 2 @ Bg]))
     Pg = np.column_stack([np.ones_like(u), u, u ** 2])
-    keep_part = np.eye(nb) - np.linalg.pinv(Bg) @ Pg @ np.linalg.pinv(Pg) @ Bg  # c -> its part orthogonal to 1, Z, Z^2
+    to_coef = np.linalg.pinv(Bg) @ Pg  # (1, u, u^2) -> spline coefficients
+    keep_part = np.eye(nb) - to_coef @ np.linalg.pinv(Pg) @ Bg  # c -> its part orthogonal to 1, Z, Z^2
     blocks = []
     for z, r in views:
         P, B, y = _design(z, r, knots, span)
@@ -320,7 +321,6 @@ def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: fl
     if whole:  # what the planes took up (the parts the support cannot show), from the anchors
         plane_of = dict(planes)
         samples = [_anchor_samples(views[j][1][used[j]], plane_of[j], *held[j]) for j in anchored]
-        to_coef = np.linalg.pinv(Bg) @ Pg  # (1, u, u^2) -> spline coefficients
 
         def share(drop: int | None = None) -> np.ndarray:  # the planes' share, without anchor ``drop``
             return to_coef @ _anchored_part([x for i, x in enumerate(samples) if i != drop], zg.mean(), hi - lo)
@@ -333,7 +333,7 @@ def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: fl
     if not whole and stations_mm is not None:
         zs = tuple(float(z) for z in np.sort(np.asarray(stations_mm, np.float64).ravel()) if lo <= z <= hi)
         if len(zs) >= 2:
-            M, G = _station_tie(np.array(zs), knots, Bg, Pg, zg.mean(), hi - lo)
+            M, G = _station_tie(np.array(zs), knots, to_coef, zg.mean(), hi - lo)
             tie = M @ coef - coef
             coef, jack = M @ coef, jack @ M.T
         else:
@@ -348,17 +348,16 @@ def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: fl
                             stations_mm=zs)
 
 
-def _station_tie(zs: np.ndarray, knots: np.ndarray, Bg: np.ndarray, Pg: np.ndarray, z0: float,
+def _station_tie(zs: np.ndarray, knots: np.ndarray, to_coef: np.ndarray, z0: float,
                  span: float) -> tuple[np.ndarray, np.ndarray]:
     """The curve tied to nought at the stations ``zs`` [mm]: ``M`` (B, B) maps its coefficients to those
     with ``k0 + k1 u + k2 u^2`` (``u = (Z - z0) / span``; ``k2`` held at 0 with two stations) added, fitted
     by least squares to minus the curve there; ``G`` (B, S) maps the stations' own residuals [mm] to the
-    coefficients (their covariance)."""
+    coefficients (their covariance). ``to_coef`` (B, 3): ``(1, u, u^2)`` to spline coefficients."""
     Bs = BSpline.design_matrix(zs, knots, _DEGREE).toarray()
     u = (zs - z0) / span
     A = np.column_stack([np.ones_like(u), u, u ** 2])[:, :min(3, len(zs))]
-    to_coef = (np.linalg.pinv(Bg) @ Pg)[:, :A.shape[1]]
-    G = to_coef @ np.linalg.pinv(A)
+    G = to_coef[:, :A.shape[1]] @ np.linalg.pinv(A)
     return np.eye(Bs.shape[1]) - G @ Bs, G
 
 
