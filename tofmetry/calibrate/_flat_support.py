@@ -32,9 +32,14 @@ With ``anchors`` (each view's plane measured without the depth, e.g. from a prin
 perspective, :mod:`tofmetry.reconstruct._mat_plane`) the parts a plane absorbs are measured too: each
 anchored view's fitted plane, against its anchor over its support's depths, is what the fitted curve left
 of the range error there, and those differences, each view weighted by its anchor's covariance, give the
-curve's ``1``, ``Z`` and ``Z^2`` (:func:`_anchored_part`); the curve is then whole (``anchored``). (A
+curve's ``1``, ``Z`` and ``Z^2`` (:func:`._support_parts.anchored_part`); the curve is then whole (``anchored``). (A
 joint fit with the anchors as priors on the planes was tried first: the linearisation's ``e^2 / Z`` in
 directions the support hardly sees pulled the planes millimetres off, even with exact anchors.)
+
+With ``lateral`` image terms the curve may change across the image, ``e(Z') + sum_k phi_k(x, y) h_k(Z')``
+(``x^2``: the sides against the centre): the object stands in the image's middle while the support at its
+depths is seen beside it, and a calibration's residual between its stations differs there. A plane takes up no
+``x^2``, so the support shows each ``h_k`` whole.
 
 Assumes the support is flat to well under the curve (a table or a floor: tenths of a millimetre
 over the span) and the points on it were segmented (the object and its shadow left out).
@@ -49,10 +54,29 @@ import numpy as np
 from scipy.interpolate import BSpline
 from scipy.linalg import null_space
 
+from tofmetry.calibrate._support_parts import anchor_samples, anchored_part, station_tie
 from tofmetry.errors import EstimationError, InputError
 
 #: cubic spline
 _DEGREE = 3
+#: image terms the curve may change by across the image (``lateral``): name -> phi(x, y) of the normalised ray
+LATERAL_TERMS = {"x2": lambda x, y: x * x, "y2": lambda x, y: y * y, "r2": lambda x, y: x * x + y * y}
+#: the lateral curves are in mm at this value of their term (x = 0.5: about the image's edge on a Kinect v2)
+LATERAL_REF = 0.25
+
+
+def _spline_rows(z_mm, knots: np.ndarray, span: tuple[float, float], nu: int = 0) -> np.ndarray:
+    """(N, B) a cubic spline's basis functions (or their ``nu``-th derivative) at ``z_mm`` clipped to ``span``."""
+    z = np.clip(np.asarray(z_mm, np.float64).ravel(), *span)
+    if nu == 0:
+        return BSpline.design_matrix(z, knots, _DEGREE).toarray()
+    return BSpline(knots, np.eye(len(knots) - _DEGREE - 1), _DEGREE)(z, nu)
+
+
+def _lateral_phi(terms: tuple, xy: np.ndarray) -> np.ndarray:
+    """(N, T) the image terms ``terms`` at normalised rays ``xy`` (N, 2), over :data:`LATERAL_REF`."""
+    return np.column_stack([LATERAL_TERMS[k](xy[:, 0], xy[:, 1]) / LATERAL_REF for k in terms]) \
+        if terms else np.zeros((len(xy), 0))
 
 
 @dataclass
@@ -74,8 +98,14 @@ class FlatSupportCurve:
         (``anchors``); otherwise its part orthogonal to ``1``, ``Z`` and ``Z^2`` only
     n_anchors : the anchored views that gave them
     tie_coef_mm : (B,) the part of ``coef_mm`` that ties the curve to the calibration's stations (its
-        ``1``, ``Z`` and ``Z^2`` fitted so that the curve is nought there, :func:`_station_tie`); None untied
+        ``1``, ``Z`` and ``Z^2`` fitted so that the curve is nought there, :func:`._support_parts.station_tie`); None untied
     stations_mm : the stations within the span it was tied to [mm]
+    lateral : the image terms ``phi_k(x, y)`` the curve changes by across the image (``"x2"``: ``x^2``,
+        ``"y2"``: ``y^2``, ``"r2"``: ``x^2 + y^2``; :data:`LATERAL_TERMS`); empty: one curve for every pixel
+    lateral_knots_mm : (K_l,) the lateral curves' knot vector [mm] (None without ``lateral``)
+    lateral_coef_mm : (T, B_l) each term's spline ``h_k`` [mm at ``phi_k = LATERAL_REF``]: the range error
+        at a pixel is ``e(Z) + sum_k phi_k / LATERAL_REF h_k(Z)``; ``coef_cov_mm2`` is then over ``coef_mm``
+        and these, flattened, together
     """
 
     span_mm: tuple[float, float]
@@ -93,47 +123,63 @@ class FlatSupportCurve:
     n_anchors: int = 0
     tie_coef_mm: np.ndarray | None = None
     stations_mm: tuple = ()
+    lateral: tuple = ()
+    lateral_knots_mm: np.ndarray | None = None
+    lateral_coef_mm: np.ndarray | None = None
 
     def _basis(self, z_mm: np.ndarray, nu: int = 0) -> np.ndarray:
         """(N, B) the basis functions (or their ``nu``-th derivative) at ``z_mm`` clipped to the span."""
-        z = np.clip(np.asarray(z_mm, np.float64).ravel(), *self.span_mm)
-        if nu == 0:
-            return BSpline.design_matrix(z, self.knots_mm, _DEGREE).toarray()
-        return BSpline(self.knots_mm, np.eye(len(self.coef_mm)), _DEGREE)(z, nu)
+        return _spline_rows(z_mm, self.knots_mm, self.span_mm, nu)
 
-    def _slope_rows(self, z_mm) -> np.ndarray:
-        """(N, B) the basis functions' slopes at ``z_mm`` [mm], zero beyond the span."""
+    def _rows(self, z_mm, xy, nu: int = 0) -> np.ndarray:
+        """(N, B + T B_l) the rows over ``coef_mm`` and the lateral coefficients at depths ``z_mm`` [mm] and
+        normalised rays ``xy`` (N, 2) (or their ``nu``-th derivative in Z, zero beyond the span)."""
         z = np.asarray(z_mm, np.float64).ravel()
-        inside = (z >= self.span_mm[0]) & (z <= self.span_mm[1])
-        return self._basis(z, 1) * inside[:, None]
+        R = self._basis(z, nu)
+        if self.lateral:
+            if xy is None:
+                raise InputError("FlatSupportCurve: this curve changes across the image (lateral "
+                                 f"{list(self.lateral)}); pass the points' normalised rays xy (N, 2)")
+            phi = _lateral_phi(self.lateral, np.asarray(xy, np.float64).reshape(-1, 2))
+            Bl = _spline_rows(z, self.lateral_knots_mm, self.span_mm, nu)
+            R = np.hstack([R] + [p[:, None] * Bl for p in phi.T])
+        if nu:
+            R = R * ((z >= self.span_mm[0]) & (z <= self.span_mm[1]))[:, None]
+        return R
 
-    def error_mm(self, z_mm) -> np.ndarray:
-        """The range error ``e`` [mm] at measured depths ``z_mm`` [mm] (any shape; held constant beyond the span):
-        subtract it from the depth."""
+    @property
+    def _coef(self) -> np.ndarray:
+        """Every coefficient, ``coef_mm`` then the lateral ones (the order of ``coef_cov_mm2``)."""
+        return self.coef_mm if not self.lateral else np.r_[self.coef_mm, np.ravel(self.lateral_coef_mm)]
+
+    def error_mm(self, z_mm, xy=None) -> np.ndarray:
+        """The range error ``e`` [mm] at measured depths ``z_mm`` [mm] (any shape; held constant beyond the span)
+        and, with ``lateral``, normalised rays ``xy`` (..., 2): subtract it from the depth."""
         z = np.asarray(z_mm, np.float64)
-        return (self._basis(z) @ self.coef_mm).reshape(z.shape) - self.level_mm
+        return (self._rows(z, xy) @ self._coef).reshape(z.shape) - self.level_mm
 
-    def gain(self, z_mm) -> tuple[np.ndarray, np.ndarray]:
-        """The curve's slope ``de/dZ`` (dimensionless) at ``z_mm`` [mm] and its 1-sigma (jackknife); zero
-        beyond the span."""
-        D = self._slope_rows(z_mm)
+    def gain(self, z_mm, xy=None) -> tuple[np.ndarray, np.ndarray]:
+        """The curve's slope ``de/dZ`` (dimensionless) at ``z_mm`` [mm] (and rays ``xy``) and its 1-sigma
+        (jackknife); zero beyond the span."""
+        D = self._rows(z_mm, xy, 1)
         s = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", D, self.coef_cov_mm2, D), 0.0))
-        return D @ self.coef_mm, s
+        return D @ self._coef, s
 
-    def mean_gain(self, z_mm) -> tuple[float, float]:
-        """The curve's mean slope over the depths ``z_mm`` [mm] (a model's points: the gain its size sees
-        from the curve) and its 1-sigma."""
+    def mean_gain(self, z_mm, xy=None) -> tuple[float, float]:
+        """The curve's mean slope over the depths ``z_mm`` [mm] (a model's points, their rays ``xy``: the gain
+        its size sees from the curve) and its 1-sigma."""
         if np.size(z_mm) == 0:
             return 0.0, 0.0
-        d = self._slope_rows(z_mm).mean(0)
-        return float(d @ self.coef_mm), float(np.sqrt(max(d @ self.coef_cov_mm2 @ d, 0.0)))
+        d = self._rows(z_mm, xy, 1).mean(0)
+        return float(d @ self._coef), float(np.sqrt(max(d @ self.coef_cov_mm2 @ d, 0.0)))
 
-    def mean_error(self, z_mm) -> tuple[float, float]:
-        """The curve's mean over the depths ``z_mm`` [mm] (a model's points) and its 1-sigma [mm]."""
+    def mean_error(self, z_mm, xy=None) -> tuple[float, float]:
+        """The curve's mean over the depths ``z_mm`` [mm] (a model's points, their rays ``xy``) and its
+        1-sigma [mm]."""
         if np.size(z_mm) == 0:
             return 0.0, 0.0
-        b = self._basis(z_mm).mean(0)
-        return float(b @ self.coef_mm - self.level_mm), float(np.sqrt(max(b @ self.coef_cov_mm2 @ b, 0.0)))
+        b = self._rows(z_mm, xy).mean(0)
+        return float(b @ self._coef - self.level_mm), float(np.sqrt(max(b @ self.coef_cov_mm2 @ b, 0.0)))
 
     def tie_mean_mm(self, z_mm) -> float:
         """The station tie's mean over the depths ``z_mm`` [mm] (0 untied): what the tie adds to the curve's
@@ -142,29 +188,39 @@ class FlatSupportCurve:
             return 0.0
         return float(self._basis(z_mm).mean(0) @ self.tie_coef_mm)
 
-    def levelled(self, z_mm) -> "FlatSupportCurve":
-        """The curve less its mean over the depths ``z_mm`` [mm] (an object's points): it then changes
-        their depths' slope (the gain their size sees) but not their mean, which the support cannot
-        tell (its offset at any depth depends on the parts it cannot show). ``level_mm`` keeps what was taken."""
+    def levelled(self, z_mm, xy=None) -> "FlatSupportCurve":
+        """The curve less its mean over the depths ``z_mm`` [mm] (an object's points, their rays ``xy``): it
+        then changes their depths' slope (the gain their size sees) but not their mean, which the support
+        cannot tell (its offset at any depth depends on the parts it cannot show). ``level_mm`` keeps what
+        was taken."""
         z = np.asarray(z_mm, np.float64).ravel()
         if z.size == 0:
             return self
         out = dataclasses.replace(self, level_mm=0.0, notes=list(self.notes))
-        out.level_mm = float(np.mean(out.error_mm(z)))
+        out.level_mm = float(np.mean(out.error_mm(z, xy)))
         return out
 
     def to_dict(self, every_mm: float = 50.0) -> dict:
         lo, hi = self.span_mm
         z = np.arange(np.ceil(lo / every_mm) * every_mm, hi + 1e-9, every_mm)
-        Bz = self._basis(z)
+        axis = np.zeros((len(z), 2))  # on the optical axis: the lateral terms are nought there
+        Bz = self._rows(z, axis)
         s = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", Bz, self.coef_cov_mm2, Bz), 0.0))
-        return {"span_mm": [round(lo, 1), round(hi, 1)], "step_mm": self.step_mm, "n_views": self.n_views,
-                "n_points": self.n_points, "residual_mm": round(self.residual_mm, 3),
-                "flatness_before_mm": round(self.flatness_before_mm, 3),
-                "curve_mm": {f"{v:.0f}": [round(float(e), 3), round(float(u), 3)]
-                             for v, e, u in zip(z, self.error_mm(z), s)},
-                "max_abs_mm": round(float(np.max(np.abs(self.error_mm(np.linspace(lo, hi, 200))))), 3),
+        zz = np.linspace(lo, hi, 200)
+        out = {"span_mm": [round(lo, 1), round(hi, 1)], "step_mm": self.step_mm, "n_views": self.n_views,
+               "n_points": self.n_points, "residual_mm": round(self.residual_mm, 3),
+               "flatness_before_mm": round(self.flatness_before_mm, 3),
+               "curve_mm": {f"{v:.0f}": [round(float(e), 3), round(float(u), 3)]
+                            for v, e, u in zip(z, self.error_mm(z, axis), s)},
+               "max_abs_mm": round(float(np.max(np.abs(self.error_mm(zz, np.zeros((len(zz), 2)))))), 3)}
+        if self.lateral:  # each term's h_k, at phi_k = LATERAL_REF [mm]
+            Bl = _spline_rows(z, self.lateral_knots_mm, self.span_mm)
+            out["lateral_mm"] = {k: {f"{v:.0f}": round(float(e), 3) for v, e in zip(z, Bl @ c)}
+                                 for k, c in zip(self.lateral, self.lateral_coef_mm)}
+            out["lateral_ref"] = LATERAL_REF
+        return out | {
                 "notes": list(self.notes), "level_mm": round(self.level_mm, 3), "anchored": self.anchored,
+                "lateral": list(self.lateral),
                 "n_anchors": self.n_anchors, "stations_mm": [round(float(z), 1) for z in self.stations_mm],
                 "model": "support flat: 1/Z = a x + b y + c per view, measured Z' = Z + e(Z'), e a cubic spline "
                          + (f"whole: its part orthogonal to 1, Z and Z^2 from the support, those from {self.n_anchors} "
@@ -173,15 +229,23 @@ class FlatSupportCurve:
                             f"its 1, Z and Z^2 tied to nought at the calibration's {len(self.stations_mm)} stations "
                             "within the span" if self.tie_coef_mm is not None else
                             "kept orthogonal to 1, Z and Z^2 over the span (those parts stay the calibration's)")
+                         + (f"; plus {' + '.join(f'{k} / {LATERAL_REF:g} h_{k}(Z)' for k in self.lateral)} across the "
+                            "image, each h a cubic spline fitted whole" if self.lateral else "")
                          + "; 1-sigma from the views' jackknife"}
 
 
-def _design(z: np.ndarray, xy: np.ndarray, knots: np.ndarray, span: tuple[float, float]):
-    """Rows of one view: plane part (N, 3) and curve part (N, B), right-hand side (N,), all in mm."""
+def _design(z: np.ndarray, xy: np.ndarray, knots: np.ndarray, span: tuple[float, float],
+            lateral: tuple = (), lateral_knots: np.ndarray | None = None):
+    """Rows of one view: plane part (N, 3), curve part (N, B) and lateral part (N, T B_l), right-hand side
+    (N,), all in mm."""
     zm = z * 1e-3  # m
     P = (zm ** 2)[:, None] * np.column_stack([xy[:, 0], xy[:, 1], np.ones(len(z))]) * 1e3  # Z'^2 (x, y, 1) [mm m]
-    B = -BSpline.design_matrix(np.clip(z, *span), knots, _DEGREE).toarray()
-    return P, B, z
+    B = -_spline_rows(z, knots, span)
+    L = np.zeros((len(z), 0))
+    if lateral:
+        Bl = _spline_rows(z, lateral_knots, span)
+        L = np.hstack([-p[:, None] * Bl for p in _lateral_phi(lateral, xy).T])
+    return P, B, L, z
 
 
 def _solve(blocks: list, nb: int, prior: np.ndarray, use: list[int]) -> tuple[np.ndarray, list]:
@@ -209,7 +273,8 @@ def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: fl
                        min_span_steps: float = 3.0, clip_sigmas: float = 3.0,
                        max_points_per_view: int = 8000, seed: int = 0,
                        anchors: list | None = None, stations_mm: list[float] | None = None,
-                       station_sigma_mm: float = 0.3) -> FlatSupportCurve:
+                       station_sigma_mm: float = 0.3, lateral: tuple = (), lateral_step_mm: float | None = None,
+                       lateral_sigma_mm: float = 5.0) -> FlatSupportCurve:
     """Fit the range-error curve a flat support shows in several views of it.
 
     Parameters
@@ -227,15 +292,24 @@ def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: fl
     anchors : optional, per view, None or ``(p, cov)``: the view's support plane measured without the
         depth (a printed pattern's perspective fit), ``p`` (3,) its ``(a, b, c)`` [1/m] and ``cov``
         (3, 3) their covariance. With at least ``min_views`` anchored views the curve's offset, gain
-        and curvature come from them (:func:`_anchored_part`) and the curve is whole (``anchored``)
+        and curvature come from them (:func:`._support_parts.anchored_part`) and the curve is whole (``anchored``)
     stations_mm : optional, the depths [mm] of the depth calibration's stations, where its own residual is
         about nought (it was fitted there; between them it wiggles, which the support shows). Without
         anchors, with at least two of them within the span, the curve's ``1``, ``Z`` and ``Z^2`` (``1`` and
-        ``Z`` with two) are those that put it nearest nought there (:func:`_station_tie`): its gain and
+        ``Z`` with two) are those that put it nearest nought there (:func:`._support_parts.station_tie`): its gain and
         curvature over an object's depths are then the whole range error's, not only its part the support
         shows. A part of the support's own error that is a parabola in Z (a smooth incidence bias) goes with them.
     station_sigma_mm : the calibration's residual at its stations (1 sigma) [mm], added to the curve's
         covariance through the tie
+    lateral : image terms (keys of :data:`LATERAL_TERMS`, e.g. ``("x2",)``) the curve changes by across the
+        image: ``e(Z') + sum_k phi_k(x, y) / LATERAL_REF h_k(Z')``, each ``h_k`` a cubic spline. A calibration's
+        per-pixel deformation, interpolated in range between its stations, leaves a residual that differs
+        between the image's centre (where the object is) and its sides (where the support is seen at the
+        object's depths); a plane takes up no ``x^2`` or ``y^2``, so the support shows each ``h_k`` whole.
+        ``y^2`` is told from ``e`` only by views at other heights (on a support, Z follows the image row)
+    lateral_step_mm : the lateral curves' knot spacing [mm] (None: twice ``step_mm``)
+    lateral_sigma_mm : prior 1-sigma of the lateral curves' values [mm] (holds them where the support's
+        points do not tell them from ``e``); their second differences take ``smooth_mm``
 
     Returns
     -------
@@ -284,16 +358,38 @@ def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: fl
     Pg = np.column_stack([np.ones_like(u), u, u ** 2])
     to_coef = np.linalg.pinv(Bg) @ Pg  # (1, u, u^2) -> spline coefficients
     keep_part = np.eye(nb) - to_coef @ np.linalg.pinv(Pg) @ Bg  # c -> its part orthogonal to 1, Z, Z^2
+    lat = tuple(lateral or ())
+    bad = [k for k in lat if k not in LATERAL_TERMS]
+    if bad:
+        raise InputError(f"flat_support_curve: lateral terms {bad} unknown; expected some of {list(LATERAL_TERMS)}")
+    lknots, nbl = None, 0
+    if lat:
+        n_l = max(1, int(np.ceil((hi - lo) / (lateral_step_mm or 2.0 * step_mm))))
+        lknots = np.r_[[lo] * _DEGREE, np.linspace(lo, hi, n_l + 1), [hi] * _DEGREE]
+        nbl = len(lknots) - _DEGREE - 1
+    nl = len(lat) * nbl
     blocks = []
     for z, r in views:
-        P, B, y = _design(z, r, knots, span)
-        blocks.append((P, B @ Q, y, np.ones(len(z))))
+        P, B, L, y = _design(z, r, knots, span, lat, lknots)
+        blocks.append((P, np.hstack([B @ Q, L]), y, np.ones(len(z))))
     DQ = np.diff(np.eye(nb), 2, axis=0) @ Q
     nq = Q.shape[1]
+    Dl = np.kron(np.eye(len(lat)), np.diff(np.eye(nbl), 2, axis=0)) if lat else np.zeros((0, 0))
+
+    def prior_of(sigma: float) -> np.ndarray:  # smoothness of e; smoothness and size of the lateral curves
+        N = np.zeros((nq + nl, nq + nl))
+        N[:nq, :nq] = (sigma / smooth_mm) ** 2 * DQ.T @ DQ
+        if nl:
+            N[nq:, nq:] = (sigma / smooth_mm) ** 2 * Dl.T @ Dl + (sigma / lateral_sigma_mm) ** 2 * np.eye(nl)
+        return N
+
+    def unpack(cq: np.ndarray) -> np.ndarray:  # solved coefficients -> the curve's kept part, lateral ones
+        return np.r_[part @ Q @ cq[:nq], cq[nq:]]
+
     sigma = 1.0
     for _ in range(3):  # robust: refit without the points beyond clip_sigmas
-        prior = (sigma / smooth_mm) ** 2 * DQ.T @ DQ
-        c, planes = _solve(blocks, nq, prior, list(range(len(blocks))))
+        prior = prior_of(sigma)
+        c, planes = _solve(blocks, nq + nl, prior, list(range(len(blocks))))
         res = np.concatenate([P @ p + B @ c - y for (_, p), (P, B, y, _) in zip(planes, blocks)])
         w_all = np.concatenate([b[3] for b in blocks])
         sigma = float(1.4826 * np.median(np.abs(res[w_all > 0]))) or 1.0
@@ -303,8 +399,8 @@ def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: fl
             n = len(b[2])
             blocks[i] = b[:3] + (keep[k0:k0 + n].astype(np.float64),)
             k0 += n
-    prior = (sigma / smooth_mm) ** 2 * DQ.T @ DQ
-    c, planes = _solve(blocks, nq, prior, list(range(len(blocks))))
+    prior = prior_of(sigma)
+    c, planes = _solve(blocks, nq + nl, prior, list(range(len(blocks))))
     used = [b[3] > 0 for b in blocks]
     res = np.concatenate([(P @ p + B @ c - y)[m] for (_, p), (P, B, y, _), m in zip(planes, blocks, used)])
     flat = []
@@ -315,76 +411,35 @@ def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: fl
     anchored = [j for j in range(V) if held[j] is not None]
     whole = len(anchored) >= min_views
     part = np.eye(nb) if whole else keep_part  # anchored: the fitted curve whole, the planes' share added
-    jack = np.array([part @ Q @ _solve(blocks, nq, prior, [i for i in range(V) if i != j])[0]
+    jack = np.array([unpack(_solve(blocks, nq + nl, prior, [i for i in range(V) if i != j])[0])
                      for j in range(V)])
-    coef = part @ Q @ c
+    coef, lat_coef = unpack(c)[:nb], c[nq:]
     if whole:  # what the planes took up (the parts the support cannot show), from the anchors
         plane_of = dict(planes)
-        samples = [_anchor_samples(views[j][1][used[j]], plane_of[j], *held[j]) for j in anchored]
+        samples = [anchor_samples(views[j][1][used[j]], plane_of[j], *held[j]) for j in anchored]
 
         def share(drop: int | None = None) -> np.ndarray:  # the planes' share, without anchor ``drop``
-            return to_coef @ _anchored_part([x for i, x in enumerate(samples) if i != drop], zg.mean(), hi - lo)
+            return to_coef @ anchored_part([x for i, x in enumerate(samples) if i != drop], zg.mean(), hi - lo)
 
         full = share()
         coef = coef + full
         for j in range(V):  # a view without an anchor leaves the planes' share as it is
-            jack[j] = jack[j] + (share(anchored.index(j)) if j in anchored else full)
+            jack[j, :nb] = jack[j, :nb] + (share(anchored.index(j)) if j in anchored else full)
     tie, zs = None, ()
     if not whole and stations_mm is not None:
         zs = tuple(float(z) for z in np.sort(np.asarray(stations_mm, np.float64).ravel()) if lo <= z <= hi)
         if len(zs) >= 2:
-            M, G = _station_tie(np.array(zs), knots, to_coef, zg.mean(), hi - lo)
+            M, G = station_tie(np.array(zs), knots, to_coef, zg.mean(), hi - lo)
             tie = M @ coef - coef
-            coef, jack = M @ coef, jack @ M.T
+            coef, jack[:, :nb] = M @ coef, jack[:, :nb] @ M.T
         else:
             zs = ()
     cov = (V - 1) / V * (jack - jack.mean(0)).T @ (jack - jack.mean(0))
     if tie is not None:
-        cov = cov + station_sigma_mm ** 2 * G @ G.T
+        cov[:nb, :nb] = cov[:nb, :nb] + station_sigma_mm ** 2 * G @ G.T
     return FlatSupportCurve((lo, hi), knots, coef, cov, V, int(sum(m.sum() for m in used)),
                             float(1.4826 * np.median(np.abs(res))),
                             float(1.4826 * np.median(np.abs(np.concatenate(flat)))), float(step_mm),
                             anchored=whole, n_anchors=len(anchored) if whole else 0, tie_coef_mm=tie,
-                            stations_mm=zs)
-
-
-def _station_tie(zs: np.ndarray, knots: np.ndarray, to_coef: np.ndarray, z0: float,
-                 span: float) -> tuple[np.ndarray, np.ndarray]:
-    """The curve tied to nought at the stations ``zs`` [mm]: ``M`` (B, B) maps its coefficients to those
-    with ``k0 + k1 u + k2 u^2`` (``u = (Z - z0) / span``; ``k2`` held at 0 with two stations) added, fitted
-    by least squares to minus the curve there; ``G`` (B, S) maps the stations' own residuals [mm] to the
-    coefficients (their covariance). ``to_coef`` (B, 3): ``(1, u, u^2)`` to spline coefficients."""
-    Bs = BSpline.design_matrix(zs, knots, _DEGREE).toarray()
-    u = (zs - z0) / span
-    A = np.column_stack([np.ones_like(u), u, u ** 2])[:, :min(3, len(zs))]
-    G = to_coef[:, :A.shape[1]] @ np.linalg.pinv(A)
-    return np.eye(Bs.shape[1]) - G @ Bs, G
-
-
-def _anchor_samples(xy: np.ndarray, p: np.ndarray, anchor: np.ndarray, anchor_cov: np.ndarray,
-                    n: int = 40) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """One anchored view's evidence on the curve's parts a plane absorbs: at ``n`` of its support rays
-    ``xy`` (sorted by depth, evenly), the depth its fitted plane ``p`` gives less the depth its anchor
-    gives [mm] (the plane took up what the fitted curve left of the range error; the anchor did not), the
-    anchor's depth [mm] and that difference's covariance from the anchor's (n, n) [mm^2]."""
-    R = np.column_stack([xy, np.ones(len(xy))])
-    za = 1e3 / (R @ np.asarray(anchor, np.float64))
-    pick = np.argsort(za)[np.linspace(0, len(za) - 1, n).astype(int)]
-    R, za = R[pick], za[pick]
-    delta = 1e3 / (R @ p) - za
-    G = -(za[:, None] ** 2) * 1e-3 * R  # d(1e3 / (R . a)) / da [mm m]
-    return delta, za, G @ anchor_cov @ G.T
-
-
-def _anchored_part(samples: list, z0: float, span: float) -> np.ndarray:
-    """``(k0, k1, k2)`` of ``k0 + k1 u + k2 u^2`` (``u = (Z - z0) / span``, [mm]) fitted to the anchored
-    views' plane-minus-anchor depths (:func:`_anchor_samples`), each view weighed by its anchor's
-    covariance (a generalised least squares: an anchor's error is one error over its whole view)."""
-    N, r = np.zeros((3, 3)), np.zeros(3)
-    for delta, za, C in samples:
-        u = (za - z0) / span
-        A = np.column_stack([np.ones_like(u), u, u ** 2])
-        W = np.linalg.pinv(C + 1e-4 * np.eye(len(za)))  # 0.01 mm: the planes' own rounding
-        N += A.T @ W @ A
-        r += A.T @ W @ delta
-    return np.linalg.lstsq(N, r, rcond=None)[0]
+                            stations_mm=zs, lateral=lat, lateral_knots_mm=lknots,
+                            lateral_coef_mm=lat_coef.reshape(len(lat), nbl) if lat else None)

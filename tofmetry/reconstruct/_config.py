@@ -54,6 +54,16 @@ class PreprocessConfig(BaseModel):
                                                 "12), but on held-out draw 118 a pebble came out at mean |d| 0.88 mm, "
                                                 "completeness 0.902 (0.15 mm, 0.999 from the whole support): in a "
                                                 "strip x hardly varies and the curve's fit broke (390 mm)")
+    support_curve_lateral: list[Literal["x2", "y2", "r2"]] = Field(
+        default_factory=list, description="image terms the support curve changes by across the image (tofmetry."
+        "calibrate.flat_support_curve's lateral: e(Z) + x^2 h(Z) with ['x2']): the calibration's per-pixel "
+        "deformation, interpolated between its stations, leaves a residual that differs between the image's centre "
+        "(the object) and its sides (where the support is seen at the object's depths). Empty (the default): one "
+        "curve for every pixel. Off: on 12 development runs of draws 113-117 (session 60, bench.robustness.depth_scale) "
+        "['x2'] left the object 0.231 -> 0.176 % of scale on average (the depth alone, at the true poses), but the "
+        "runs' scale no better (|.| mean 0.238 -> 0.248 % over 11): the poses' share, which the depth's had offset, "
+        "remained. It held where the object's columns broke (draw 118's pebble: mean |d| 0.15 mm, completeness 0.998); "
+        "['x2', 'y2'] broke on 2 of 3 (on a support, Z follows the image row)")
     support_curve_step_mm: float = Field(60.0, gt=0, description="the support curve's knot spacing [mm]: it follows "
                                          "range wiggles down to about twice this period")
     support_curve_smooth_mm: float = Field(5.0, gt=0, description="prior 1-sigma of the support curve's second "

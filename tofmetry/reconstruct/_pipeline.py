@@ -206,7 +206,7 @@ class ReconstructionPipeline:
                                         self.cfg.segment.plane_threshold_mm * 1e-3, pc.support_curve_step_mm,
                                         pc.support_curve_smooth_mm, anchors, level,
                                         self.calibration_stations_mm() if pc.support_curve_stations else None,
-                                        pc.support_curve_columns)
+                                        pc.support_curve_columns, tuple(pc.support_curve_lateral))
             adv()
         return report
 

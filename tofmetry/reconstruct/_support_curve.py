@@ -74,7 +74,8 @@ def support_samples(views: list[ViewData], segs: list[Segmentation], intr: Camer
 def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: CameraIntrinsics,
                        band_m: float, clear_px: float, plane_threshold_m: float, step_mm: float,
                        smooth_mm: float, anchors: list | None = None, level: bool = True,
-                       stations_mm: list[float] | None = None, columns: float | None = None) -> dict:
+                       stations_mm: list[float] | None = None, columns: float | None = None,
+                       lateral: tuple = ()) -> dict:
     """Fit the support's range curve, levelled on the object's depths, and subtract it from every
     view's depth, in place.
 
@@ -91,7 +92,9 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
     ``stations_mm``: the depth calibration's stations (:func:`~tofmetry.calibrate.flat_support_curve`):
     the curve's ``1``, ``Z`` and ``Z^2`` tied to nought there, which changes its gain over the object; its
     level at the object's depths stays the untied curve's (the placements hold the rest). ``columns``: the
-    support's points in the object's image columns only (:func:`support_samples`).
+    support's points in the object's image columns only (:func:`support_samples`). ``lateral``: image terms
+    the curve changes by across the image (:func:`~tofmetry.calibrate.flat_support_curve`); each point is then
+    corrected by the curve at its own ray, and the object's gain and level are read at its own pixels.
 
     Returns
     -------
@@ -103,7 +106,7 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
     z_mm, xy = support_samples(views, segs, intr, band_m, clear_px, columns)
     try:
         curve = flat_support_curve(z_mm, xy, step_mm=step_mm, smooth_mm=smooth_mm, anchors=anchors,
-                                   stations_mm=stations_mm)
+                                   stations_mm=stations_mm, lateral=lateral)
     except EstimationError as exc:
         return {"applied": False, "why": str(exc)}
     # levelled, the object's own mean depth stays as the calibration left it (session 34, on a bar of draw 74:
@@ -112,22 +115,24 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
     # is off those placements by the rest, its level here (99 runs of draws 80-84: the model's mean signed
     # deviation followed it, correlation -0.87; the ten largest levels unlevelled: mean |d| 1.45 -> 0.29 mm
     # at best, two worse, bench/robustness/README.md)
+    rays = intr.ray_table(True).reshape(-1, 2)
     z_obj = np.concatenate([v.points[s.object_mask, 2] for v, s in zip(views, segs)]) * 1e3
+    xy_obj = np.concatenate([rays[v.index[s.object_mask]] for v, s in zip(views, segs)])
     curve.level_mm = curve.tie_mean_mm(z_obj)  # the tie changes the curve's slope at the object, not its level
-    lv, slv = curve.mean_error(z_obj)
+    lv, slv = curve.mean_error(z_obj, xy_obj)
     if level:
-        curve = curve.levelled(z_obj)
+        curve = curve.levelled(z_obj, xy_obj)
 
-    def along_rays(v: ViewData) -> tuple[np.ndarray, np.ndarray]:  # Z -> Z - e(Z)
+    def along_rays(v: ViewData) -> tuple[np.ndarray, np.ndarray]:  # Z -> Z - e(Z) (at the point's ray)
         d = v.depth_mm
         valid = d > 0
         new = d.copy()
-        new[valid] = d[valid] - curve.error_mm(d[valid])
+        new[valid] = d[valid] - curve.error_mm(d[valid], rays[np.flatnonzero(valid)])
         z0 = v.points[:, 2]
-        return v.points * (1.0 - 1e-3 * curve.error_mm(z0 * 1e3) / z0)[:, None], new
+        return v.points * (1.0 - 1e-3 * curve.error_mm(z0 * 1e3, rays[v.index]) / z0)[:, None], new
 
     correct_views(views, segs, plane_threshold_m, along_rays)
-    g, sg = curve.mean_gain(z_obj)
+    g, sg = curve.mean_gain(z_obj, xy_obj)
     out = {"applied": True, "object_gain_pct": round(100 * g, 4), "object_gain_sigma_pct": round(100 * sg, 4),
            "object_depth_mm": [round(float(np.percentile(z_obj, q)), 1) for q in (5, 95)]}
     # the level at the object's depths: taken off (levelled), or what moved the object

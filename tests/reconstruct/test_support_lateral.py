@@ -1,0 +1,87 @@
+"""The support curve that changes across the image (tofmetry.reconstruct._support_curve.correct_by_support, ``lateral``).
+
+Six views of a floor from cameras at several heights and pitches, a box standing in the image's middle; every
+pixel's depth is off by a range wiggle plus ``x^2 / 0.25 h(Z)`` (the image's sides 1.5 mm apart from its centre at
+x = 0.5, changing with depth). The object's gain is the wiggle's at the centre: a single curve, which averages
+the sides in, reads it off; with the ``x2`` term it comes back.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tofmetry.reconstruct._preprocess import ViewData
+from tofmetry.reconstruct._segment import Segmentation
+from tofmetry.reconstruct._support_curve import correct_by_support
+from tofmetry.sensor import CameraIntrinsics
+
+INTR = CameraIntrinsics(512, 424, 365.0, 365.0, 256.0, 212.0)
+POSES = [(0.30, 20), (0.40, 28), (0.50, 35), (0.35, 45), (0.60, 60), (0.45, 25)]  # height [m], pitch [deg]
+
+
+def wiggle_mm(z):
+    return 2.5 * np.sin(2 * np.pi * z / 470.0 + 0.7) + 1.0 * np.sin(2 * np.pi * z / 900.0 + 2.0)
+
+
+def side_mm(z):  # h(Z) at x = 0.5 [mm]
+    return 1.5 * np.sin(2 * np.pi * z / 700.0 + 1.0)
+
+
+def error_mm(z, xy):
+    return wiggle_mm(z) + xy[:, 0] ** 2 / 0.25 * side_mm(z)
+
+
+def view_of(h: float, pitch_deg: float, rng) -> tuple[ViewData, Segmentation]:
+    """A floor ``h`` below the camera pitched down ``pitch_deg``, a box face in the middle at 0.95 of the floor's
+    depth there; every depth moved by :func:`error_mm` and 0.5 mm of noise."""
+    H, W = INTR.shape
+    rays = INTR.ray_table(True).reshape(-1, 2)
+    t = np.radians(pitch_deg)
+    up = np.array([0.0, -np.cos(t), -np.sin(t)])  # world up in the camera frame
+    den = -(np.c_[rays, np.ones(len(rays))] @ up)
+    z = np.where(den > 1e-6, h / np.maximum(den, 1e-6), np.inf)
+    floor = (z > 0.45) & (z < 2.0)
+    box = (np.abs(rays[:, 0]) < 0.1) & (np.abs(rays[:, 1]) < 0.08) & floor
+    z = np.where(box, 0.95 * h / -(np.array([0.0, 0.0, 1.0]) @ up), z)
+    index = np.nonzero(floor)[0]
+    zm = z[index] * 1e3
+    zm = zm + error_mm(zm, rays[index]) + rng.normal(0.0, 0.5, len(index))
+    pts = np.c_[rays[index], np.ones(len(index))] * zm[:, None] * 1e-3
+    depth = np.zeros(H * W)
+    depth[index] = zm
+    n = len(index)
+    view = ViewData(f"{pitch_deg:02d}", depth.reshape(H, W), pts, index, np.tile(-up, (n, 1)), np.ones(n), None, {})
+    obj = box[index]
+    return view, Segmentation(obj, ~obj, None, np.r_[up, h], 0.9)
+
+
+def object_gain_truth(report: dict, z_obj: np.ndarray) -> float:
+    """The centre's wiggle less its parabola over the curve's span (what a support can show), its mean slope over
+    the object's depths ``z_obj`` [mm]."""
+    lo, hi = report["span_mm"]
+    g = np.linspace(lo, hi, 2000)
+    para = np.polyfit(g - 1000.0, wiggle_mm(g), 2)
+    return float(np.mean(np.gradient(wiggle_mm(g) - np.polyval(para, g - 1000.0), g)[
+        np.searchsorted(g, np.clip(z_obj, lo, hi - 1e-6))]))
+
+
+def corrected(lateral: tuple) -> tuple[dict, np.ndarray]:
+    rng = np.random.default_rng(5)
+    pairs = [view_of(h, p, rng) for h, p in POSES]
+    views, segs = [v for v, _ in pairs], [s for _, s in pairs]
+    z_obj = np.concatenate([v.points[s.object_mask, 2] for v, s in pairs]) * 1e3
+    rep = correct_by_support(views, segs, INTR, 0.015, 12.0, 0.01, 60.0, 5.0, lateral=lateral)
+    return rep, z_obj
+
+
+def test_the_x2_term_gives_the_objects_gain_at_the_image_centre():
+    single, z_obj = corrected(())
+    lat, _ = corrected(("x2",))
+    assert single["applied"] and lat["applied"] and lat["lateral"] == ["x2"]
+    truth = 100 * object_gain_truth(lat, z_obj)
+    # the wiggle's slope over the box's depths (several per cent); the sides' 1.5 mm pull a single curve's gain
+    # there by tenths of a per cent, the x^2 term leaves what the spline's smoothing does (hundredths)
+    err_single = abs(single["object_gain_pct"] - truth)
+    err_lat = abs(lat["object_gain_pct"] - truth)
+    assert err_lat < 0.1 and err_lat < 0.5 * err_single, (truth, single["object_gain_pct"], lat["object_gain_pct"])
+    assert abs(err_lat) < 3 * lat["object_gain_sigma_pct"] + 0.05
