@@ -19,7 +19,8 @@ mesh. Per run:
   carried onto the truth by those poses' best rigid fit (:func:`tofmetry.evaluate.pose_errors`): what the poses
   alone do to the scale; ``placed_scale_pct``: the measured points after the support curve placed so (the two
   together, before the fusion); ``poses_views.NAME``: how far the view's aligned pose error moves the object's
-  centre [mm], along the line of sight (positive: away from the camera), sideways and up.
+  centre [mm], along the line of sight (positive: away from the camera), sideways and up, and the camera's true
+  elevation over the object's centre [deg] (not in the session 60 rows: there from the drawn path).
 
 ``--walls SEED --span Z0,Z1``: the sensor of ``SEED`` calibrated as the family does (walls alone, no tilt boards), then
 fronto-parallel walls every 25 mm over the span rendered and corrected; per image region (the centre, where an object
@@ -78,6 +79,11 @@ baluster 1758384059 +0.25 / +0.03 / +0.23, rocker arm 1545538445 -0.11 / +0.25 /
 poses' on four. On the unrefined runs the poses bring the object's centre toward the cameras (``along_mm``, the
 most per run 0.4-2.5 mm; the held runs 0.1-0.65 mm): nearly alike over a run's views, an offset more than a scale.
 The box's -0.36 % comes with every view but one within 0.1 mm there: from the views' rotations, not their lift.
+On the two rocker arms (two rings of views each) the lift follows the elevation: 1.05-2.54 mm on rocker arm
+1212029075's ring at 15 deg, 0.03-0.95 mm on its ring at 55 deg (1545538445: 0.36-1.89 mm at 8-21 deg, -0.07 to
++0.14 mm at 55 deg), as a support plane's error at the object over ``sin(elevation)`` would (session 58). The low
+ring sees the object's sides, the high ring its top; the sides standing out more than the top read as a larger
+object: their +0.41 and +0.25 %.
 """
 
 from __future__ import annotations
@@ -165,7 +171,8 @@ def poses_share(cap: dict, true: dict, true_cam: dict, vertices: np.ndarray, ref
         side = np.cross([0.0, 0.0, 1.0], sight)
         side /= np.linalg.norm(side)
         out["poses_views"][n] = {"along_mm": round(float(d @ sight), 3), "side_mm": round(float(d @ side), 3),
-                                 "up_mm": round(float(d[2]), 3)}
+                                 "up_mm": round(float(d[2]), 3),
+                                 "elevation_deg": round(float(np.degrees(np.arcsin(-sight[2]))), 1)}
     for key, pts in (("poses", true_cam), ("placed", measured)):
         world = [pts[n] @ (G @ E_j)[:3, :3].T + (G @ E_j)[:3, 3] for n, E_j in zip(names, E)]
         out[f"{key}_scale_pct"], why = _scale_pct(world, ref)
