@@ -161,12 +161,13 @@ def poses_share(cap: dict, true: dict, true_cam: dict, vertices: np.ndarray, ref
         return {"poses_scale_why": "fewer than two views reached the fusion"}
     E = np.array([est[n] for n in names])
     G = pose_errors(E, np.array([true[n] for n in names]), vertices).alignment
+    placed = {n: G @ E_j for n, E_j in zip(names, E)}  # camera -> true world, by the run's poses
     measured = dict(cap["after"])
     out = {"poses_views": {}}
     c = np.mean(vertices, axis=0)
-    for n, E_j in zip(names, E):  # the object's centre moved by the view's aligned pose error [mm]
+    for n in names:  # the object's centre moved by the view's aligned pose error [mm]
         T = true[n]
-        d = 1e3 * ((G @ E_j @ np.linalg.inv(T))[:3] @ np.r_[c, 1.0] - c)
+        d = 1e3 * ((placed[n] @ np.linalg.inv(T))[:3] @ np.r_[c, 1.0] - c)
         sight = (c - T[:3, 3]) / np.linalg.norm(c - T[:3, 3])  # camera -> object
         side = np.cross([0.0, 0.0, 1.0], sight)
         side /= np.linalg.norm(side)
@@ -174,7 +175,7 @@ def poses_share(cap: dict, true: dict, true_cam: dict, vertices: np.ndarray, ref
                                  "up_mm": round(float(d[2]), 3),
                                  "elevation_deg": round(float(np.degrees(np.arcsin(-sight[2]))), 1)}
     for key, pts in (("poses", true_cam), ("placed", measured)):
-        world = [pts[n] @ (G @ E_j)[:3, :3].T + (G @ E_j)[:3, 3] for n, E_j in zip(names, E)]
+        world = [pts[n] @ placed[n][:3, :3].T + placed[n][:3, 3] for n in names]
         out[f"{key}_scale_pct"], why = _scale_pct(world, ref)
         if why:
             out[f"{key}_scale_why"] = why
@@ -232,7 +233,8 @@ def run_seed(seed: int, config=None) -> dict:
             tw, fig = view_depth_error(P, T, scene)
             world.append(P @ T[:3, :3].T + T[:3, 3])
             true_world.append(tw)
-            true_cam[name] = (tw - T[:3, 3]) @ T[:3, :3]
+            if stage == "before":  # the points move along their rays: the same true points after
+                true_cam[name] = (tw - T[:3, 3]) @ T[:3, :3]
             if fig is not None:
                 out["views"].setdefault(stage, {})[name] = fig
         for key, pts in ((stage, world),) + ((("truth", true_world),) if stage == "before" else ()):

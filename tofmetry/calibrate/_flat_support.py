@@ -429,7 +429,7 @@ def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: fl
     if not whole and stations_mm is not None:
         zs = tuple(float(z) for z in np.sort(np.asarray(stations_mm, np.float64).ravel()) if lo <= z <= hi)
         if len(zs) >= 2:
-            M, G = station_tie(np.array(zs), knots, to_coef, zg.mean(), hi - lo)
+            M, G = station_tie(np.array(zs), _spline_rows(zs, knots, span), to_coef, zg.mean(), hi - lo)
             tie = M @ coef - coef
             coef, jack[:, :nb] = M @ coef, jack[:, :nb] @ M.T
         else:

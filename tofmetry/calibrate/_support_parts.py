@@ -10,19 +10,15 @@ span`` the span's normalised depth.
 from __future__ import annotations
 
 import numpy as np
-from scipy.interpolate import BSpline
-
-#: cubic spline
-_DEGREE = 3
 
 
-def station_tie(zs: np.ndarray, knots: np.ndarray, to_coef: np.ndarray, z0: float,
-                 span: float) -> tuple[np.ndarray, np.ndarray]:
+def station_tie(zs: np.ndarray, Bs: np.ndarray, to_coef: np.ndarray, z0: float,
+                span: float) -> tuple[np.ndarray, np.ndarray]:
     """The curve tied to nought at the stations ``zs`` [mm]: ``M`` (B, B) maps its coefficients to those
     with ``k0 + k1 u + k2 u^2`` (``u = (Z - z0) / span``; ``k2`` held at 0 with two stations) added, fitted
     by least squares to minus the curve there; ``G`` (B, S) maps the stations' own residuals [mm] to the
-    coefficients (their covariance). ``to_coef`` (B, 3): ``(1, u, u^2)`` to spline coefficients."""
-    Bs = BSpline.design_matrix(zs, knots, _DEGREE).toarray()
+    coefficients (their covariance). ``Bs`` (S, B): the curve's basis functions at the stations; ``to_coef``
+    (B, 3): ``(1, u, u^2)`` to spline coefficients."""
     u = (zs - z0) / span
     A = np.column_stack([np.ones_like(u), u, u ** 2])[:, :min(3, len(zs))]
     G = to_coef[:, :A.shape[1]] @ np.linalg.pinv(A)
