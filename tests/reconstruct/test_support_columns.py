@@ -9,39 +9,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from tofmetry.reconstruct._preprocess import ViewData
-from tofmetry.reconstruct._segment import Segmentation
+from tests.reconstruct.floor_scenes import INTR, floor_and_box
 from tofmetry.reconstruct._support_curve import support_samples
-from tofmetry.sensor import CameraIntrinsics
-
-INTR = CameraIntrinsics(512, 424, 365.0, 365.0, 256.0, 212.0)
-
-
-def floor_and_box() -> tuple[ViewData, Segmentation]:
-    H, W = INTR.shape
-    rays = INTR.ray_table(True).reshape(-1, 2)
-    t = np.radians(30.0)
-    up = np.array([0.0, -np.cos(t), -np.sin(t)])  # world up in the camera frame
-    h = 0.5
-    den = -(np.c_[rays, np.ones(len(rays))] @ up)
-    z = np.where(den > 1e-6, h / np.maximum(den, 1e-6), np.inf)
-    floor = (z > 0.4) & (z < 2.0)
-    box = (np.abs(rays[:, 0]) < 0.08) & (rays[:, 1] > -0.1) & (rays[:, 1] < 0.05)  # in front of the floor there
-    z = np.where(box, 0.9, z)
-    keep = floor | box
-    index = np.nonzero(keep)[0]
-    pts = np.c_[rays[index], np.ones(len(index))] * z[index, None]
-    depth = np.zeros(H * W)
-    depth[index] = z[index] * 1e3
-    n = len(index)
-    view = ViewData("00", depth.reshape(H, W), pts, index, np.tile(-up, (n, 1)), np.ones(n), None, {})
-    obj = box[index]
-    seg = Segmentation(obj, ~obj, None, np.r_[up, h], 0.9)
-    return view, seg
 
 
 def test_the_columns_keep_the_floor_below_the_object_over_its_whole_span():
-    view, seg = floor_and_box()
+    view, seg = floor_and_box(0.5, 30.0, 0.08, (-0.1, 0.05), 0.9, 0.4)  # the box in front of the floor there
     z_all, xy_all = support_samples([view], [seg], INTR, 0.01, 12.0)
     z_col, xy_col = support_samples([view], [seg], INTR, 0.01, 12.0, columns=0.05)
     x_obj = INTR.ray_table(True).reshape(-1, 2)[view.index[seg.object_mask], 0]

@@ -10,12 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from tofmetry.reconstruct._preprocess import ViewData
-from tofmetry.reconstruct._segment import Segmentation
+from tests.reconstruct.floor_scenes import INTR, floor_and_box
 from tofmetry.reconstruct._support_curve import correct_by_support
-from tofmetry.sensor import CameraIntrinsics
 
-INTR = CameraIntrinsics(512, 424, 365.0, 365.0, 256.0, 212.0)
 POSES = [(0.30, 20), (0.40, 28), (0.50, 35), (0.35, 45), (0.60, 60), (0.45, 25)]  # height [m], pitch [deg]
 
 
@@ -31,28 +28,12 @@ def error_mm(z, xy):
     return wiggle_mm(z) + xy[:, 0] ** 2 / 0.25 * side_mm(z)
 
 
-def view_of(h: float, pitch_deg: float, rng) -> tuple[ViewData, Segmentation]:
+def view_of(h: float, pitch_deg: float, rng):
     """A floor ``h`` below the camera pitched down ``pitch_deg``, a box face in the middle at 0.95 of the floor's
     depth there; every depth moved by :func:`error_mm` and 0.5 mm of noise."""
-    H, W = INTR.shape
-    rays = INTR.ray_table(True).reshape(-1, 2)
-    t = np.radians(pitch_deg)
-    up = np.array([0.0, -np.cos(t), -np.sin(t)])  # world up in the camera frame
-    den = -(np.c_[rays, np.ones(len(rays))] @ up)
-    z = np.where(den > 1e-6, h / np.maximum(den, 1e-6), np.inf)
-    floor = (z > 0.45) & (z < 2.0)
-    box = (np.abs(rays[:, 0]) < 0.1) & (np.abs(rays[:, 1]) < 0.08) & floor
-    z = np.where(box, 0.95 * h / -(np.array([0.0, 0.0, 1.0]) @ up), z)
-    index = np.nonzero(floor)[0]
-    zm = z[index] * 1e3
-    zm = zm + error_mm(zm, rays[index]) + rng.normal(0.0, 0.5, len(index))
-    pts = np.c_[rays[index], np.ones(len(index))] * zm[:, None] * 1e-3
-    depth = np.zeros(H * W)
-    depth[index] = zm
-    n = len(index)
-    view = ViewData(f"{pitch_deg:02d}", depth.reshape(H, W), pts, index, np.tile(-up, (n, 1)), np.ones(n), None, {})
-    obj = box[index]
-    return view, Segmentation(obj, ~obj, None, np.r_[up, h], 0.9)
+    box_z = 0.95 * h / np.sin(np.radians(pitch_deg))  # the floor's depth on the optical axis
+    return floor_and_box(h, pitch_deg, 0.1, (-0.08, 0.08), box_z, 0.45, error_mm=error_mm, noise_mm=0.5, rng=rng,
+                         name=f"{pitch_deg:02d}")
 
 
 def object_gain_truth(report: dict, z_obj: np.ndarray) -> float:
