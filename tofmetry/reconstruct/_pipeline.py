@@ -206,9 +206,20 @@ class ReconstructionPipeline:
                                         self.cfg.segment.plane_threshold_mm * 1e-3, pc.support_curve_step_mm,
                                         pc.support_curve_smooth_mm, anchors, level,
                                         self.calibration_stations_mm() if pc.support_curve_stations else None,
-                                        pc.support_curve_columns, tuple(pc.support_curve_lateral))
+                                        pc.support_curve_columns, tuple(pc.support_curve_lateral),
+                                        self.support_curve_bound_mm())
             adv()
         return report
+
+    def support_curve_bound_mm(self) -> float | None:
+        """The most range error a support curve may read at the object's depths [mm]
+        (``preprocess.support_curve_max_mm`` plus ``support_curve_max_sigmas`` times the calibration's
+        predicted error there); None without a bound or a calibration."""
+        pc = self.cfg.preprocess
+        predicted = calibration_central_mm(self.prediction_at_object) if self.cal is not None else None
+        if pc.support_curve_max_mm is None or predicted is None:
+            return None
+        return pc.support_curve_max_mm + pc.support_curve_max_sigmas * predicted
 
     def calibration_stations_mm(self) -> list[float] | None:
         """The depths of the depth calibration's stations [mm] (its fit's samples), None without them."""
@@ -440,6 +451,7 @@ class ReconstructionPipeline:
         mat_scale = None if self.mat is None else pattern_scale(self.mat.fixes, calibration_central_mm(pred), rc.mat_scale_floor_pct)
         if pattern_scale_warning(mat_scale):
             verdict["warnings"].append(pattern_scale_warning(mat_scale))
+        verdict["warnings"] += (support or {}).get("refused", [])  # curves beyond what the calibration can have left
         if slab is not None and slab["slab"] and self.mat is None:  # the mat places both faces
             verdict["reasons"].append(slab_reason(slab, names))
             verdict["reliable"] = False

@@ -75,7 +75,7 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
                        band_m: float, clear_px: float, plane_threshold_m: float, step_mm: float,
                        smooth_mm: float, anchors: list | None = None, level: bool = True,
                        stations_mm: list[float] | None = None, columns: float | None = None,
-                       lateral: tuple = ()) -> dict:
+                       lateral: tuple = (), max_error_mm: float | None = None) -> dict:
     """Fit the support's range curve, levelled on the object's depths, and subtract it from every
     view's depth, in place.
 
@@ -95,6 +95,9 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
     support's points in the object's image columns only (:func:`support_samples`). ``lateral``: image terms
     the curve changes by across the image (:func:`~tofmetry.calibrate.flat_support_curve`); each point is then
     corrected by the curve at its own ray, and the object's gain and level are read at its own pixels.
+    ``max_error_mm``: the most range error a curve may read at the object's depths (:func:`fitted_curve`);
+    a curve from the object's columns that reads more gives way to the whole support's, and one from the
+    whole support that reads more is not applied (``applied`` False, ``why``). None: no bound.
 
     Returns
     -------
@@ -103,21 +106,23 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
     changed over the object's measured depths (``object_gain_pct``, its jackknife ``object_gain_sigma_pct``)
     and those depths' 5-95 % span (``object_depth_mm``)
     """
-    z_mm, xy = support_samples(views, segs, intr, band_m, clear_px, columns)
-    try:
-        curve = flat_support_curve(z_mm, xy, step_mm=step_mm, smooth_mm=smooth_mm, anchors=anchors,
-                                   stations_mm=stations_mm, lateral=lateral)
-    except EstimationError as exc:
-        return {"applied": False, "why": str(exc)}
-    # levelled, the object's own mean depth stays as the calibration left it (session 34, on a bar of draw 74:
-    # unlevelled, its mean distance went 0.22 -> 0.39 mm). Not levelled (by default where the calibration warns: the
-    # views were placed by their measured support planes, which hold the curve's 1, Z and Z^2 parts; the object
-    # is off those placements by the rest, its level here (99 runs of draws 80-84: the model's mean signed
-    # deviation followed it, correlation -0.87; the ten largest levels unlevelled: mean |d| 1.45 -> 0.29 mm
-    # at best, two worse, bench/robustness/README.md)
     rays = intr.ray_table(True).reshape(-1, 2)
     z_obj = np.concatenate([v.points[s.object_mask, 2] for v, s in zip(views, segs)]) * 1e3
     xy_obj = np.concatenate([rays[v.index[s.object_mask]] for v, s in zip(views, segs)])
+    refused = []  # curves beyond the bound: from the object's columns, then from the whole support
+    for cols in ((columns, None) if columns is not None else (None,)):
+        z_mm, xy = support_samples(views, segs, intr, band_m, clear_px, cols)
+        try:
+            curve = flat_support_curve(z_mm, xy, step_mm=step_mm, smooth_mm=smooth_mm, anchors=anchors,
+                                       stations_mm=stations_mm, lateral=lateral)
+        except EstimationError as exc:
+            return {"applied": False, "why": str(exc)} | ({"refused": refused} if refused else {})
+        beyond = curve_beyond(curve, z_obj, xy_obj, max_error_mm)
+        if beyond is None:
+            break
+        refused.append(("from the object's image columns, " if cols is not None else "") + beyond)
+    else:
+        return {"applied": False, "why": refused[-1], "refused": refused}
     curve.level_mm = curve.tie_mean_mm(z_obj)  # the tie changes the curve's slope at the object, not its level
     lv, slv = curve.mean_error(z_obj, xy_obj)
     if level:
@@ -140,4 +145,27 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
             "object_level_mm": round(lv, 3), "object_offset_sigma_mm": round(slv, 3)}
     if curve.anchored:
         out["anchored_level_mm"] = round(lv, 3)
+    if refused:  # the object's columns gave way to the whole support
+        out["refused"] = refused
     return out | curve.to_dict()
+
+
+def curve_beyond(curve, z_obj_mm: np.ndarray, xy_obj: np.ndarray, max_error_mm: float | None) -> str | None:
+    """Why the support curve ``curve`` (:class:`~tofmetry.calibrate.FlatSupportCurve`) cannot be the range
+    error the calibration left, or None: it reads more than ``max_error_mm`` [mm] of it at the object's
+    points (``z_obj_mm`` (N,) measured depths [mm], ``xy_obj`` (N, 2) their normalised rays; the 1-99 % of
+    the curve there, its station tie included). None too without a bound or object points.
+
+    Such a curve did not find the range error: its fit lost its footing (draw 118's pebble, read in its own
+    image columns, where ``x`` hardly varies: -65 mm of level and -11 % of gain at the object, 2.1 mm at most
+    from the whole support) or the support is not flat. Over the family's 1856 stored runs the curves read at
+    most 3.8 mm of level there."""
+    if max_error_mm is None or np.size(z_obj_mm) == 0:
+        return None
+    e = curve.error_mm(z_obj_mm, xy_obj) + curve.level_mm - curve.tie_mean_mm(z_obj_mm)
+    peak = float(np.max(np.abs(np.percentile(e, [1, 99]))))
+    if peak <= max_error_mm:
+        return None
+    return (f"the support curve reads {peak:.1f} mm of range error at the object's depths, more than the depth "
+            f"calibration can have left there ({max_error_mm:.1f} mm): its fit lost its footing or the support is not "
+            "flat; not applied")
