@@ -46,7 +46,8 @@ def test_a_curve_within_the_bound_is_applied_as_without_one():
 def test_a_curve_beyond_the_bound_is_not_applied_and_says_why():
     rep, moved = corrected(0.0, 1.0)  # the wiggle alone reads ~3 mm at the box's depths
     assert not rep["applied"] and moved == 0.0
-    assert "more than the depth calibration can have left there (1.0 mm)" in rep["why"] and rep["refused"] == [rep["why"]]
+    assert "more than the depth calibration can have left there (1.0 mm)" in rep["why"] and rep["why"].endswith("not applied")
+    assert rep["refused"] == [rep["why"]]
 
 
 def test_the_objects_columns_give_way_to_the_whole_support_beyond_the_bound():
@@ -54,6 +55,7 @@ def test_the_objects_columns_give_way_to_the_whole_support_beyond_the_bound():
     whole, _ = corrected(8.0, 6.0)
     cols, _ = corrected(8.0, 6.0, columns=0.05)
     assert cols_free["applied"] and cols_free["max_abs_mm"] > 10.0
-    assert cols["applied"] and cols["refused"][0].startswith("from the object's image columns, the support curve reads")
+    assert cols["applied"] and cols["refused"][0].startswith("the support curve from the object's image columns reads")
+    assert cols["refused"][0].endswith("the whole support's is used")
     # what was applied is the whole support's curve
     assert cols["object_gain_pct"] == whole["object_gain_pct"] and cols["max_abs_mm"] == whole["max_abs_mm"] < 6.0

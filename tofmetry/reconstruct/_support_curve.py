@@ -120,7 +120,8 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
         beyond = curve_beyond(curve, z_obj, xy_obj, max_error_mm)
         if beyond is None:
             break
-        refused.append(("from the object's image columns, " if cols is not None else "") + beyond)
+        refused.append(f"the support curve from the object's image columns {beyond}; the whole support's is used"
+                       if cols is not None else f"the support curve {beyond}; not applied")
     else:
         return {"applied": False, "why": refused[-1], "refused": refused}
     curve.level_mm = curve.tie_mean_mm(z_obj)  # the tie changes the curve's slope at the object, not its level
@@ -152,7 +153,7 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
 
 def curve_beyond(curve, z_obj_mm: np.ndarray, xy_obj: np.ndarray, max_error_mm: float | None) -> str | None:
     """Why the support curve ``curve`` (:class:`~tofmetry.calibrate.FlatSupportCurve`) cannot be the range
-    error the calibration left, or None: it reads more than ``max_error_mm`` [mm] of it at the object's
+    error the calibration left (a predicate: "reads ... mm ..."), or None: it reads more than ``max_error_mm`` [mm] of it at the object's
     points (``z_obj_mm`` (N,) measured depths [mm], ``xy_obj`` (N, 2) their normalised rays; the 1-99 % of
     the curve there, its station tie included). None too without a bound or object points.
 
@@ -166,6 +167,5 @@ def curve_beyond(curve, z_obj_mm: np.ndarray, xy_obj: np.ndarray, max_error_mm: 
     peak = float(np.max(np.abs(np.percentile(e, [1, 99]))))
     if peak <= max_error_mm:
         return None
-    return (f"the support curve reads {peak:.1f} mm of range error at the object's depths, more than the depth "
-            f"calibration can have left there ({max_error_mm:.1f} mm): its fit lost its footing or the support is not "
-            "flat; not applied")
+    return (f"reads {peak:.1f} mm of range error at the object's depths, more than the depth calibration can have "
+            f"left there ({max_error_mm:.1f} mm): its fit lost its footing or the support is not flat")
