@@ -10,6 +10,13 @@ from tofmetry.reconstruct._segment import Segmentation
 from tofmetry.sensor import CameraIntrinsics
 
 INTR = CameraIntrinsics(512, 424, 365.0, 365.0, 256.0, 212.0)
+#: six cameras over a floor: height [m], pitch down [deg]
+POSES = [(0.30, 20), (0.40, 28), (0.50, 35), (0.35, 45), (0.60, 60), (0.45, 25)]
+
+
+def wiggle_mm(z):
+    """A range wiggle [mm] at measured depths ``z`` [mm]: periods 470 and 900 mm, up to 3.5 mm."""
+    return 2.5 * np.sin(2 * np.pi * z / 470.0 + 0.7) + 1.0 * np.sin(2 * np.pi * z / 900.0 + 2.0)
 
 
 def floor_and_box(h_m: float, pitch_deg: float, box_x: float, box_y: tuple[float, float], box_z_m: float,

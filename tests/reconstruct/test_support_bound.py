@@ -11,17 +11,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from tests.reconstruct.floor_scenes import INTR, floor_and_box
+from tests.reconstruct.floor_scenes import INTR, POSES, floor_and_box, wiggle_mm
 from tofmetry.reconstruct._support_curve import correct_by_support
-
-POSES = [(0.30, 20), (0.40, 28), (0.50, 35), (0.35, 45), (0.60, 60), (0.45, 25)]  # height [m], pitch [deg]
 
 
 def scene(amp_mm: float):
     """The six views, every depth moved by the wiggle plus ``amp_mm`` of a 300 mm wave in the middle columns."""
     def error_mm(z, xy):
-        return (2.5 * np.sin(2 * np.pi * z / 470.0 + 0.7) + 1.0 * np.sin(2 * np.pi * z / 900.0 + 2.0)
-                + amp_mm * (np.abs(xy[:, 0]) < 0.2) * np.sin(2 * np.pi * z / 300.0))
+        return wiggle_mm(z) + amp_mm * (np.abs(xy[:, 0]) < 0.2) * np.sin(2 * np.pi * z / 300.0)
 
     rng = np.random.default_rng(5)
     pairs = [floor_and_box(h, p, 0.1, (-0.08, 0.08), 0.95 * h / np.sin(np.radians(p)), 0.45, error_mm=error_mm,

@@ -10,14 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from tests.reconstruct.floor_scenes import INTR, floor_and_box
+from tests.reconstruct.floor_scenes import INTR, POSES, floor_and_box, wiggle_mm
 from tofmetry.reconstruct._support_curve import correct_by_support
-
-POSES = [(0.30, 20), (0.40, 28), (0.50, 35), (0.35, 45), (0.60, 60), (0.45, 25)]  # height [m], pitch [deg]
-
-
-def wiggle_mm(z):
-    return 2.5 * np.sin(2 * np.pi * z / 470.0 + 0.7) + 1.0 * np.sin(2 * np.pi * z / 900.0 + 2.0)
 
 
 def side_mm(z):  # h(Z) at x = 0.5 [mm]

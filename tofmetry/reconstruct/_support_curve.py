@@ -117,6 +117,7 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
                                        stations_mm=stations_mm, lateral=lateral)
         except EstimationError as exc:
             return {"applied": False, "why": str(exc)} | ({"refused": refused} if refused else {})
+        curve.level_mm = curve.tie_mean_mm(z_obj)  # the tie changes the curve's slope at the object, not its level
         beyond = curve_beyond(curve, z_obj, xy_obj, max_error_mm)
         if beyond is None:
             break
@@ -130,7 +131,6 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
     # is off those placements by the rest, its level here (99 runs of draws 80-84: the model's mean signed
     # deviation followed it, correlation -0.87; the ten largest levels unlevelled: mean |d| 1.45 -> 0.29 mm
     # at best, two worse, bench/robustness/README.md)
-    curve.level_mm = curve.tie_mean_mm(z_obj)  # the tie changes the curve's slope at the object, not its level
     lv, slv = curve.mean_error(z_obj, xy_obj)
     if level:
         curve = curve.levelled(z_obj, xy_obj)
@@ -161,8 +161,8 @@ def curve_beyond(curve, z_obj_mm: np.ndarray, xy_obj: np.ndarray, max_error_mm: 
     """Why the support curve ``curve`` (:class:`~tofmetry.calibrate.FlatSupportCurve`) cannot be the range
     error the calibration left, as a predicate ("reads ... mm ..."), or None: it reads more than
     ``max_error_mm`` [mm] of it at the object's points (``z_obj_mm`` (N,) measured depths [mm], ``xy_obj``
-    (N, 2) their normalised rays; the 1-99 % of the curve there, its station tie included). None too
-    without a bound or object points.
+    (N, 2) their normalised rays; the 1-99 % of the curve there as it stands, its station tie included and
+    its ``level_mm`` taken off). None too without a bound or object points.
 
     Such a curve did not find the range error: its fit lost its footing (draw 118's pebble, read in its own
     image columns, where ``x`` hardly varies: -65 mm of level and -11 % of gain at the object, 2.1 mm at most
@@ -170,7 +170,7 @@ def curve_beyond(curve, z_obj_mm: np.ndarray, xy_obj: np.ndarray, max_error_mm: 
     most 3.8 mm of level there."""
     if max_error_mm is None or np.size(z_obj_mm) == 0:
         return None
-    e = curve.error_mm(z_obj_mm, xy_obj) + curve.level_mm - curve.tie_mean_mm(z_obj_mm)
+    e = curve.error_mm(z_obj_mm, xy_obj)
     peak = float(np.max(np.abs(np.percentile(e, [1, 99]))))
     if peak <= max_error_mm:
         return None
