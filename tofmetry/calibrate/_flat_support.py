@@ -63,6 +63,24 @@ _DEGREE = 3
 LATERAL_TERMS = {"x2": lambda x, y: x * x, "y2": lambda x, y: y * y, "r2": lambda x, y: x * x + y * y}
 #: the lateral curves are in mm at this value of their term (x = 0.5: about the image's edge on a Kinect v2)
 LATERAL_REF = 0.25
+#: what the curve is a function of: the measured depth ``Z'``, or the measured ray length ``Z' rho``
+#: (``rho = sqrt(1 + x^2 + y^2)``, the path whose phase a continuous-wave ToF camera measures)
+CURVE_VARIABLES = ("z", "radial")
+
+
+def curve_variable(z_mm, xy, variable: str) -> np.ndarray:
+    """The curve's variable [mm] at measured depths ``z_mm`` (N,) [mm] and normalised rays ``xy`` (N, 2):
+    ``Z'`` itself (``"z"``) or the ray length ``Z' sqrt(1 + x^2 + y^2)`` (``"radial"``)."""
+    z = np.asarray(z_mm, np.float64).ravel()
+    if variable == "z":
+        return z
+    if variable != "radial":
+        raise InputError(f"flat support curve: variable must be one of {CURVE_VARIABLES}, found {variable!r}")
+    if xy is None:
+        raise InputError("FlatSupportCurve: this curve is a function of the ray length (variable 'radial'); pass "
+                         "the points' normalised rays xy (N, 2)")
+    r = np.asarray(xy, np.float64).reshape(-1, 2)
+    return z * np.sqrt(1.0 + r[:, 0] ** 2 + r[:, 1] ** 2)
 
 
 def _spline_rows(z_mm, knots: np.ndarray, span: tuple[float, float], nu: int = 0) -> np.ndarray:
@@ -106,6 +124,9 @@ class FlatSupportCurve:
     lateral_coef_mm : (T, B_l) each term's spline ``h_k`` [mm at ``phi_k = LATERAL_REF``]: the range error
         at a pixel is ``e(Z) + sum_k phi_k / LATERAL_REF h_k(Z)``; ``coef_cov_mm2`` is then over ``coef_mm``
         and these, flattened, together
+    variable : ``"z"``: the curve is a function of the measured depth ``Z'``; ``"radial"``: of the measured ray
+        length ``Z' rho`` (:func:`curve_variable`; ``span_mm``, ``knots_mm`` and ``stations_mm`` are then ray
+        lengths, the values still depth errors in Z [mm]). Evaluating a radial curve needs the points' rays
     """
 
     span_mm: tuple[float, float]
@@ -126,6 +147,7 @@ class FlatSupportCurve:
     lateral: tuple = ()
     lateral_knots_mm: np.ndarray | None = None
     lateral_coef_mm: np.ndarray | None = None
+    variable: str = "z"
 
     def _basis(self, z_mm: np.ndarray, nu: int = 0) -> np.ndarray:
         """(N, B) the basis functions (or their ``nu``-th derivative) at ``z_mm`` clipped to the span."""
@@ -135,16 +157,17 @@ class FlatSupportCurve:
         """(N, B + T B_l) the rows over ``coef_mm`` and the lateral coefficients at depths ``z_mm`` [mm] and
         normalised rays ``xy`` (N, 2) (or their ``nu``-th derivative in Z, zero beyond the span)."""
         z = np.asarray(z_mm, np.float64).ravel()
-        R = self._basis(z, nu)
+        d = curve_variable(z, xy, self.variable)
+        R = self._basis(d, nu)
         if self.lateral:
             if xy is None:
                 raise InputError("FlatSupportCurve: this curve changes across the image (lateral "
                                  f"{list(self.lateral)}); pass the points' normalised rays xy (N, 2)")
             phi = _lateral_phi(self.lateral, np.asarray(xy, np.float64).reshape(-1, 2))
-            Bl = _spline_rows(z, self.lateral_knots_mm, self.span_mm, nu)
+            Bl = _spline_rows(d, self.lateral_knots_mm, self.span_mm, nu)
             R = np.hstack([R] + [p[:, None] * Bl for p in phi.T])
-        if nu:
-            R = R * ((z >= self.span_mm[0]) & (z <= self.span_mm[1]))[:, None]
+        if nu:  # d/dZ' = (d/dd) (dd/dZ'), dd/dZ' = rho for the ray length
+            R = R * (((d >= self.span_mm[0]) & (d <= self.span_mm[1])) * (d / z) ** nu)[:, None]
         return R
 
     @property
@@ -181,12 +204,12 @@ class FlatSupportCurve:
         b = self._rows(z_mm, xy).mean(0)
         return float(b @ self._coef - self.level_mm), float(np.sqrt(max(b @ self.coef_cov_mm2 @ b, 0.0)))
 
-    def tie_mean_mm(self, z_mm) -> float:
-        """The station tie's mean over the depths ``z_mm`` [mm] (0 untied): what the tie adds to the curve's
-        level there."""
+    def tie_mean_mm(self, z_mm, xy=None) -> float:
+        """The station tie's mean over the depths ``z_mm`` [mm] (their rays ``xy`` for a radial curve; 0 untied):
+        what the tie adds to the curve's level there."""
         if self.tie_coef_mm is None or np.size(z_mm) == 0:
             return 0.0
-        return float(self._basis(z_mm).mean(0) @ self.tie_coef_mm)
+        return float(self._basis(curve_variable(z_mm, xy, self.variable)).mean(0) @ self.tie_coef_mm)
 
     def levelled(self, z_mm, xy=None) -> "FlatSupportCurve":
         """The curve less its mean over the depths ``z_mm`` [mm] (an object's points, their rays ``xy``): it
@@ -220,9 +243,11 @@ class FlatSupportCurve:
             out["lateral_ref"] = LATERAL_REF
         return out | {
                 "notes": list(self.notes), "level_mm": round(self.level_mm, 3), "anchored": self.anchored,
-                "lateral": list(self.lateral),
+                "lateral": list(self.lateral), "variable": self.variable,
                 "n_anchors": self.n_anchors, "stations_mm": [round(float(z), 1) for z in self.stations_mm],
-                "model": "support flat: 1/Z = a x + b y + c per view, measured Z' = Z + e(Z'), e a cubic spline "
+                "model": "support flat: 1/Z = a x + b y + c per view, measured Z' = Z + "
+                         + ("e(Z'), e a cubic spline " if self.variable == "z" else
+                            "e(Z' rho), rho = sqrt(1 + x^2 + y^2) (the measured ray length), e a cubic spline ")
                          + (f"whole: its part orthogonal to 1, Z and Z^2 from the support, those from {self.n_anchors} "
                             "views' planes measured without the depth (the printed pattern's perspective)"
                             if self.anchored else
@@ -235,15 +260,16 @@ class FlatSupportCurve:
 
 
 def _design(z: np.ndarray, xy: np.ndarray, knots: np.ndarray, span: tuple[float, float],
-            lateral: tuple = (), lateral_knots: np.ndarray | None = None):
-    """Rows of one view: plane part (N, 3), curve part (N, B) and lateral part (N, T B_l), right-hand side
-    (N,), all in mm."""
+            lateral: tuple = (), lateral_knots: np.ndarray | None = None, variable: str = "z"):
+    """Rows of one view: plane part (N, 3), curve part (N, B) and lateral part (N, T B_l) (the curves at
+    the points' ``variable``, :func:`curve_variable`), right-hand side (N,), all in mm."""
     zm = z * 1e-3  # m
     P = (zm ** 2)[:, None] * np.column_stack([xy[:, 0], xy[:, 1], np.ones(len(z))]) * 1e3  # Z'^2 (x, y, 1) [mm m]
-    B = -_spline_rows(z, knots, span)
+    d = curve_variable(z, xy, variable)
+    B = -_spline_rows(d, knots, span)
     L = np.zeros((len(z), 0))
     if lateral:
-        Bl = _spline_rows(z, lateral_knots, span)
+        Bl = _spline_rows(d, lateral_knots, span)
         L = np.hstack([-p[:, None] * Bl for p in _lateral_phi(lateral, xy).T])
     return P, B, L, z
 
@@ -274,7 +300,7 @@ def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: fl
                        max_points_per_view: int = 8000, seed: int = 0,
                        anchors: list | None = None, stations_mm: list[float] | None = None,
                        station_sigma_mm: float = 0.3, lateral: tuple = (), lateral_step_mm: float | None = None,
-                       lateral_sigma_mm: float = 5.0) -> FlatSupportCurve:
+                       lateral_sigma_mm: float = 5.0, variable: str = "z") -> FlatSupportCurve:
     """Fit the range-error curve a flat support shows in several views of it.
 
     Parameters
@@ -310,6 +336,12 @@ def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: fl
     lateral_step_mm : the lateral curves' knot spacing [mm] (None: twice ``step_mm``)
     lateral_sigma_mm : prior 1-sigma of the lateral curves' values [mm] (holds them where the support's
         points do not tell them from ``e``); their second differences take ``smooth_mm``
+    variable : ``"z"``: ``e`` a function of the measured depth ``Z'``; ``"radial"``: of the measured ray length
+        ``Z' rho`` (:func:`curve_variable`), the path whose phase a continuous-wave ToF camera measures. A
+        range error that wiggles in the ray length reads, at one ``Z'``, differently on the support's rows
+        (below the object, ``rho`` up to 1.1) than on the object's (about the image's centre, ``rho`` near 1):
+        a 60 mm shift of a wiggle's phase at 1 m. The knots, the span, the stations and the anchors' depths
+        are then ray lengths; the planes stay in ``Z``
 
     Returns
     -------
@@ -322,6 +354,8 @@ def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: fl
     """
     if len(z_mm) != len(xy):
         raise InputError(f"flat_support_curve: {len(z_mm)} depth arrays for {len(xy)} ray arrays")
+    if variable not in CURVE_VARIABLES:
+        raise InputError(f"flat_support_curve: variable must be one of {CURVE_VARIABLES}, found {variable!r}")
     views, held = [], []
     rng = np.random.default_rng(seed)
     if anchors is not None and len(anchors) != len(z_mm):
@@ -340,7 +374,7 @@ def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: fl
     if len(views) < min_views:
         raise EstimationError(f"the support shows no range curve: {len(views)} view(s) see at least {min_points} "
                               f"points of it, {min_views} needed")
-    zall = np.concatenate([v[0] for v in views])
+    zall = np.concatenate([curve_variable(*v, variable) for v in views])
     lo, hi = (float(x) for x in np.percentile(zall, [0.5, 99.5]))
     if hi - lo < min_span_steps * step_mm:
         raise EstimationError(f"the support shows no range curve: its depths span {hi - lo:.0f} mm, "
@@ -370,7 +404,7 @@ def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: fl
     nl = len(lat) * nbl
     blocks = []
     for z, r in views:
-        P, B, L, y = _design(z, r, knots, span, lat, lknots)
+        P, B, L, y = _design(z, r, knots, span, lat, lknots, variable)
         blocks.append((P, np.hstack([B @ Q, L]), y, np.ones(len(z))))
     DQ = np.diff(np.eye(nb), 2, axis=0) @ Q
     nq = Q.shape[1]
@@ -416,7 +450,8 @@ def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: fl
     coef, lat_coef = unpack(c)[:nb], c[nq:]
     if whole:  # what the planes took up (the parts the support cannot show), from the anchors
         plane_of = dict(planes)
-        samples = [anchor_samples(views[j][1][used[j]], plane_of[j], *held[j]) for j in anchored]
+        samples = [anchor_samples(views[j][1][used[j]], plane_of[j], *held[j], radial=variable == "radial")
+                   for j in anchored]
 
         def share(drop: int | None = None) -> np.ndarray:  # the planes' share, without anchor ``drop``
             return to_coef @ anchored_part([x for i, x in enumerate(samples) if i != drop], zg.mean(), hi - lo)
@@ -442,4 +477,4 @@ def flat_support_curve(z_mm: list[np.ndarray], xy: list[np.ndarray], step_mm: fl
                             float(1.4826 * np.median(np.abs(np.concatenate(flat)))), float(step_mm),
                             anchored=whole, n_anchors=len(anchored) if whole else 0, tie_coef_mm=tie,
                             stations_mm=zs, lateral=lat, lateral_knots_mm=lknots,
-                            lateral_coef_mm=lat_coef.reshape(len(lat), nbl) if lat else None)
+                            lateral_coef_mm=lat_coef.reshape(len(lat), nbl) if lat else None, variable=variable)

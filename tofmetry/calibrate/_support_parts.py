@@ -26,18 +26,20 @@ def station_tie(zs: np.ndarray, Bs: np.ndarray, to_coef: np.ndarray, z0: float,
 
 
 def anchor_samples(xy: np.ndarray, p: np.ndarray, anchor: np.ndarray, anchor_cov: np.ndarray,
-                    n: int = 40) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                    n: int = 40, radial: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One anchored view's evidence on the curve's parts a plane absorbs: at ``n`` of its support rays
     ``xy`` (sorted by depth, evenly), the depth its fitted plane ``p`` gives less the depth its anchor
     gives [mm] (the plane took up what the fitted curve left of the range error; the anchor did not), the
-    anchor's depth [mm] and that difference's covariance from the anchor's (n, n) [mm^2]."""
+    anchor's depth [mm] (its ray length with ``radial``, a curve's variable) and that difference's covariance
+    from the anchor's (n, n) [mm^2]."""
     R = np.column_stack([xy, np.ones(len(xy))])
     za = 1e3 / (R @ np.asarray(anchor, np.float64))
     pick = np.argsort(za)[np.linspace(0, len(za) - 1, n).astype(int)]
     R, za = R[pick], za[pick]
     delta = 1e3 / (R @ p) - za
     G = -(za[:, None] ** 2) * 1e-3 * R  # d(1e3 / (R . a)) / da [mm m]
-    return delta, za, G @ anchor_cov @ G.T
+    at = za * np.sqrt(1.0 + R[:, 0] ** 2 + R[:, 1] ** 2) if radial else za
+    return delta, at, G @ anchor_cov @ G.T
 
 
 def anchored_part(samples: list, z0: float, span: float) -> np.ndarray:

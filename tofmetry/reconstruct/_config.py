@@ -68,6 +68,11 @@ class PreprocessConfig(BaseModel):
         "runs' scale no better (|.| mean 0.238 -> 0.248 % over 11): the poses' share, which the depth's had offset, "
         "remained. It held where the object's columns broke (draw 118's pebble: mean |d| 0.15 mm, completeness 0.998); "
         "['x2', 'y2'] broke on 2 of 3 (on a support, Z follows the image row)")
+    support_curve_variable: Literal["z", "radial"] = Field(
+        "z", description="what the support curve is a function of: the measured depth Z' ('z') or the measured ray "
+        "length Z' sqrt(1 + x^2 + y^2) ('radial', the path whose phase a continuous-wave ToF camera measures): a "
+        "range error wiggling in the ray length reads, at one depth, differently on the support's rows below the "
+        "object than at the object (tofmetry.calibrate.flat_support_curve)")
     support_curve_max_mm: float | None = Field(5.0, gt=0, description="a support curve reading more range error at "
                                                "the object's depths than this [mm] plus support_curve_max_sigmas "
                                                "times the depth calibration's predicted error there is refused (its "

@@ -207,7 +207,7 @@ class ReconstructionPipeline:
                                         pc.support_curve_smooth_mm, anchors, level,
                                         self.calibration_stations_mm() if pc.support_curve_stations else None,
                                         pc.support_curve_columns, tuple(pc.support_curve_lateral),
-                                        self.support_curve_bound_mm())
+                                        self.support_curve_bound_mm(), pc.support_curve_variable)
             adv()
         return report
 

@@ -75,7 +75,7 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
                        band_m: float, clear_px: float, plane_threshold_m: float, step_mm: float,
                        smooth_mm: float, anchors: list | None = None, level: bool = True,
                        stations_mm: list[float] | None = None, columns: float | None = None,
-                       lateral: tuple = (), max_error_mm: float | None = None) -> dict:
+                       lateral: tuple = (), max_error_mm: float | None = None, variable: str = "z") -> dict:
     """Fit the support's range curve, levelled on the object's depths, and subtract it from every
     view's depth, in place.
 
@@ -97,7 +97,9 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
     corrected by the curve at its own ray, and the object's gain and level are read at its own pixels.
     ``max_error_mm``: the most range error a curve may read at the object's depths (:func:`curve_beyond`);
     a curve from the object's columns that reads more gives way to the whole support's, and one from the
-    whole support that reads more is not applied (``applied`` False, ``why``). None: no bound.
+    whole support that reads more is not applied (``applied`` False, ``why``). None: no bound. ``variable``:
+    the curve a function of the measured depth (``"z"``) or of the measured ray length (``"radial"``,
+    :func:`~tofmetry.calibrate.flat_support_curve`).
 
     Returns
     -------
@@ -114,10 +116,10 @@ def correct_by_support(views: list[ViewData], segs: list[Segmentation], intr: Ca
         z_mm, xy = support_samples(views, segs, intr, band_m, clear_px, cols)
         try:
             curve = flat_support_curve(z_mm, xy, step_mm=step_mm, smooth_mm=smooth_mm, anchors=anchors,
-                                       stations_mm=stations_mm, lateral=lateral)
+                                       stations_mm=stations_mm, lateral=lateral, variable=variable)
         except EstimationError as exc:
             return {"applied": False, "why": str(exc)} | ({"refused": refused} if refused else {})
-        curve.level_mm = curve.tie_mean_mm(z_obj)  # the tie changes the curve's slope at the object, not its level
+        curve.level_mm = curve.tie_mean_mm(z_obj, xy_obj)  # the tie changes the curve's slope at the object, not its level
         beyond = curve_beyond(curve, z_obj, xy_obj, max_error_mm)
         if beyond is None:
             break
