@@ -72,7 +72,13 @@ class PreprocessConfig(BaseModel):
         "z", description="what the support curve is a function of: the measured depth Z' ('z') or the measured ray "
         "length Z' sqrt(1 + x^2 + y^2) ('radial', the path whose phase a continuous-wave ToF camera measures): a "
         "range error wiggling in the ray length reads, at one depth, differently on the support's rows below the "
-        "object than at the object (tofmetry.calibrate.flat_support_curve)")
+        "object than at the object (tofmetry.calibrate.flat_support_curve). 'z' (the default): on noise-free walls "
+        "(bench.robustness.wall_transfer) the ray length carried the calibration's residual slope from the rows "
+        "below to the image's centre far better on sensors whose error is in the ray length (median 0.14 -> 0.03 "
+        "% RMS), worse on those in Z; but on 20 development runs (session 62, rows "
+        "object_family_dev_radial_ab_*) the models' |scale| mean went only 0.272 -> 0.267 % (18 separable, 13 -> 13 "
+        "beyond 0.2 %) and mean |d| median 0.300 -> 0.314 mm (a baluster 0.40 -> 0.58 mm): the transfer is not "
+        "what limits the scale")
     support_curve_max_mm: float | None = Field(5.0, gt=0, description="a support curve reading more range error at "
                                                "the object's depths than this [mm] plus support_curve_max_sigmas "
                                                "times the depth calibration's predicted error there is refused (its "
