@@ -17,10 +17,10 @@ the centre's own. Per seed (``rows.jsonl``): the sensor's range variable and how
 simulator's ``range_variable`` / ``range_apply``), the centre's own slope RMS [%] (what no curve leaves), and per
 band the RMS of the slope error carried in Z and in the ray length [%].
 
-Measured (2026-12-07, session 62) on ten development sensors (``bench/results/wall_transfer_dev_rows.jsonl``): on
-the eight whose range error is a function of the ray length, carried in the ray length the slope error fell or
-stayed on every band (the rows 0.25-0.45 below the centre: median 0.14 -> 0.03 % RMS, fandisk 1301630555 0.22 ->
-0.02 %); on the two whose error is in Z it rose there (0.071 -> 0.081 and 0.124 -> 0.156 %). End to end the
+Measured (2026-12-07, session 62) on eleven development sensors (``bench/results/wall_transfer_dev_rows.jsonl``):
+on the nine whose range error is a function of the ray length, carried in the ray length the slope error fell or
+stayed on every band (the rows 0.25-0.45 below the centre: median 0.130 -> 0.034 % RMS, fandisk 1301630555's 0.223
+-> 0.018 %); on the two whose error is in Z it rose there (0.071 -> 0.081 and 0.124 -> 0.157 %). End to end the
 support curve's variable moved the models' scale far less (``preprocess.support_curve_variable``).
 """
 

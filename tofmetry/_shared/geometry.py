@@ -1,5 +1,5 @@
 """Small geometric helpers used by several packages: rotation angle, SVD plane fit, principal axes,
-rigid transform of points.
+rigid transform of points, a ray's length per unit of depth.
 
 Pure functions on arrays; points are (N, 3) in any length unit (the result keeps it).
 """
@@ -75,6 +75,13 @@ def fit_plane_svd(points: np.ndarray, orient: np.ndarray | None = None) -> np.nd
     if orient is not None and n @ np.asarray(orient, dtype=np.float64)[:3] < 0:
         n = -n
     return np.r_[n, -n @ c]
+
+
+def ray_factor(xy: np.ndarray) -> np.ndarray:
+    """``rho = sqrt(1 + x^2 + y^2)`` [-] of normalised rays ``xy`` (..., 2): a point's ray length is ``Z rho``
+    (camera frame: x right, y down, z forward; Z the depth along the optical axis)."""
+    xy = np.asarray(xy, dtype=np.float64)
+    return np.sqrt(1.0 + xy[..., 0] ** 2 + xy[..., 1] ** 2)
 
 
 def skew(v: np.ndarray) -> np.ndarray:

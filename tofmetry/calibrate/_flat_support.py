@@ -54,6 +54,7 @@ import numpy as np
 from scipy.interpolate import BSpline
 from scipy.linalg import null_space
 
+from tofmetry._shared.geometry import ray_factor
 from tofmetry.calibrate._support_parts import anchor_samples, anchored_part, station_tie
 from tofmetry.errors import EstimationError, InputError
 
@@ -76,11 +77,15 @@ def curve_variable(z_mm, xy, variable: str) -> np.ndarray:
         return z
     if variable != "radial":
         raise InputError(f"flat support curve: variable must be one of {CURVE_VARIABLES}, found {variable!r}")
+    return z * _rho(xy)
+
+
+def _rho(xy) -> np.ndarray:
+    """(N,) the ray length per unit of Z of normalised rays ``xy`` (N, 2), which a radial curve needs."""
     if xy is None:
         raise InputError("FlatSupportCurve: this curve is a function of the ray length (variable 'radial'); pass "
                          "the points' normalised rays xy (N, 2)")
-    r = np.asarray(xy, np.float64).reshape(-1, 2)
-    return z * np.sqrt(1.0 + r[:, 0] ** 2 + r[:, 1] ** 2)
+    return ray_factor(np.asarray(xy, np.float64).reshape(-1, 2))
 
 
 def _spline_rows(z_mm, knots: np.ndarray, span: tuple[float, float], nu: int = 0) -> np.ndarray:
@@ -155,7 +160,7 @@ class FlatSupportCurve:
 
     def _rows(self, z_mm, xy, nu: int = 0) -> np.ndarray:
         """(N, B + T B_l) the rows over ``coef_mm`` and the lateral coefficients at depths ``z_mm`` [mm] and
-        normalised rays ``xy`` (N, 2) (or their ``nu``-th derivative in Z, zero beyond the span)."""
+        normalised rays ``xy`` (N, 2) (or their ``nu``-th derivative in Z', zero beyond the span)."""
         z = np.asarray(z_mm, np.float64).ravel()
         d = curve_variable(z, xy, self.variable)
         R = self._basis(d, nu)
@@ -166,8 +171,10 @@ class FlatSupportCurve:
             phi = _lateral_phi(self.lateral, np.asarray(xy, np.float64).reshape(-1, 2))
             Bl = _spline_rows(d, self.lateral_knots_mm, self.span_mm, nu)
             R = np.hstack([R] + [p[:, None] * Bl for p in phi.T])
-        if nu:  # d/dZ' = (d/dd) (dd/dZ'), dd/dZ' = rho for the ray length
-            R = R * (((d >= self.span_mm[0]) & (d <= self.span_mm[1])) * (d / z) ** nu)[:, None]
+        if nu:  # zero beyond the span; in the ray length d/dZ' = rho d/dd
+            R = R * ((d >= self.span_mm[0]) & (d <= self.span_mm[1]))[:, None]
+            if self.variable == "radial":
+                R = R * (_rho(xy) ** nu)[:, None]
         return R
 
     @property

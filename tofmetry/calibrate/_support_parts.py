@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from tofmetry._shared.geometry import ray_factor
+
 
 def station_tie(zs: np.ndarray, Bs: np.ndarray, to_coef: np.ndarray, z0: float,
                 span: float) -> tuple[np.ndarray, np.ndarray]:
@@ -38,7 +40,7 @@ def anchor_samples(xy: np.ndarray, p: np.ndarray, anchor: np.ndarray, anchor_cov
     R, za = R[pick], za[pick]
     delta = 1e3 / (R @ p) - za
     G = -(za[:, None] ** 2) * 1e-3 * R  # d(1e3 / (R . a)) / da [mm m]
-    at = za * np.sqrt(1.0 + R[:, 0] ** 2 + R[:, 1] ** 2) if radial else za
+    at = za * ray_factor(R[:, :2]) if radial else za
     return delta, at, G @ anchor_cov @ G.T
 
 

@@ -74,8 +74,8 @@ class PreprocessConfig(BaseModel):
         "range error wiggling in the ray length reads, at one depth, differently on the support's rows below the "
         "object than at the object (tofmetry.calibrate.flat_support_curve). 'z' (the default): on noise-free walls "
         "(bench.robustness.wall_transfer) the ray length carried the calibration's residual slope from the rows "
-        "below to the image's centre far better on sensors whose error is in the ray length (median 0.14 -> 0.03 "
-        "% RMS), worse on those in Z; but on 20 development runs (session 62, rows "
+        "below to the image's centre far better on sensors whose error is in the ray length (9 of 11: median 0.13 -> "
+        "0.03 % RMS), worse on those in Z; but on 20 development runs (session 62, rows "
         "object_family_dev_radial_ab_*) the models' |scale| mean went only 0.272 -> 0.267 % (18 separable, 13 -> 13 "
         "beyond 0.2 %) and mean |d| median 0.300 -> 0.314 mm (a baluster 0.40 -> 0.58 mm): the transfer is not "
         "what limits the scale")

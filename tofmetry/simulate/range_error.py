@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from tofmetry._shared.geometry import ray_factor
 from tofmetry.errors import InputError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -77,12 +78,6 @@ def range_error_curve_mm(d_mm: np.ndarray, em: "ErrorModel") -> np.ndarray:
             w = w + a * np.sin(2 * np.pi * k * d / period + p)
     w = w + em.wiggle_steep_mm * np.maximum(d - em.wiggle_steep_start_m, 0.0) ** em.wiggle_steep_power
     return w
-
-
-def ray_factor(xy: np.ndarray) -> np.ndarray:
-    """``rho = sqrt(1 + x^2 + y^2)`` [-]: radial range = Z rho, from normalised rays (..., 2)."""
-    xy = np.asarray(xy, dtype=np.float64)
-    return np.sqrt(1.0 + xy[..., 0] ** 2 + xy[..., 1] ** 2)
 
 
 def needs_rays(em: "ErrorModel") -> bool:
