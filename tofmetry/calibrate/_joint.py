@@ -40,6 +40,7 @@ import scipy.linalg as sla
 from scipy import sparse
 from scipy.interpolate import BSpline
 
+from tofmetry._shared.geometry import ray_factor
 from tofmetry.errors import InputError
 
 
@@ -127,7 +128,7 @@ def block_cells(measured: np.ndarray, reference: np.ndarray, weight: np.ndarray,
                  ("u", uu), ("v", vv), ("ref", reference))}
         s2 = np.square(np.nan_to_num(sem)) if sem is not None else np.ones((h, w))
         var = bsum(s2)[keep] / n[keep] ** 2
-        q_r = measured * np.sqrt(1.0 + rays[..., 0] ** 2 + rays[..., 1] ** 2)
+        q_r = measured * ray_factor(rays)
         var_q = {}
         for key, q in (("radial", q_r), ("z", measured)):
             mq = bsum(q)[keep] / n[keep]
@@ -136,7 +137,7 @@ def block_cells(measured: np.ndarray, reference: np.ndarray, weight: np.ndarray,
     if sem is None:
         var = 1.0 / nk  # unknown noise: weight by the pixel count
     wt = 1.0 / (var + (floor_mm ** 2 if sem is not None else 0.0))
-    rho = np.sqrt(1.0 + mean["x"] ** 2 + mean["y"] ** 2)
+    rho = ray_factor(np.stack([mean["x"], mean["y"]], axis=-1))
     return Cells(mean["e"], mean["m"], mean["x"], mean["y"], rho, mean["u"], mean["v"], mean["ref"], wt, var, nk,
                  bool(free_tilt), name, var_q)
 

@@ -36,6 +36,7 @@ from functools import cached_property
 import numpy as np
 from scipy.interpolate import BSpline
 
+from tofmetry._shared.geometry import ray_factor
 from tofmetry.calibrate._support import CalibrationSupport
 from tofmetry.calibrate._tables import CorrectionTables, build_tables
 from tofmetry.errors import InputError, SensorMismatchError
@@ -190,8 +191,7 @@ class DepthCalibration:
     @cached_property
     def rho(self) -> np.ndarray:
         """(H, W) float64 ray length per unit depth ``sqrt(1 + x^2 + y^2)`` of each pixel."""
-        r = self.intrinsics.ray_table()
-        return np.sqrt(1.0 + r[..., 0] ** 2 + r[..., 1] ** 2)
+        return ray_factor(self.intrinsics.ray_table())
 
     def correction(self, depth_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Correction [mm] to subtract from a depth image, and where it is supported.

@@ -427,7 +427,7 @@ def warmup_mm(t_s: np.ndarray | float, em: ErrorModel) -> np.ndarray:
 
 def vignetting(xy: np.ndarray, em: ErrorModel) -> np.ndarray:
     """Illumination falloff ``cos(theta)^p`` of the off-axis angle, from normalised rays (..., 2)."""
-    cos_t = 1.0 / np.sqrt(1.0 + xy[..., 0] ** 2 + xy[..., 1] ** 2)
+    cos_t = 1.0 / ray_factor(xy)
     return cos_t ** em.vignetting_power
 
 

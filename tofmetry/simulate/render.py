@@ -20,6 +20,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.special import ndtr
 
+from tofmetry._shared.geometry import ray_factor
 from tofmetry.errors import InputError
 from tofmetry.sensor.intrinsics import CameraIntrinsics
 from tofmetry.simulate import errors as E
@@ -206,7 +207,7 @@ def render(scene: Scene, intr: CameraIntrinsics, pose: np.ndarray, em: E.ErrorMo
     depth0.reshape(-1)[eidx[centre_miss]] = zmean[centre_miss]
     mixed = np.zeros((H, W), bool)
     mixed.reshape(-1)[eidx[emixed]] = True
-    rng_c = depth0 * 1e-3 * np.sqrt(1.0 + xy[..., 0] ** 2 + xy[..., 1] ** 2)
+    rng_c = depth0 * 1e-3 * ray_factor(xy)
     with np.errstate(invalid="ignore", divide="ignore"):
         rel = np.where(depth0 > 0, amp / E.white_amplitude(xy, np.where(depth0 > 0, rng_c, 1.0), em), 0.0)
     return Rendering(
@@ -242,7 +243,7 @@ def _wall_rays(key: tuple, rot: bytes, vignetting_power: float):
         dirs[k0:k1] = d
         norm[k0:k1] = np.sqrt(np.einsum("ij,ij->i", d, d))
     rho_cast = np.sqrt(xs * xs + ys * ys + 1.0)
-    rho = np.sqrt(1.0 + xy[..., 0] ** 2 + xy[..., 1] ** 2)
+    rho = ray_factor(xy)
     vig = (1.0 / rho) ** vignetting_power
     out = (dirs, norm, rho_cast, rho, vig)
     for a in out:
