@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.robustness import family
+from tofmetry._shared.geometry import ray_factor
 from tofmetry.simulate import scenes
 from tofmetry.simulate.family import random_sensor
 
@@ -75,7 +76,7 @@ def transfer(seed: int) -> dict:
     """The row of ``seed`` (module docstring)."""
     R, rays, form = residuals(seed)
     x, y = rays[..., 0], rays[..., 1]
-    rho = np.sqrt(1.0 + x * x + y * y)
+    rho = ray_factor(rays)
     centre = (np.abs(x) < CENTRE[0]) & (np.abs(y) < CENTRE[1])
     own = window_slopes_pct(np.nanmedian(R[:, centre], axis=1), WALLS_MM)
     rho_c = float(np.median(rho[centre]))
